@@ -1,0 +1,67 @@
+# eqhrl_ros workspace: one entry point for setup, tests and the demo.
+#
+#   make demo   set everything up, then train EQSAC on Pendulum-v1 through the ROS nodes
+#   make test   set everything up, then run the test suite
+#
+# Setup is stamp-based: a second run redoes only what changed.
+
+SHELL := /bin/bash
+.SHELLFLAGS := -eo pipefail -c
+
+PYTHON ?= python3.11
+VENV := .venv
+VPY := $(VENV)/bin/python
+BUILD := build
+# The PyPI ROS wheels are a ROS prefix of their own: share/ament_index, lib/, include/.
+ROS_ENV := AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) CMAKE_PREFIX_PATH=$(CURDIR)/$(VENV)
+CMAKE_VENV_ARGS := -DPython3_EXECUTABLE=$(CURDIR)/$(VPY) \
+	-DCMAKE_PROJECT_INCLUDE=$(CURDIR)/tools/cmake/venv_underlay_fixes.cmake \
+	-DBUILD_TESTING=OFF
+# pip on some machines lists index folders that do not exist; keep its output readable.
+PIP_QUIET := grep -v "is ignored: it is neither a file nor a directory" || true
+
+INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
+# Everything that goes into the installed eqhrl_ros (tests run from the source tree).
+PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
+	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
+
+.PHONY: setup test demo clean lock
+
+setup: $(VENV)/.stamp-eqhrl_ros
+
+$(VENV)/.stamp-deps: requirements.txt constraints.txt
+	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; the ROS 2 wheels need CPython 3.11 (set PYTHON=...)"; exit 1; }
+	test -x $(VPY) || $(PYTHON) -m venv $(VENV)
+	$(VPY) -m pip install -q -r requirements.txt -c constraints.txt 2>&1 | $(PIP_QUIET)
+	touch $@
+
+$(VENV)/.stamp-interfaces: $(VENV)/.stamp-deps $(INTERFACE_SRC) tools/cmake/venv_underlay_fixes.cmake
+	rm -rf $(BUILD)/eqhrl_interfaces
+	$(ROS_ENV) $(VENV)/bin/cmake -S eqhrl_interfaces -B $(BUILD)/eqhrl_interfaces \
+		-DCMAKE_INSTALL_PREFIX=$(CURDIR)/$(VENV) $(CMAKE_VENV_ARGS) >$(BUILD)/interfaces-configure.log \
+		|| { cat $(BUILD)/interfaces-configure.log; exit 1; }
+	$(ROS_ENV) $(VENV)/bin/cmake --build $(BUILD)/eqhrl_interfaces --target install -j2 >$(BUILD)/interfaces-build.log \
+		|| { tail -50 $(BUILD)/interfaces-build.log; exit 1; }
+	touch $@
+
+# A regular (not editable) install: it puts the ament index entry, params and launch
+# files into .venv/share like a ROS install space, which editable installs skip.
+$(VENV)/.stamp-eqhrl_ros: $(VENV)/.stamp-interfaces $(PACKAGE_SRC)
+	$(VPY) -m pip install -q --no-deps --no-build-isolation --force-reinstall ./eqhrl_ros 2>&1 | $(PIP_QUIET)
+	rm -rf eqhrl_ros/build eqhrl_ros/*.egg-info
+	touch $@
+
+test: setup
+	$(VENV)/bin/pytest eqhrl_ros/tests
+
+demo: setup
+	$(VENV)/bin/eqhrl-demo
+
+# Refresh constraints.txt from the current .venv (after changing requirements.txt).
+lock: $(VENV)/.stamp-deps
+	{ echo "# Lock file: exact versions of every package in .venv (pip install -c constraints.txt)."; \
+	  echo "# Regenerate with: make lock"; \
+	  $(VPY) -m pip freeze --exclude-editable | sed -e 's/^torch==2.13.0+cpu/torch==2.13.0/'; } > constraints.txt
+
+clean:
+	rm -rf $(VENV) $(BUILD) runs

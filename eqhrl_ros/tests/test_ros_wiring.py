@@ -1,0 +1,77 @@
+"""ROS plumbing: the built Advise service and Float32MultiArray topics, in a private domain."""
+
+import time
+
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from std_msgs.msg import Float32MultiArray
+
+from eqhrl_interfaces.srv import Advise
+
+
+def spin_until(executor, condition, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while not condition() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+    return condition()
+
+
+def test_advise_service_round_trip(ros_context):
+    server = rclpy.create_node('advise_server', context=ros_context)
+    client_node = rclpy.create_node('advise_client', context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    try:
+        def serve(request, response):
+            response.advised = request.discrepancy > 1.0
+            response.action = [2.0 * x for x in request.proposed_action]
+            response.reason = '' if response.advised else 'critics agree'
+            response.expert_name = 'doubler'
+            return response
+
+        server.create_service(Advise, 'advise', serve)
+        client = client_node.create_client(Advise, 'advise')
+        executor.add_node(server)
+        executor.add_node(client_node)
+        assert spin_until(executor, client.service_is_ready)
+
+        request = Advise.Request(observation=[0.1, 0.2, 0.3], proposed_action=[0.25, -0.5],
+                                 action_low=[-1.0, -1.0], action_high=[1.0, 1.0],
+                                 discrepancy=1.5, entropy=-0.3, episode=4, step=17)
+        future = client.call_async(request)
+        executor.spin_until_future_complete(future, timeout_sec=5.0)
+        response = future.result()
+        assert response.advised and list(response.action) == [0.5, -1.0]
+        assert response.expert_name == 'doubler'
+
+        request.discrepancy = 0.5
+        future = client.call_async(request)
+        executor.spin_until_future_complete(future, timeout_sec=5.0)
+        assert not future.result().advised and future.result().reason == 'critics agree'
+    finally:
+        executor.shutdown()
+        server.destroy_node()
+        client_node.destroy_node()
+
+
+def test_float32_multiarray_publish_subscribe(ros_context):
+    node = rclpy.create_node('pubsub', context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    received = []
+    try:
+        node.create_subscription(Float32MultiArray, 'numbers', received.append, 10)
+        publisher = node.create_publisher(Float32MultiArray, 'numbers', 10)
+        executor.add_node(node)
+        assert spin_until(executor, lambda: publisher.get_subscription_count() > 0)
+        publisher.publish(Float32MultiArray(data=[1.0, -2.5, 3.25]))
+        assert spin_until(executor, lambda: len(received) == 1)
+        assert list(received[0].data) == pytest.approx([1.0, -2.5, 3.25])
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+
+
+def test_tests_run_in_a_private_domain():
+    import os
+    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    assert 1 <= int(os.environ['ROS_DOMAIN_ID']) <= 100
