@@ -1,0 +1,145 @@
+"""The advising gates of EQ-HRL (Section 3.1, 3.2): dynamic thresholds and the early-advising budget."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Iterable
+
+from . import equations as eq
+
+MODES = ('sac', 'qasac', 'eqsac')
+THRESHOLD_KINDS = ('dynamic', 'fixed')
+
+
+class FifoQueue:
+    """A fixed-length FIFO of recent values (D_queue or E_queue of Section 3.2)."""
+
+    def __init__(self, length: int, values: Iterable[float] = ()):
+        if length < 1:
+            raise ValueError(f'queue length must be >= 1, got {length}')
+        self._values: deque[float] = deque((float(v) for v in values), maxlen=length)
+
+    @property
+    def length(self) -> int:
+        return self._values.maxlen
+
+    def full(self) -> bool:
+        return len(self._values) == self._values.maxlen
+
+    def push(self, value: float) -> None:
+        self._values.append(float(value))  # the oldest value falls out once full
+
+    def values(self) -> list[float]:
+        return list(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+
+@dataclass(frozen=True)
+class GateDecision:
+    """What the gates said at one step, and why. ``fire`` means: ask the expert now."""
+
+    fire: bool
+    reason: str
+    within_budget: bool
+    ask: bool = False          # Eq. 10 left (or D(s) > fixed threshold)
+    respond: bool = False      # Eq. 10 right (or E(s) < fixed threshold)
+    discrepancy: float = float('nan')   # D(s), Eq. 8; NaN when not evaluated
+    entropy: float = float('nan')       # E(s), Eq. 9; NaN when not evaluated
+    d_threshold: float = float('nan')   # max(D_queue) before the push, or the fixed threshold
+    e_threshold: float = float('nan')   # min(E_queue) before the push, or the fixed threshold
+
+
+class AdvisingGates:
+    """Decides, step by step, whether the learner asks the expert (Algorithm 1's if-condition).
+
+    - ``sac``: never asks.
+    - ``qasac``: asks when D(s) > max(D_queue) (the ask gate only).
+    - ``eqsac``: asks when D(s) > max(D_queue) and E(s) < min(E_queue).
+    All only while episode < advising_budget (Eq. 7).
+
+    Dynamic thresholds compare the current value with the queue *as it was before
+    this step*, then push it; a gate stays closed until its queue holds ``queue_length``
+    earlier values. The queues run across episode boundaries. Fixed thresholds
+    (``threshold_kind='fixed'``) compare with constants instead.
+    """
+
+    def __init__(self, mode: str, advising_budget: int, queue_length: int = 15,
+                 threshold_kind: str = 'dynamic', fixed_d_threshold: float = 1.0,
+                 fixed_e_threshold: float = 0.0):
+        if mode not in MODES:
+            raise ValueError(f'mode must be one of {MODES}, got {mode!r}')
+        if threshold_kind not in THRESHOLD_KINDS:
+            raise ValueError(f'threshold_kind must be one of {THRESHOLD_KINDS}, got {threshold_kind!r}')
+        if advising_budget < 0:
+            raise ValueError(f'advising_budget must be >= 0, got {advising_budget}')
+        self.mode = mode
+        self.advising_budget = int(advising_budget)
+        self.threshold_kind = threshold_kind
+        self.fixed_d_threshold = float(fixed_d_threshold)
+        self.fixed_e_threshold = float(fixed_e_threshold)
+        self.d_queue = FifoQueue(queue_length)
+        self.e_queue = FifoQueue(queue_length)
+
+    @property
+    def uses_entropy(self) -> bool:
+        return self.mode == 'eqsac'
+
+    def needs_evaluation(self, episode: int) -> bool:
+        """Whether D(s) and E(s) must be computed this step (skipped when they cannot matter)."""
+        return self.mode != 'sac' and eq.early_advising(episode, self.advising_budget)
+
+    def decide(self, episode: int, discrepancy: float | None = None,
+               entropy: float | None = None) -> GateDecision:
+        if self.mode == 'sac':
+            return GateDecision(False, 'mode sac never asks', within_budget=False)
+        if not eq.early_advising(episode, self.advising_budget):
+            return GateDecision(False, f'episode {episode} is past the advising budget '
+                                       f'({self.advising_budget})', within_budget=False)
+        if discrepancy is None or (self.uses_entropy and entropy is None):
+            raise ValueError('D(s) (and E(s) in eqsac mode) are needed inside the budget')
+
+        if self.threshold_kind == 'fixed':
+            d_threshold, e_threshold = self.fixed_d_threshold, self.fixed_e_threshold
+            ask = discrepancy > d_threshold
+            respond = entropy < e_threshold if self.uses_entropy else True
+            d_ready = e_ready = True
+        else:
+            d_ready = self.d_queue.full()
+            e_ready = self.e_queue.full() or not self.uses_entropy
+            d_values = self.d_queue.values()
+            e_values = self.e_queue.values()
+            d_threshold = max(d_values) if d_values else float('nan')
+            e_threshold = min(e_values) if e_values else float('nan')
+            ask = d_ready and eq.ask_condition(discrepancy, d_values)
+            respond = (not self.uses_entropy) or (e_ready and eq.respond_condition(entropy, e_values))
+            # Push after comparing: the current value never raises its own threshold.
+            self.d_queue.push(discrepancy)
+            if self.uses_entropy:
+                self.e_queue.push(entropy)
+
+        fire = ask and respond
+        if not (d_ready and e_ready):
+            reason = f'queues filling ({len(self.d_queue)}/{self.d_queue.length})'
+        elif fire:
+            reason = 'D(s) > threshold and E(s) < threshold' if self.uses_entropy else 'D(s) > threshold'
+        elif not ask:
+            reason = 'D(s) <= threshold: the critics agree'
+        else:
+            reason = 'E(s) >= threshold: the policy is not sure'
+        return GateDecision(
+            fire=fire, reason=reason, within_budget=True, ask=ask,
+            respond=respond if self.uses_entropy else False,
+            discrepancy=float(discrepancy),
+            entropy=float(entropy) if entropy is not None else float('nan'),
+            d_threshold=d_threshold, e_threshold=e_threshold if self.uses_entropy else float('nan'))
+
+    def state_dict(self) -> dict:
+        return {'d_queue': self.d_queue.values(), 'e_queue': self.e_queue.values()}
+
+    def load_state_dict(self, state: dict) -> None:
+        length = self.d_queue.length
+        self.d_queue = FifoQueue(length, state['d_queue'])
+        self.e_queue = FifoQueue(length, state['e_queue'])

@@ -1,0 +1,151 @@
+"""Every equation of the EQ-HRL paper, in one place, named as the paper names it.
+
+Paper: "An Efficient Human-in-the-loop Method for Stochastic Policy Reinforcement
+Learning" (EQ-HRL). Equation numbers below are the paper's.
+
+Conventions used throughout the package:
+- The policy pi is a tanh-squashed Gaussian on the normalised action box [-1, 1]^m;
+  actions are scaled affinely to the env's bounds only when they leave the learner.
+  log pi, the entropy E(s) and SAC's target entropy (-m) all live in that normalised
+  space, as in Stable-Baselines3. The entropy of the action in env units is
+  E(s) + sum_i log(scale_i), a constant shift that does not change any gate decision.
+- ``done`` in the Bellman target is the env's *termination* flag only: a time-limit
+  truncation still bootstraps.
+
+Eq. 1 and Eq. 2 (V^pi and Q^pi) are definitions the critics approximate, and
+Eq. 3 (the maximum-entropy objective J(pi)) is what Eqs. 4-6 optimise; they have
+no code of their own.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Iterable, Sequence
+
+import torch
+import torch.nn.functional as F
+
+LOG_2 = math.log(2.0)
+
+
+# --------------------------------------------------------------------------- SAC (Section 2.2)
+
+def soft_bellman_target(
+    reward: torch.Tensor,
+    terminated: torch.Tensor,
+    next_q1_target: torch.Tensor,
+    next_q2_target: torch.Tensor,
+    next_log_prob: torch.Tensor,
+    alpha: torch.Tensor | float,
+    gamma: float,
+) -> torch.Tensor:
+    """Eq. 4: y_t = r_t + gamma * E_{a' ~ pi}[ Q_theta^-(s', a') - alpha * log pi(a'|s') ].
+
+    Q_theta^- is the smaller of the two target critics (clipped double Q, the reason
+    SAC keeps twin critics); the expectation is estimated with one sample a' ~ pi(.|s').
+    Terminal transitions do not bootstrap.
+    """
+    next_value = torch.min(next_q1_target, next_q2_target) - alpha * next_log_prob
+    return reward + gamma * (1.0 - terminated) * next_value
+
+
+def critic_loss(q: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Eq. 5: L_Q(theta_i) = E[(Q_theta_i(s_t, a_t) - y_t)^2], the mean squared Bellman error.
+
+    Algorithm 1's listing drops the square; the squared form of Eq. 5 is the one used.
+    """
+    return F.mse_loss(q, y)
+
+
+def actor_loss(
+    log_prob: torch.Tensor, q1: torch.Tensor, q2: torch.Tensor, alpha: torch.Tensor | float
+) -> torch.Tensor:
+    """Eq. 6: L_pi(phi) = E[ alpha * log pi_phi(a|s) - Q(s, a) ], a ~ pi_phi(.|s).
+
+    Q is min_i Q_theta_i of the *current* critics, as in Algorithm 1's actor update
+    (Eq. 6 writes Q_theta^-; the listing and standard SAC use the online critics).
+    """
+    return (alpha * log_prob - torch.min(q1, q2)).mean()
+
+
+def temperature_loss(
+    log_alpha: torch.Tensor, log_prob: torch.Tensor, target_entropy: float
+) -> torch.Tensor:
+    """Learned temperature (Table 1: 'Learning rate (alpha)', 'Target alpha: negative action dim').
+
+    Minimising -alpha * (log pi + H_target) raises alpha when the policy's entropy
+    -log pi falls below the target and lowers it otherwise (Haarnoja et al., 2018).
+    """
+    return -(log_alpha.exp() * (log_prob.detach() + target_entropy)).mean()
+
+
+@torch.no_grad()
+def soft_update(
+    target_params: Sequence[torch.Tensor], online_params: Sequence[torch.Tensor], tau: float
+) -> None:
+    """Algorithm 1, last line: theta_i^- <- tau * theta_i + (1 - tau) * theta_i^-."""
+    # lerp(target, online, tau) = target + tau * (online - target), in one fused call.
+    torch._foreach_lerp_(list(target_params), list(online_params), tau)
+
+
+# --------------------------------------------------------------------------- the policy pi
+
+def log_one_minus_tanh_squared(u: torch.Tensor) -> torch.Tensor:
+    """log(1 - tanh(u)^2), the log-Jacobian of the tanh squashing, computed stably.
+
+    1 - tanh(u)^2 = 4 / (e^u + e^-u)^2, so its log is 2 * (log 2 - u - softplus(-2u)).
+    """
+    return 2.0 * (LOG_2 - u - F.softplus(-2.0 * u))
+
+
+def squashed_gaussian_sample(
+    mean: torch.Tensor, log_std: torch.Tensor, noise: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sample a = tanh(u), u = mean + std * noise, and return (a, log pi(a|s)).
+
+    log pi(a|s) = log N(u; mean, std) - sum_i log(1 - tanh(u_i)^2) (change of variables).
+    """
+    u = mean + log_std.exp() * noise
+    gaussian_log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * math.log(2.0 * math.pi)).sum(-1)
+    log_prob = gaussian_log_prob - log_one_minus_tanh_squared(u).sum(-1)
+    return torch.tanh(u), log_prob
+
+
+# --------------------------------------------------------------------------- advising (Section 3)
+
+def early_advising(episode: int, advising_budget: int) -> bool:
+    """Eq. 7: Iteration < AdvisingBudget. Advice only in the first ``advising_budget`` episodes."""
+    return episode < advising_budget
+
+
+def q_discrepancy(q1: torch.Tensor, q2: torch.Tensor) -> torch.Tensor:
+    """Eq. 8: D(s) = |Q_theta1(s, a) - Q_theta2(s, a)|, a ~ pi(.|s) the action about to be taken."""
+    return (q1 - q2).abs()
+
+
+def policy_entropy(
+    mean: torch.Tensor, log_std: torch.Tensor, noise: torch.Tensor
+) -> torch.Tensor:
+    """Eq. 9: E(s) = -integral pi(a|s) log pi(a|s) da for the tanh-squashed Gaussian policy.
+
+    No closed form exists. With a = tanh(u), u ~ N(mean, std^2):
+        E(s) = H[N(mean, std^2)] + E_u[ sum_i log(1 - tanh(u_i)^2) ]
+    The Gaussian part is exact, sum_i (0.5 * log(2 * pi * e) + log std_i); the
+    Jacobian part is a Monte Carlo average over the K standard-normal draws in
+    ``noise`` (shape [K, ..., m]). This has far lower variance than averaging
+    -log pi(a|s) over the same K samples.
+    """
+    gaussian_entropy = (0.5 * math.log(2.0 * math.pi * math.e) + log_std).sum(-1)
+    u = mean + log_std.exp() * noise
+    jacobian_term = log_one_minus_tanh_squared(u).sum(-1).mean(0)
+    return gaussian_entropy + jacobian_term
+
+
+def ask_condition(discrepancy: float, d_queue: Iterable[float]) -> bool:
+    """Eq. 10, left: D(s) > max(D_queue). The agent is uncertain, so it asks."""
+    return discrepancy > max(d_queue)
+
+
+def respond_condition(entropy: float, e_queue: Iterable[float]) -> bool:
+    """Eq. 10, right: E(s) < min(E_queue). The state is important, so the expert responds."""
+    return entropy < min(e_queue)

@@ -1,0 +1,131 @@
+"""Experts: whoever answers the learner's advice requests, behind one small interface.
+
+The learner core calls ``expert(request) -> Advice``. It never knows whether a
+controller, a trained policy, a ROS service or a person answers.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import Callable, Optional
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class AdviceRequest:
+    """What the learner tells the expert when its gates fire (mirrors eqhrl_interfaces/srv/Advise)."""
+
+    observation: np.ndarray
+    proposed_action: np.ndarray     # env units
+    action_low: np.ndarray
+    action_high: np.ndarray
+    discrepancy: float              # D(s), Eq. 8
+    entropy: float                  # E(s), Eq. 9 (NaN in qasac mode)
+    episode: int
+    step: int
+
+
+@dataclass(frozen=True)
+class Advice:
+    """The expert's answer: an action (env units), or None and a reason when it declines."""
+
+    action: Optional[np.ndarray]
+    reason: str = ''
+    expert_name: str = ''
+
+    @property
+    def advised(self) -> bool:
+        return self.action is not None
+
+    @staticmethod
+    def decline(reason: str, expert_name: str = '') -> 'Advice':
+        return Advice(None, reason, expert_name)
+
+
+Expert = Callable[[AdviceRequest], Advice]
+
+
+# Kinds of failed advice, counted apart from advice given and advice declined.
+FAILURE_KINDS = ('unavailable', 'timeout', 'error', 'wrong_size', 'non_finite', 'out_of_bounds')
+
+
+def check_advised_action(action, low: np.ndarray, high: np.ndarray,
+                         tolerance: float = 1e-4) -> tuple[Optional[np.ndarray], str]:
+    """Validate an advised action. Returns (action, '') or (None, failure kind)."""
+    action = np.asarray(action, dtype=np.float32).reshape(-1)
+    if action.shape[0] != low.shape[0]:
+        return None, 'wrong_size'
+    if not np.isfinite(action).all():
+        return None, 'non_finite'
+    if (action < low - tolerance).any() or (action > high + tolerance).any():
+        return None, 'out_of_bounds'
+    return np.clip(action, low, high), ''
+
+
+@dataclass
+class PendulumSwingUpExpert:
+    """Pendulum-v1 controller: energy-based swing-up far from the top, PD balance near it.
+
+    Pendulum-v1's dynamics are I*theta'' = (m*g*l/2) * sin(theta) + u with I = m*l^2/3 and
+    theta = 0 upright, so E = I*theta'^2/2 + (m*g*l/2) * cos(theta) has dE/dt = theta' * u:
+    pushing with the angular velocity pumps energy in until E reaches the upright
+    value m*g*l/2; near the top a PD law holds the pendulum up.
+    """
+
+    g: float = 10.0
+    m: float = 1.0
+    l: float = 1.0
+    max_torque: float = 2.0
+    swing_gain: float = 5.0
+    kp: float = 12.0
+    kd: float = 2.5
+    balance_cos: float = math.cos(math.radians(35.0))
+    name: str = 'pendulum_swing_up'
+
+    def action(self, obs: np.ndarray) -> np.ndarray:
+        cos_th, sin_th, th_dot = (float(v) for v in obs[:3])
+        theta = math.atan2(sin_th, cos_th)
+        if cos_th >= self.balance_cos:
+            u = -self.kp * theta - self.kd * th_dot
+        else:
+            inertia = self.m * self.l ** 2 / 3.0
+            energy = 0.5 * inertia * th_dot ** 2 + 0.5 * self.m * self.g * self.l * cos_th
+            energy_up = 0.5 * self.m * self.g * self.l
+            # Pump along theta' (a kick from rest when theta' is zero).
+            direction = math.copysign(1.0, th_dot if abs(th_dot) > 1e-3 else 1.0)
+            u = self.swing_gain * (energy_up - energy) * direction
+        return np.array([np.clip(u, -self.max_torque, self.max_torque)], dtype=np.float32)
+
+    def __call__(self, request: AdviceRequest) -> Advice:
+        return Advice(self.action(request.observation), expert_name=self.name)
+
+
+class LunarLanderExpert:
+    """LunarLanderContinuous-v3: gymnasium's stock heuristic controller."""
+
+    name = 'lunar_lander_heuristic'
+
+    def __init__(self):
+        from gymnasium.envs.box2d.lunar_lander import heuristic
+        self._heuristic = heuristic
+        # The heuristic reads env.unwrapped.continuous and nothing else of the env.
+        self._env = SimpleNamespace(unwrapped=SimpleNamespace(continuous=True))
+
+    def action(self, obs: np.ndarray) -> np.ndarray:
+        return np.asarray(self._heuristic(self._env, obs), dtype=np.float32)
+
+    def __call__(self, request: AdviceRequest) -> Advice:
+        return Advice(self.action(request.observation), expert_name=self.name)
+
+
+def heuristic_expert(env_id: str):
+    """The built-in controller for an env, or a ValueError naming the ones that exist."""
+    if env_id.startswith('Pendulum'):
+        return PendulumSwingUpExpert()
+    if env_id.startswith('LunarLander'):
+        return LunarLanderExpert()
+    raise ValueError(f'no heuristic expert for {env_id!r}; built in: Pendulum-v1, '
+                     'LunarLanderContinuous-v3 (use the policy backend for other envs)')

@@ -1,0 +1,465 @@
+"""EQSACLearner: SAC, QASAC and EQSAC in one class (Algorithm 1 of the paper).
+
+One step of Algorithm 1, as the caller drives it:
+
+    proposal = learner.propose(obs)                  # a_t ~ pi(.|s_t); D(s), E(s); the gates
+    if proposal.decision.fire:                       # Eq. 7 and Eq. 10
+        action, advised = learner.resolve_advice(proposal, expert(proposal.request))
+    else:
+        action, advised = proposal.action, False
+    next_obs, reward, terminated, truncated, _ = env.step(action)
+    summary = learner.step(obs, action, reward, next_obs, terminated, truncated, advised)
+                                                     # store in D (and D_advising); update()
+
+The caller may be a plain loop (core/training.py) or a ROS node; the learner never
+knows who answers advice. Every equation it uses lives in core/equations.py.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+import torch
+
+from . import equations as eq
+from .advising import MODES, THRESHOLD_KINDS, AdvisingGates, GateDecision
+from .envs import ActionScaler, SuccessCriterion
+from .experts import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
+from .networks import SquashedGaussianActor, TwinCritic
+from .replay import Batch, ReplayBuffer
+
+
+@dataclass
+class LearnerConfig:
+    """Hyperparameters. Defaults are the paper's Table 1 unless a comment says otherwise."""
+
+    mode: str = 'eqsac'                  # 'sac' | 'qasac' | 'eqsac'
+    hidden: tuple[int, ...] = (256, 256)
+    actor_lr: float = 1e-4
+    critic_lr: float = 1e-3
+    alpha_lr: float = 1e-4
+    initial_alpha: float = 1.0           # not in the paper; SB3's and CleanRL's start
+    gamma: float = 0.99
+    tau: float = 0.005
+    batch_size: int = 256                # not in the paper; SB3's default
+    replay_capacity: int = 500_000
+    learning_starts: int = 5_000         # Table 1's "minimal buffer size"
+    updates_per_step: int = 1
+    random_warmup_steps: int = 0         # uniform-random actions first; off, as in Algorithm 1
+    seed: int = 42
+    # Advising (Section 3)
+    advising_budget: int = 30            # episodes (Eq. 7); Pendulum 30, LunarLander 300
+    queue_length: int = 15               # D/E queue sequence length (Table 1)
+    threshold_kind: str = 'dynamic'      # 'dynamic' (Eq. 10) | 'fixed'
+    fixed_d_threshold: float = 1.0       # used when threshold_kind == 'fixed'
+    fixed_e_threshold: float = 0.0
+    entropy_samples: int = 32            # K, Monte Carlo samples of E(s) (Eq. 9)
+    actor_on_advice: bool = False        # also train the actor on the advice batch
+
+    def __post_init__(self):
+        self.hidden = tuple(int(h) for h in self.hidden)
+        checks = [
+            ('mode', self.mode in MODES, f'one of {MODES}'),
+            ('threshold_kind', self.threshold_kind in THRESHOLD_KINDS, f'one of {THRESHOLD_KINDS}'),
+            ('hidden', len(self.hidden) >= 1 and all(h >= 1 for h in self.hidden), 'positive layer sizes'),
+            ('actor_lr', self.actor_lr > 0, '> 0'), ('critic_lr', self.critic_lr > 0, '> 0'),
+            ('alpha_lr', self.alpha_lr > 0, '> 0'), ('initial_alpha', self.initial_alpha > 0, '> 0'),
+            ('gamma', 0.0 <= self.gamma <= 1.0, 'in [0, 1]'), ('tau', 0.0 < self.tau <= 1.0, 'in (0, 1]'),
+            ('batch_size', self.batch_size >= 1, '>= 1'),
+            ('replay_capacity', self.replay_capacity >= 1, '>= 1'),
+            ('learning_starts', self.learning_starts >= 1, '>= 1 (a batch needs a transition)'),
+            ('updates_per_step', self.updates_per_step >= 0, '>= 0'),
+            ('random_warmup_steps', self.random_warmup_steps >= 0, '>= 0'),
+            ('advising_budget', self.advising_budget >= 0, '>= 0'),
+            ('queue_length', self.queue_length >= 1, '>= 1'),
+            ('entropy_samples', self.entropy_samples >= 1, '>= 1'),
+        ]
+        for name, ok, expected in checks:
+            if not ok:
+                raise ValueError(f'LearnerConfig.{name} must be {expected}, got {getattr(self, name)!r}')
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d['hidden'] = list(self.hidden)
+        return d
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """The learner's own action for s_t, the gate decision, and the request to send if it fired."""
+
+    action: np.ndarray               # env units
+    decision: GateDecision
+    request: Optional[AdviceRequest]
+
+
+@dataclass
+class AdviceCounts:
+    asked: int = 0
+    given: int = 0
+    declined: int = 0
+    failed: dict = field(default_factory=lambda: {kind: 0 for kind in FAILURE_KINDS})
+
+    @property
+    def failed_total(self) -> int:
+        return sum(self.failed.values())
+
+    def add(self, other: 'AdviceCounts') -> None:
+        self.asked += other.asked
+        self.given += other.given
+        self.declined += other.declined
+        for kind, n in other.failed.items():
+            self.failed[kind] += n
+
+    def to_dict(self) -> dict:
+        return {'asked': self.asked, 'given': self.given, 'declined': self.declined,
+                'failed': dict(self.failed)}
+
+    @staticmethod
+    def from_dict(d: dict) -> 'AdviceCounts':
+        failed = {kind: 0 for kind in FAILURE_KINDS}
+        failed.update({k: int(v) for k, v in d['failed'].items() if k in failed})
+        return AdviceCounts(int(d['asked']), int(d['given']), int(d['declined']), failed)
+
+
+@dataclass(frozen=True)
+class EpisodeSummary:
+    """Per-episode statistics (what the learner node publishes and writes to CSV)."""
+
+    episode: int
+    episode_return: float
+    length: int
+    advice_asked: int
+    advice_given: int
+    advice_declined: int
+    advice_failed: int
+    success: bool
+    total_steps: int
+    alpha: float
+
+    CSV_FIELDS = ('episode', 'return', 'length', 'advice_asked', 'advice_given',
+                  'advice_declined', 'advice_failed', 'success', 'total_steps', 'alpha')
+
+    def csv_row(self) -> list:
+        return [self.episode, f'{self.episode_return:.4f}', self.length, self.advice_asked,
+                self.advice_given, self.advice_declined, self.advice_failed, int(self.success),
+                self.total_steps, f'{self.alpha:.6f}']
+
+
+class EQSACLearner:
+    """Soft Actor-Critic with EQ-HRL advising gates and dual replay (SAC / QASAC / EQSAC)."""
+
+    def __init__(self, obs_dim: int, action_low, action_high,
+                 config: LearnerConfig | None = None, success: SuccessCriterion | None = None):
+        self.config = config or LearnerConfig()
+        cfg = self.config
+        if obs_dim < 1:
+            raise ValueError(f'obs_dim must be >= 1, got {obs_dim}')
+        self.obs_dim = int(obs_dim)
+        self.scaler = ActionScaler(action_low, action_high)
+        self.action_dim = self.scaler.dim
+        self.success = success or SuccessCriterion()
+
+        # Networks are initialised from the seed without disturbing the caller's global RNG.
+        with torch.random.fork_rng():
+            torch.manual_seed(cfg.seed)
+            self.actor = SquashedGaussianActor(self.obs_dim, self.action_dim, cfg.hidden)
+            self.critic = TwinCritic(self.obs_dim, self.action_dim, cfg.hidden)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self.log_alpha = torch.tensor(math.log(cfg.initial_alpha), requires_grad=True)
+        self.target_entropy = -float(self.action_dim)   # Table 1: target alpha = -action dim
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.actor_lr)
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=cfg.critic_lr)
+        self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=cfg.alpha_lr)
+
+        # One random stream per purpose, so that e.g. estimating E(s) never shifts
+        # the noise of the policy's own actions.
+        self.rng = {name: torch.Generator().manual_seed(cfg.seed + i)
+                    for i, name in enumerate(('act', 'update', 'replay', 'entropy', 'warmup'))}
+
+        self.replay = ReplayBuffer(cfg.replay_capacity, self.obs_dim, self.action_dim)              # D
+        self.advice_replay = ReplayBuffer(cfg.replay_capacity, self.obs_dim, self.action_dim)       # D_advising
+        self.gates = AdvisingGates(cfg.mode, cfg.advising_budget, cfg.queue_length,
+                                   cfg.threshold_kind, cfg.fixed_d_threshold, cfg.fixed_e_threshold)
+
+        self.episode = 0          # index of the current episode: Eq. 7's "Iteration"
+        self.episode_step = 0
+        self.total_steps = 0
+        self.updates = 0
+        self.advice_total = AdviceCounts()
+        self._reset_episode()
+
+    # ------------------------------------------------------------------ acting
+
+    @property
+    def mode(self) -> str:
+        return self.config.mode
+
+    @property
+    def alpha(self) -> float:
+        return float(self.log_alpha.detach().exp())
+
+    def _obs_tensor(self, obs) -> torch.Tensor:
+        array = np.asarray(obs, dtype=np.float32).reshape(-1)
+        if array.shape[0] != self.obs_dim:
+            raise ValueError(f'observation has {array.shape[0]} values, the learner expects {self.obs_dim}')
+        if not np.isfinite(array).all():
+            raise ValueError('observation holds a non-finite value (NaN or inf)')
+        return torch.from_numpy(array).unsqueeze(0)
+
+    @torch.no_grad()
+    def act(self, obs, deterministic: bool = False) -> np.ndarray:
+        """The policy's action in env units, without gates or counters (evaluation)."""
+        mean, log_std = self.actor(self._obs_tensor(obs))
+        if deterministic:
+            return self.scaler.to_env(torch.tanh(mean)[0].numpy())
+        noise = torch.randn(mean.shape, generator=self.rng['act'])
+        action, _ = eq.squashed_gaussian_sample(mean, log_std, noise)
+        return self.scaler.to_env(action[0].numpy())
+
+    @torch.no_grad()
+    def propose(self, obs) -> Proposal:
+        """a_t ~ pi(.|s_t), then D(s) (Eq. 8), E(s) (Eq. 9) and the gates (Eq. 7, Eq. 10)."""
+        obs_t = self._obs_tensor(obs)
+        mean, log_std = self.actor(obs_t)
+        if self.total_steps < self.config.random_warmup_steps:
+            action = torch.rand(mean.shape, generator=self.rng['warmup']) * 2.0 - 1.0
+        else:
+            noise = torch.randn(mean.shape, generator=self.rng['act'])
+            action, _ = eq.squashed_gaussian_sample(mean, log_std, noise)
+
+        if self.gates.needs_evaluation(self.episode):
+            q1, q2 = self.critic(obs_t, action)
+            discrepancy = float(eq.q_discrepancy(q1, q2))
+            entropy = None
+            if self.gates.uses_entropy:
+                k_noise = torch.randn((self.config.entropy_samples, *mean.shape), generator=self.rng['entropy'])
+                entropy = float(eq.policy_entropy(mean, log_std, k_noise))
+            decision = self.gates.decide(self.episode, discrepancy, entropy)
+        else:
+            decision = self.gates.decide(self.episode)
+
+        env_action = self.scaler.to_env(action[0].numpy())
+        request = None
+        if decision.fire:
+            request = AdviceRequest(
+                observation=obs_t[0].numpy().copy(), proposed_action=env_action,
+                action_low=self.scaler.low, action_high=self.scaler.high,
+                discrepancy=decision.discrepancy, entropy=decision.entropy,
+                episode=self.episode, step=self.episode_step)
+        return Proposal(env_action, decision, request)
+
+    def resolve_advice(self, proposal: Proposal, advice: Advice | None = None,
+                       failure: str = '') -> tuple[np.ndarray, bool]:
+        """Count the outcome of an advice request and return (action to take, advised?).
+
+        ``failure`` names why no answer came (one of experts.FAILURE_KINDS); otherwise
+        ``advice`` is the answer. A refusal or a failure leaves the learner's own action.
+        """
+        counts = self._episode_advice
+        counts.asked += 1
+        if failure:
+            if failure not in counts.failed:
+                raise ValueError(f'unknown failure kind {failure!r}; one of {FAILURE_KINDS}')
+            counts.failed[failure] += 1
+            return proposal.action, False
+        if advice is None or not advice.advised:
+            counts.declined += 1
+            return proposal.action, False
+        action, failure = check_advised_action(advice.action, self.scaler.low, self.scaler.high)
+        if failure:
+            counts.failed[failure] += 1
+            return proposal.action, False
+        counts.given += 1
+        return action, True
+
+    # ------------------------------------------------------------------ storing and learning
+
+    def step(self, obs, action, reward: float, next_obs, terminated: bool, truncated: bool,
+             advised: bool = False) -> Optional[EpisodeSummary]:
+        """Store (s_t, a_t, r_t, s_{t+1}) in D, and in D_advising when advised; update.
+
+        Returns the episode's summary when this transition ended it. A non-finite or
+        wrongly sized transition raises ValueError and changes nothing.
+        """
+        normalized = np.clip(self.scaler.to_normalized(action), -1.0, 1.0)
+        self.replay.add(obs, normalized, reward, next_obs, terminated)
+        if advised and self.mode != 'sac':
+            self.advice_replay.add(obs, normalized, reward, next_obs, terminated)
+
+        self._episode_return += float(reward)
+        self.episode_step += 1
+        self.total_steps += 1
+        self.success.update(np.asarray(next_obs, dtype=np.float32), float(reward))
+
+        if len(self.replay) >= self.config.learning_starts:
+            for _ in range(self.config.updates_per_step):
+                self.update()
+
+        if terminated or truncated:
+            return self.end_episode()
+        return None
+
+    def update(self) -> dict:
+        """One gradient update (Algorithm 1, inner loop), in the paper's order."""
+        cfg = self.config
+        info = {}
+        batch = self.replay.sample(cfg.batch_size, self.rng['replay'])
+
+        # 1st critic update: a batch from D (Eqs. 4-5).
+        info['critic_loss'] = self._critic_update(batch)
+
+        # 2nd critic update: a batch from D_advising (Section 3.3). Skipped while it is
+        # empty; sampled with replacement while it holds fewer than a batch.
+        advice_batch = None
+        if self.mode != 'sac' and len(self.advice_replay) > 0:
+            advice_batch = self.advice_replay.sample(
+                cfg.batch_size, self.rng['replay'], replacement=len(self.advice_replay) < cfg.batch_size)
+            info['advice_critic_loss'] = self._critic_update(advice_batch)
+
+        # Actor (Eq. 6) and temperature on the batch from D.
+        info.update(self._actor_and_alpha_update(batch))
+        if cfg.actor_on_advice and advice_batch is not None:
+            info['advice_actor_loss'] = self._actor_and_alpha_update(advice_batch)['actor_loss']
+
+        # Target critics: theta^- <- tau * theta + (1 - tau) * theta^-.
+        eq.soft_update(self.critic_target.parameters(), self.critic.parameters(), cfg.tau)
+        self.updates += 1
+        return info
+
+    def _critic_update(self, batch: Batch) -> float:
+        alpha = self.log_alpha.detach().exp()
+        with torch.no_grad():
+            next_mean, next_log_std = self.actor(batch.next_obs)
+            noise = torch.randn(next_mean.shape, generator=self.rng['update'])
+            next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, noise)
+            next_q1, next_q2 = self.critic_target(batch.next_obs, next_action)
+            y = eq.soft_bellman_target(batch.reward, batch.terminated, next_q1, next_q2,
+                                       next_log_prob, alpha, self.config.gamma)          # Eq. 4
+        q1, q2 = self.critic(batch.obs, batch.action)
+        loss = eq.critic_loss(q1, y) + eq.critic_loss(q2, y)                             # Eq. 5, i = 1, 2
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.critic_optimizer.step()
+        return float(loss.detach())
+
+    def _actor_and_alpha_update(self, batch: Batch) -> dict:
+        alpha = self.log_alpha.detach().exp()
+        mean, log_std = self.actor(batch.obs)
+        noise = torch.randn(mean.shape, generator=self.rng['update'])
+        action, log_prob = eq.squashed_gaussian_sample(mean, log_std, noise)
+        q1, q2 = self.critic(batch.obs, action)
+        loss = eq.actor_loss(log_prob, q1, q2, alpha)                                    # Eq. 6
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        # Gradients for the actor only: the critics' weights are not trained by Eq. 6.
+        loss.backward(inputs=list(self.actor.parameters()))
+        self.actor_optimizer.step()
+
+        alpha_loss = eq.temperature_loss(self.log_alpha, log_prob, self.target_entropy)
+        self.alpha_optimizer.zero_grad(set_to_none=True)
+        alpha_loss.backward()
+        self.alpha_optimizer.step()
+        return {'actor_loss': float(loss.detach()), 'alpha_loss': float(alpha_loss.detach()), 'alpha': self.alpha}
+
+    # ------------------------------------------------------------------ episodes
+
+    def _reset_episode(self) -> None:
+        self.episode_step = 0
+        self._episode_return = 0.0
+        self._episode_advice = AdviceCounts()
+        self.success.reset()
+
+    def end_episode(self) -> EpisodeSummary:
+        """Close the current episode: its summary, then the next episode index."""
+        counts = self._episode_advice
+        summary = EpisodeSummary(
+            episode=self.episode, episode_return=self._episode_return, length=self.episode_step,
+            advice_asked=counts.asked, advice_given=counts.given, advice_declined=counts.declined,
+            advice_failed=counts.failed_total,
+            success=bool(self.success.success(self._episode_return)),
+            total_steps=self.total_steps, alpha=self.alpha)
+        self.advice_total.add(counts)
+        self.episode += 1
+        self._reset_episode()
+        return summary
+
+    def abandon_episode(self) -> None:
+        """Drop the current episode's statistics without a summary (e.g. the env stalled).
+
+        Its transitions stay in the replay memory; the episode index is reused, so the
+        per-episode record has neither a gap nor a bogus entry.
+        """
+        self._reset_episode()
+
+    @property
+    def episode_advice(self) -> AdviceCounts:
+        return self._episode_advice
+
+    # ------------------------------------------------------------------ state
+
+    def state_dict(self) -> dict:
+        """Everything needed to resume, as tensors and plain Python values only."""
+        return {
+            'config': self.config.to_dict(),
+            'obs_dim': self.obs_dim,
+            'action_low': self.scaler.low.tolist(),
+            'action_high': self.scaler.high.tolist(),
+            'actor': self.actor.state_dict(),
+            'critic': self.critic.state_dict(),
+            'critic_target': self.critic_target.state_dict(),
+            'log_alpha': self.log_alpha.detach().clone(),
+            'actor_optimizer': self.actor_optimizer.state_dict(),
+            'critic_optimizer': self.critic_optimizer.state_dict(),
+            'alpha_optimizer': self.alpha_optimizer.state_dict(),
+            'gates': self.gates.state_dict(),
+            'counters': {'episode': self.episode, 'total_steps': self.total_steps,
+                         'updates': self.updates, 'advice_total': self.advice_total.to_dict()},
+            'rng': {name: gen.get_state() for name, gen in self.rng.items()},
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore from ``state_dict()``. Validates first: on any error the learner is unchanged."""
+        if int(state['obs_dim']) != self.obs_dim or len(state['action_low']) != self.action_dim:
+            raise ValueError(
+                f"checkpoint is for observations of {state['obs_dim']} and actions of "
+                f"{len(state['action_low'])} values; this learner has {self.obs_dim} and {self.action_dim}")
+        saved_hidden = tuple(state['config'].get('hidden', ()))
+        if saved_hidden != self.config.hidden:
+            raise ValueError(f'checkpoint has hidden layers {saved_hidden}, this learner {self.config.hidden}')
+
+        # Load into copies, then swap, so that a failure half-way changes nothing.
+        actor, critic, critic_target = (copy.deepcopy(m) for m in (self.actor, self.critic, self.critic_target))
+        actor.load_state_dict(state['actor'])
+        critic.load_state_dict(state['critic'])
+        critic_target.load_state_dict(state['critic_target'])
+        log_alpha = state['log_alpha'].detach().clone().reshape(()).requires_grad_(True)
+        cfg = self.config
+        actor_opt = torch.optim.Adam(actor.parameters(), lr=cfg.actor_lr)
+        critic_opt = torch.optim.Adam(critic.parameters(), lr=cfg.critic_lr)
+        alpha_opt = torch.optim.Adam([log_alpha], lr=cfg.alpha_lr)
+        actor_opt.load_state_dict(state['actor_optimizer'])
+        critic_opt.load_state_dict(state['critic_optimizer'])
+        alpha_opt.load_state_dict(state['alpha_optimizer'])
+        gates = copy.deepcopy(self.gates)
+        gates.load_state_dict(state['gates'])
+        counters = state['counters']
+        advice_total = AdviceCounts.from_dict(counters['advice_total'])
+        rng = {name: torch.Generator() for name in self.rng}
+        for name, gen in rng.items():
+            gen.set_state(state['rng'][name])
+
+        self.actor, self.critic, self.critic_target = actor, critic, critic_target
+        self.log_alpha = log_alpha
+        self.actor_optimizer, self.critic_optimizer, self.alpha_optimizer = actor_opt, critic_opt, alpha_opt
+        self.gates = gates
+        self.rng = rng
+        self.episode = int(counters['episode'])
+        self.total_steps = int(counters['total_steps'])
+        self.updates = int(counters['updates'])
+        self.advice_total = advice_total
+        self._reset_episode()

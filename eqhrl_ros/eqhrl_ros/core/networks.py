@@ -1,0 +1,78 @@
+"""Actor and twin critics (Section 2.2, Table 1: 256x256, actor Tanh, critic ReLU, Kaiming init)."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+# Range of the actor's log standard deviation, reached smoothly through a tanh
+# (as in CleanRL) so that its gradient never vanishes at a hard clamp.
+LOG_STD_MIN = -5.0
+LOG_STD_MAX = 2.0
+
+
+def _kaiming_linear(in_features: int, out_features: int, nonlinearity: str) -> nn.Linear:
+    layer = nn.Linear(in_features, out_features)
+    nn.init.kaiming_uniform_(layer.weight, nonlinearity=nonlinearity)
+    nn.init.zeros_(layer.bias)
+    return layer
+
+
+class SquashedGaussianActor(nn.Module):
+    """pi_phi(a|s): an MLP with Tanh hidden activations giving the mean and log-std of u; a = tanh(u)."""
+
+    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...] = (256, 256)):
+        super().__init__()
+        layers: list[nn.Module] = []
+        width = obs_dim
+        for size in hidden:
+            layers += [_kaiming_linear(width, size, 'tanh'), nn.Tanh()]
+            width = size
+        self.body = nn.Sequential(*layers)
+        # Mean and log-std heads in one layer: one matmul instead of two.
+        self.heads = _kaiming_linear(width, 2 * action_dim, 'linear')
+        self.action_dim = action_dim
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        mean, raw_log_std = self.heads(self.body(obs)).split(self.action_dim, dim=-1)
+        log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (torch.tanh(raw_log_std) + 1.0)
+        return mean, log_std
+
+
+class TwinCritic(nn.Module):
+    """Q_theta1 and Q_theta2: two independent ReLU MLPs Q(s, a), evaluated as one batched network.
+
+    Each layer stores both critics' weights stacked on a leading axis of size 2 and
+    runs them with one batched matmul (torch.baddbmm): same maths as two separate
+    MLPs, half the kernel launches. ``forward`` returns (Q1, Q2), each of shape [batch].
+    """
+
+    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...] = (256, 256)):
+        super().__init__()
+        sizes = [obs_dim + action_dim, *hidden, 1]
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for i, (fan_in, fan_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+            nonlinearity = 'relu' if i < len(sizes) - 2 else 'linear'
+            weight = torch.empty(2, fan_in, fan_out)
+            for critic in range(2):
+                # kaiming_uniform_ on a [out, in] view so that fan_in is the layer's input size.
+                nn.init.kaiming_uniform_(weight[critic].T, nonlinearity=nonlinearity)
+            self.weights.append(nn.Parameter(weight))
+            self.biases.append(nn.Parameter(torch.zeros(2, 1, fan_out)))
+
+    def forward(self, obs: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        x = torch.cat([obs, action], dim=-1).unsqueeze(0).expand(2, -1, -1)
+        last = len(self.weights) - 1
+        for i, (weight, bias) in enumerate(zip(self.weights, self.biases)):
+            x = torch.baddbmm(bias, x, weight)
+            if i < last:
+                x = torch.relu(x)
+        q = x.squeeze(-1)
+        return q[0], q[1]
+
+
+def count_parameters(module: nn.Module) -> int:
+    return sum(math.prod(p.shape) for p in module.parameters())

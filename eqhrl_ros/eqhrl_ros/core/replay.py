@@ -1,0 +1,100 @@
+"""Replay memories D and D_advising (Algorithm 1, Section 3.3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+@dataclass
+class Batch:
+    obs: torch.Tensor
+    action: torch.Tensor        # normalised to [-1, 1]
+    reward: torch.Tensor
+    next_obs: torch.Tensor
+    terminated: torch.Tensor    # 1.0 where the episode ended by termination (no bootstrap)
+
+
+class ReplayBuffer:
+    """A fixed-capacity ring buffer of transitions (s, a, r, s', terminated), preallocated.
+
+    Every stored value is checked finite: a NaN that reaches the critics poisons
+    every later update, so it is refused here with an error instead.
+    """
+
+    FIELDS = ('obs', 'action', 'reward', 'next_obs', 'terminated')
+
+    def __init__(self, capacity: int, obs_dim: int, action_dim: int):
+        if capacity < 1:
+            raise ValueError(f'replay capacity must be >= 1, got {capacity}')
+        self.capacity = int(capacity)
+        self.obs_dim = obs_dim
+        self.action_dim = action_dim
+        self.obs = torch.zeros(capacity, obs_dim)
+        self.action = torch.zeros(capacity, action_dim)
+        self.reward = torch.zeros(capacity)
+        self.next_obs = torch.zeros(capacity, obs_dim)
+        self.terminated = torch.zeros(capacity)
+        # numpy views on the same memory: one transition is written without tensor ops.
+        self._np = {name: getattr(self, name).numpy() for name in self.FIELDS}
+        self.position = 0
+        self.size = 0
+
+    def __len__(self) -> int:
+        return self.size
+
+    def add(self, obs, action, reward: float, next_obs, terminated: bool) -> None:
+        obs = np.asarray(obs, dtype=np.float32).reshape(-1)
+        action = np.asarray(action, dtype=np.float32).reshape(-1)
+        next_obs = np.asarray(next_obs, dtype=np.float32).reshape(-1)
+        if obs.shape[0] != self.obs_dim or next_obs.shape[0] != self.obs_dim:
+            raise ValueError(
+                f'observation has {obs.shape[0]}/{next_obs.shape[0]} values, the buffer holds {self.obs_dim}')
+        if action.shape[0] != self.action_dim:
+            raise ValueError(f'action has {action.shape[0]} values, the buffer holds {self.action_dim}')
+        if not (np.isfinite(obs).all() and np.isfinite(action).all()
+                and np.isfinite(next_obs).all() and np.isfinite(reward)):
+            raise ValueError('transition holds a non-finite value (NaN or inf); not stored')
+        i = self.position
+        self._np['obs'][i] = obs
+        self._np['action'][i] = action
+        self._np['reward'][i] = reward
+        self._np['next_obs'][i] = next_obs
+        self._np['terminated'][i] = float(terminated)
+        self.position = (i + 1) % self.capacity
+        self.size = min(self.size + 1, self.capacity)
+
+    def sample(self, batch_size: int, generator: torch.Generator, replacement: bool = True) -> Batch:
+        """Uniform sample. With replacement by default (as SB3 and CleanRL); without
+        replacement needs at least ``batch_size`` transitions."""
+        if self.size == 0:
+            raise ValueError('cannot sample from an empty replay buffer')
+        if replacement:
+            index = torch.randint(self.size, (batch_size,), generator=generator)
+        else:
+            index = torch.randperm(self.size, generator=generator)[:batch_size]
+        return Batch(*(getattr(self, name).index_select(0, index) for name in self.FIELDS))
+
+    def state_dict(self) -> dict:
+        """Tensors of the stored part only, in insertion order's ring layout, plus the cursor."""
+        return {
+            **{name: getattr(self, name)[:self.size].clone() for name in self.FIELDS},
+            'position': self.position, 'size': self.size, 'capacity': self.capacity,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        size = int(state['size'])
+        if size > self.capacity:
+            raise ValueError(f'saved buffer holds {size} transitions, capacity is {self.capacity}')
+        for name in self.FIELDS:
+            saved = state[name]
+            target = getattr(self, name)
+            if tuple(saved.shape[1:]) != tuple(target.shape[1:]) or saved.shape[0] != size:
+                raise ValueError(f'saved buffer field {name!r} has shape {tuple(saved.shape)}, '
+                                 f'expected ({size}, ...{tuple(target.shape[1:])})')
+        for name in self.FIELDS:
+            getattr(self, name)[:size] = state[name]
+        self.size = size
+        self.position = int(state['position']) % self.capacity

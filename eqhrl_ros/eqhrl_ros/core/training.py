@@ -1,0 +1,53 @@
+"""The in-process training loop: Algorithm 1 with a gymnasium env and an expert callable."""
+
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+import gymnasium as gym
+
+from .experts import Expert
+from .learner import EpisodeSummary, EQSACLearner
+
+
+def ask_expert(learner: EQSACLearner, proposal, expert: Optional[Expert]):
+    """Call the expert for a fired gate; any exception counts as a failed request, never a crash."""
+    if expert is None:
+        return learner.resolve_advice(proposal, failure='unavailable')
+    try:
+        advice = expert(proposal.request)
+    except Exception:  # an expert's bug must not end training; it is counted instead
+        return learner.resolve_advice(proposal, failure='error')
+    return learner.resolve_advice(proposal, advice)
+
+
+def run_episode(env: gym.Env, learner: EQSACLearner, expert: Optional[Expert] = None,
+                seed: Optional[int] = None) -> EpisodeSummary:
+    """One episode of Algorithm 1's outer loop. The env must end episodes (a TimeLimit)."""
+    obs, _ = env.reset(seed=seed)
+    while True:
+        proposal = learner.propose(obs)
+        if proposal.decision.fire:
+            action, advised = ask_expert(learner, proposal, expert)
+        else:
+            action, advised = proposal.action, False
+        next_obs, reward, terminated, truncated, _ = env.step(action)
+        summary = learner.step(obs, action, reward, next_obs, terminated, truncated, advised)
+        if summary is not None:
+            return summary
+        obs = next_obs
+
+
+def train(env: gym.Env, learner: EQSACLearner, episodes: int, expert: Optional[Expert] = None,
+          seed: Optional[int] = None,
+          on_episode: Callable[[EpisodeSummary], None] | None = None) -> list[EpisodeSummary]:
+    """Run episodes until the learner's episode index reaches ``episodes`` (resumes count)."""
+    summaries = []
+    first = True
+    while learner.episode < episodes:
+        summary = run_episode(env, learner, expert, seed=seed if first else None)
+        first = False
+        summaries.append(summary)
+        if on_episode is not None:
+            on_episode(summary)
+    return summaries

@@ -1,0 +1,99 @@
+"""Gate semantics of Eq. 7 and Eq. 10 on hand-set queue contents."""
+
+import pytest
+
+from eqhrl_ros.core.advising import AdvisingGates, FifoQueue
+
+
+def full_gates(mode='eqsac', budget=30, d=(1.0, 2.0, 3.0), e=(0.5, 0.6, 0.7), **kw):
+    gates = AdvisingGates(mode, budget, queue_length=3, **kw)
+    for value in d:
+        gates.d_queue.push(value)
+    for value in e:
+        gates.e_queue.push(value)
+    return gates
+
+
+def test_fifo_keeps_the_last_length_values_in_order():
+    queue = FifoQueue(3)
+    for value in [1, 2, 3, 4, 5]:
+        queue.push(value)
+    assert queue.values() == [3.0, 4.0, 5.0]
+    assert queue.full() and len(queue) == 3
+
+
+def test_eqsac_fires_only_when_both_gates_open():
+    assert full_gates().decide(0, discrepancy=3.5, entropy=0.4).fire
+    assert not full_gates().decide(0, discrepancy=3.5, entropy=0.55).fire   # not sure enough
+    assert not full_gates().decide(0, discrepancy=2.5, entropy=0.4).fire    # critics agree
+
+
+def test_comparisons_are_strict():
+    decision = full_gates().decide(0, discrepancy=3.0, entropy=0.4)   # D equal to max
+    assert not decision.ask and not decision.fire
+    decision = full_gates().decide(0, discrepancy=3.5, entropy=0.5)   # E equal to min
+    assert decision.ask and not decision.respond and not decision.fire
+
+
+def test_compares_with_the_queue_before_pushing_then_pushes():
+    gates = full_gates()
+    decision = gates.decide(0, discrepancy=10.0, entropy=0.1)
+    assert decision.fire
+    assert decision.d_threshold == 3.0 and decision.e_threshold == 0.5
+    assert gates.d_queue.values() == [2.0, 3.0, 10.0]
+    assert gates.e_queue.values() == [0.6, 0.7, 0.1]
+    # The same values again no longer exceed the new max/min.
+    assert not gates.decide(0, discrepancy=10.0, entropy=0.1).fire
+
+
+def test_gate_closed_until_queue_holds_length_earlier_values():
+    gates = AdvisingGates('qasac', 30, queue_length=3)
+    decisions = [gates.decide(0, discrepancy=float(d)) for d in [1, 2, 3, 4]]
+    # Steps 1-3 see fewer than 3 earlier values, even though each D is a new maximum.
+    assert [d.fire for d in decisions] == [False, False, False, True]
+    assert 'filling' in decisions[2].reason
+
+
+def test_qasac_ignores_entropy_and_eqsac_waits_for_the_entropy_queue():
+    qasac = AdvisingGates('qasac', 30, queue_length=2)
+    for d in [1.0, 2.0]:
+        qasac.decide(0, discrepancy=d)
+    assert qasac.decide(0, discrepancy=3.0).fire
+    assert len(qasac.e_queue) == 0
+    eqsac = full_gates(e=())   # D queue full, E queue empty
+    assert not eqsac.decide(0, discrepancy=9.0, entropy=-5.0).fire
+
+
+def test_budget_edge():
+    assert full_gates(budget=5).decide(4, discrepancy=9.0, entropy=0.1).fire
+    decision = full_gates(budget=5).decide(5, discrepancy=9.0, entropy=0.1)
+    assert not decision.fire and not decision.within_budget and 'budget' in decision.reason
+    assert not full_gates(budget=0).decide(0, discrepancy=9.0, entropy=0.1).fire
+
+
+def test_sac_never_fires():
+    gates = full_gates(mode='sac')
+    assert not gates.needs_evaluation(0)
+    assert not gates.decide(0).fire
+
+
+def test_outside_budget_queues_are_left_alone():
+    gates = full_gates(budget=1)
+    gates.decide(1, discrepancy=100.0, entropy=-100.0)
+    assert gates.d_queue.values() == [1.0, 2.0, 3.0]
+
+
+def test_fixed_thresholds():
+    gates = AdvisingGates('eqsac', 30, threshold_kind='fixed', fixed_d_threshold=1.0, fixed_e_threshold=0.0)
+    assert gates.decide(0, discrepancy=1.5, entropy=-0.1).fire          # no queue warm-up
+    assert not gates.decide(0, discrepancy=1.0, entropy=-0.1).fire
+    assert not gates.decide(0, discrepancy=1.5, entropy=0.0).fire
+
+
+@pytest.mark.parametrize('kwargs', [dict(mode='eq'), dict(advising_budget=-1), dict(queue_length=0),
+                                    dict(threshold_kind='adaptive')])
+def test_bad_settings_are_refused(kwargs):
+    settings = dict(mode='eqsac', advising_budget=30, queue_length=15)
+    settings.update(kwargs)
+    with pytest.raises(ValueError):
+        AdvisingGates(**settings)

@@ -1,0 +1,253 @@
+"""EQSACLearner behaviour: advice handling, dual replay, update order, determinism, checkpoints."""
+
+import io
+import os
+import pickle
+import zipfile
+
+import numpy as np
+import pytest
+import torch
+
+from eqhrl_ros.core import (Advice, CheckpointError, EQSACLearner, LearnerConfig, PolicyExpert,
+                            export_policy, load_checkpoint, make_env, run_episode, save_checkpoint)
+
+LOW, HIGH = [-2.0], [2.0]
+
+
+def small_learner(mode='eqsac', **overrides) -> EQSACLearner:
+    settings = dict(mode=mode, hidden=(32, 32), batch_size=16, learning_starts=32,
+                    replay_capacity=5000, queue_length=3, advising_budget=10)
+    settings.update(overrides)
+    return EQSACLearner(3, LOW, HIGH, LearnerConfig(**settings))
+
+
+class ScriptedExpert:
+    """Gives ``answer`` for every request and remembers the requests."""
+
+    def __init__(self, answer):
+        self.answer = answer
+        self.requests = []
+
+    def __call__(self, request):
+        self.requests.append(request)
+        return self.answer(request) if callable(self.answer) else self.answer
+
+
+def pendulum_episode(learner, expert, seed=0):
+    env = make_env('Pendulum-v1', max_episode_steps=30)
+    try:
+        return run_episode(env, learner, expert, seed=seed)
+    finally:
+        env.close()
+
+
+def test_config_refuses_bad_values_with_the_field_name():
+    with pytest.raises(ValueError, match='gamma'):
+        LearnerConfig(gamma=1.5)
+    with pytest.raises(ValueError, match='mode'):
+        LearnerConfig(mode='ddpg')
+
+
+def test_propose_validates_observations():
+    learner = small_learner()
+    with pytest.raises(ValueError, match='3'):
+        learner.propose([0.0, 1.0])
+    with pytest.raises(ValueError, match='non-finite'):
+        learner.propose([0.0, float('nan'), 1.0])
+
+
+def test_actions_stay_in_env_bounds():
+    learner = small_learner()
+    actions = np.array([learner.propose(np.random.randn(3)).action for _ in range(200)])
+    assert actions.min() >= -2.0 and actions.max() <= 2.0 and actions.std() > 0.1
+
+
+def test_advice_is_requested_exactly_when_gates_fire_and_used():
+    learner = small_learner(advising_budget=100)
+    expert = ScriptedExpert(Advice(np.array([1.5], dtype=np.float32), expert_name='x'))
+    summary = pendulum_episode(learner, expert)
+    assert summary.advice_asked == len(expert.requests) > 0
+    assert summary.advice_given == summary.advice_asked
+    assert len(learner.advice_replay) == summary.advice_given
+    stored = learner.advice_replay.action[:len(learner.advice_replay), 0]
+    assert torch.allclose(stored, torch.full_like(stored, 0.75))    # 1.5 normalised by scale 2
+    request = expert.requests[0]
+    assert request.episode == 0 and np.isfinite(request.entropy) and request.discrepancy >= 0
+
+
+def test_sac_never_asks_and_keeps_one_buffer():
+    learner = small_learner(mode='sac')
+    expert = ScriptedExpert(Advice(np.array([1.0], dtype=np.float32)))
+    summary = pendulum_episode(learner, expert)
+    assert expert.requests == [] and summary.advice_asked == 0 and len(learner.advice_replay) == 0
+
+
+def test_no_advice_outside_the_budget():
+    learner = small_learner(advising_budget=1)
+    expert = ScriptedExpert(Advice(np.array([1.0], dtype=np.float32)))
+    pendulum_episode(learner, expert)
+    asked_in_budget = len(expert.requests)
+    second = pendulum_episode(learner, expert)
+    assert asked_in_budget > 0
+    assert second.episode == 1 and second.advice_asked == 0 and len(expert.requests) == asked_in_budget
+
+
+@pytest.mark.parametrize('answer,field', [
+    (Advice.decline('deadman not held'), 'declined'),
+    (Advice(np.array([5.0], dtype=np.float32)), 'out_of_bounds'),
+    (Advice(np.array([np.nan], dtype=np.float32)), 'non_finite'),
+    (Advice(np.array([0.1, 0.2], dtype=np.float32)), 'wrong_size'),
+])
+def test_refused_or_bad_advice_keeps_own_action_and_is_counted_apart(answer, field):
+    learner = small_learner(advising_budget=100)
+    summary = pendulum_episode(learner, ScriptedExpert(answer))
+    assert summary.advice_asked > 0 and summary.advice_given == 0
+    assert len(learner.advice_replay) == 0
+    counts = learner.advice_total
+    if field == 'declined':
+        assert counts.declined == summary.advice_asked
+    else:
+        assert counts.failed[field] == summary.advice_asked == summary.advice_failed
+
+
+def test_a_crashing_expert_does_not_stop_training():
+    def broken(request):
+        raise RuntimeError('expert bug')
+    learner = small_learner(advising_budget=100)
+    summary = pendulum_episode(learner, broken)
+    assert summary.length == 30 and learner.advice_total.failed['error'] == summary.advice_asked > 0
+
+
+def test_non_finite_transition_never_reaches_the_buffer():
+    learner = small_learner()
+    with pytest.raises(ValueError, match='non-finite'):
+        learner.step([0, 0, 0], [0.0], float('nan'), [0, 0, 0], False, False)
+    with pytest.raises(ValueError):
+        learner.step([0, 0, 0], [0.0], 1.0, [0, np.inf, 0], False, False)
+    assert len(learner.replay) == 0 and learner.total_steps == 0
+
+
+def test_update_order_main_critic_then_advice_critic_then_actor(monkeypatch):
+    learner = small_learner()
+    calls = []
+    original_critic = learner._critic_update
+    original_actor = learner._actor_and_alpha_update
+    monkeypatch.setattr(learner, '_critic_update', lambda b: calls.append(('critic', b)) or original_critic(b))
+    monkeypatch.setattr(learner, '_actor_and_alpha_update',
+                        lambda b: calls.append(('actor', b)) or original_actor(b))
+    for _ in range(40):
+        learner.replay.add(np.random.randn(3), [0.1], -1.0, np.random.randn(3), False)
+
+    learner.update()   # advice buffer empty: the second critic step is skipped
+    assert [c[0] for c in calls] == ['critic', 'actor']
+    assert calls[0][1] is calls[1][1]
+
+    calls.clear()
+    for _ in range(3):   # fewer than a batch: sampled with replacement
+        learner.advice_replay.add(np.ones(3), [0.5], 1.0, np.ones(3), True)
+    learner.update()
+    assert [c[0] for c in calls] == ['critic', 'critic', 'actor']
+    advice_batch = calls[1][1]
+    assert advice_batch.obs.shape == (16, 3) and torch.all(advice_batch.action == 0.5)
+    assert calls[2][1] is calls[0][1]   # the actor trains on the main batch
+
+
+def test_qasac_also_uses_the_advice_critic_step_but_sac_does_not(monkeypatch):
+    for mode, expected in [('qasac', 2), ('sac', 1)]:
+        learner = small_learner(mode=mode)
+        count = []
+        original = learner._critic_update
+        monkeypatch.setattr(learner, '_critic_update', lambda b: count.append(1) or original(b))
+        for _ in range(20):
+            learner.replay.add(np.random.randn(3), [0.1], -1.0, np.random.randn(3), False)
+            learner.advice_replay.add(np.random.randn(3), [0.1], -1.0, np.random.randn(3), False)
+        learner.update()
+        assert len(count) == expected, mode
+
+
+def test_updates_change_the_networks():
+    learner = small_learner(learning_starts=8)
+    before = [p.clone() for p in learner.critic.parameters()]
+    pendulum_episode(learner, None)
+    assert learner.updates == 30 - 8 + 1
+    assert any(not torch.equal(a, b) for a, b in zip(before, learner.critic.parameters()))
+
+
+def test_same_seed_same_actions_and_gate_decisions():
+    def trace(seed):
+        learner = small_learner(seed=seed, advising_budget=100)
+        log = []
+        expert = ScriptedExpert(lambda r: log.append((r.step, round(r.discrepancy, 6))) or Advice(r.proposed_action))
+        summary = pendulum_episode(learner, expert)
+        return summary.episode_return, log, learner.propose(np.ones(3)).action.tolist()
+
+    assert trace(7) == trace(7)
+    assert trace(7)[2] != trace(8)[2]
+
+
+def test_checkpoint_round_trip_gives_identical_actions_and_counters(tmp_path):
+    learner = small_learner(advising_budget=100)
+    pendulum_episode(learner, ScriptedExpert(Advice(np.array([1.0], dtype=np.float32))))
+    save_checkpoint(learner, tmp_path / 'ckpt.pt', tmp_path / 'replay.pt')
+
+    restored = small_learner(advising_budget=100, seed=999)
+    load_checkpoint(restored, tmp_path / 'ckpt.pt', tmp_path / 'replay.pt')
+    assert restored.episode == learner.episode == 1
+    assert restored.total_steps == learner.total_steps
+    assert restored.advice_total.to_dict() == learner.advice_total.to_dict()
+    assert restored.gates.d_queue.values() == learner.gates.d_queue.values()
+    assert len(restored.replay) == len(learner.replay) and len(restored.advice_replay) == len(learner.advice_replay)
+    for _ in range(5):
+        obs = np.random.randn(3)
+        a, b = learner.propose(obs), restored.propose(obs)
+        assert np.array_equal(a.action, b.action) and a.decision == b.decision
+    learner.update()
+    restored.update()
+    assert all(torch.equal(p, q) for p, q in zip(learner.actor.parameters(), restored.actor.parameters()))
+
+
+def test_corrupt_and_foreign_checkpoints_give_clear_errors_and_change_nothing(tmp_path):
+    learner = small_learner()
+    save_checkpoint(learner, tmp_path / 'good.pt')
+    data = (tmp_path / 'good.pt').read_bytes()
+    (tmp_path / 'truncated.pt').write_bytes(data[:len(data) // 2])
+    (tmp_path / 'text.pt').write_text('not a checkpoint')
+    torch.save({'weights': torch.zeros(3)}, tmp_path / 'other.pt')
+    other_env = EQSACLearner(8, [-1, -1], [1, 1], LearnerConfig(hidden=(32, 32)))
+    save_checkpoint(other_env, tmp_path / 'lunar.pt')
+
+    target = small_learner(seed=5)
+    before = [p.clone() for p in target.actor.parameters()]
+    for name, message in [('truncated.pt', 'not a readable'), ('text.pt', 'not a readable'),
+                          ('other.pt', 'expected a eqhrl_ros.checkpoint'), ('lunar.pt', 'observations of 8'),
+                          ('missing.pt', 'no such file')]:
+        with pytest.raises(CheckpointError, match=message):
+            load_checkpoint(target, tmp_path / name)
+    assert all(torch.equal(a, b) for a, b in zip(before, target.actor.parameters()))
+
+
+class _Payload:
+    def __reduce__(self):
+        return (os.system, ('touch /tmp/eqhrl_pwned',))
+
+
+def test_a_malicious_pickle_is_refused_without_running_code(tmp_path):
+    marker = '/tmp/eqhrl_pwned'
+    if os.path.exists(marker):
+        os.remove(marker)
+    torch.save({'format': 'eqhrl_ros.checkpoint', 'version': 1, 'evil': _Payload()}, tmp_path / 'evil.pt')
+    with pytest.raises(CheckpointError):
+        load_checkpoint(small_learner(), tmp_path / 'evil.pt')
+    with pytest.raises(CheckpointError):
+        PolicyExpert(tmp_path / 'evil.pt')
+    assert not os.path.exists(marker)
+
+
+def test_exported_policy_serves_the_learners_deterministic_action(tmp_path):
+    learner = small_learner()
+    export_policy(learner, tmp_path / 'policy.pt')
+    expert = PolicyExpert(tmp_path / 'policy.pt')
+    obs = np.array([0.2, -0.3, 1.0], dtype=np.float32)
+    assert np.allclose(expert.action(obs), learner.act(obs, deterministic=True))
+    assert (tmp_path / 'policy.pt').stat().st_size < 100_000
