@@ -1,0 +1,99 @@
+"""eqhrl-train: env, expert and learner nodes in one process, for machines without ros2 launch.
+
+    eqhrl-train --params pendulum --output runs/pendulum_eqsac [--mode qasac] [--episodes 50]
+
+The three nodes are the same classes `ros2 run` starts; here one executor spins
+them together. Ctrl-C saves a checkpoint; --resume continues from it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.parameter import Parameter
+
+from .core.checkpoint import CheckpointError
+from .nodes.expert_node import ExpertNode
+from .nodes.gym_env_node import GymEnvNode
+from .nodes.learner_node import LearnerNode
+from .paths import params_file
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog='eqhrl-train', description=__doc__.split('\n')[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument('--params', default='pendulum',
+                        help='params file: a path, or a name from share/eqhrl_ros/params')
+    parser.add_argument('--output', default=None, help='output folder (overrides learner output_dir)')
+    parser.add_argument('--mode', choices=('sac', 'qasac', 'eqsac'), help='overrides learner mode')
+    parser.add_argument('--episodes', type=int, help='overrides learner max_episodes')
+    parser.add_argument('--seed', type=int, help='overrides the env and learner seeds')
+    parser.add_argument('--resume', action='store_true', help='continue from <output>/checkpoint.pt')
+    parser.add_argument('--no-expert', action='store_true', help='start no expert node')
+    return parser.parse_args(argv)
+
+
+def learner_overrides(args) -> list[Parameter]:
+    overrides = [Parameter('shutdown_when_done', value=True)]
+    if args.output:
+        overrides.append(Parameter('output_dir', value=str(args.output)))
+    if args.mode:
+        overrides.append(Parameter('mode', value=args.mode))
+    if args.episodes is not None:
+        overrides.append(Parameter('max_episodes', value=args.episodes))
+    if args.seed is not None:
+        overrides.append(Parameter('seed', value=args.seed))
+    if args.resume:
+        overrides.append(Parameter('resume', value=True))
+    return overrides
+
+
+def run(args) -> LearnerNode | None:
+    path = params_file(args.params)
+    rclpy.init(args=['--ros-args', '--params-file', str(path)])
+    nodes = []
+    learner = None
+    try:
+        env_overrides = [Parameter('seed', value=args.seed)] if args.seed is not None else []
+        nodes.append(GymEnvNode(parameter_overrides=env_overrides))
+        if not args.no_expert:
+            nodes.append(ExpertNode())
+        learner = LearnerNode(parameter_overrides=learner_overrides(args))
+        nodes.append(learner)
+        executor = SingleThreadedExecutor()
+        for node in nodes:
+            executor.add_node(node)
+        start = time.monotonic()
+        try:
+            executor.spin()   # returns when the learner shuts the context down (max_episodes)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            print('\ninterrupted: saving a checkpoint', file=sys.stderr)
+        learner.wall_time_s = time.monotonic() - start
+        return learner
+    finally:
+        if learner is not None:
+            learner.save()
+            learner.close()
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        learner = run(args)
+    except (CheckpointError, ValueError, FileNotFoundError,
+            rclpy.exceptions.ParameterException) as error:
+        print(f'eqhrl-train: {error}', file=sys.stderr)
+        return 1
+    print(f'done: {learner.learner.episode} episodes, results in {learner.output_dir}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,46 @@
+"""eqhrl-demo (make demo): EQSAC learns Pendulum-v1 through the three ROS nodes, with the
+heuristic expert, then prints a summary and saves a plot of return and advice per episode."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from . import bringup
+from .plots import plot_training, read_episodes
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog='eqhrl-demo', description=__doc__)
+    parser.add_argument('--output', default='runs/demo', help='output folder')
+    parser.add_argument('--params', default='demo', help='params file (name or path)')
+    args = parser.parse_args(argv)
+
+    status = bringup.main(['--params', args.params, '--output', args.output])
+    if status != 0:
+        return status
+    output = Path(args.output)
+    data = read_episodes(output / 'episodes.csv')
+    returns = data['return']
+    k = max(1, len(returns) // 10)
+    png = plot_training(output / 'episodes.csv', output / 'demo.png',
+                        title='EQSAC on Pendulum-v1 through ROS 2 (heuristic expert)')
+    print()
+    print('=' * 64)
+    print(f'EQSAC on Pendulum-v1: {len(returns)} episodes, {int(data["total_steps"][-1])} steps')
+    print(f'  mean return, first {k} episodes: {np.mean(returns[:k]):8.1f}')
+    print(f'  mean return, last  {k} episodes: {np.mean(returns[-k:]):8.1f}')
+    print(f'  success rate, last {k} episodes: {np.mean(data["success"][-k:]):8.0%}')
+    print(f'  advice asked {int(data["advice_asked"].sum())}, given {int(data["advice_given"].sum())} '
+          f'(in {int((data["advice_asked"] > 0).sum())} episodes)')
+    print(f'  plot: {png}')
+    print(f'  csv:  {output / "episodes.csv"}; checkpoint and policy in {output}')
+    print('=' * 64)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,119 @@
+"""gym_env: a gymnasium env behind Float32MultiArray topics.
+
+Publishes ``observation`` (obs, reward, flags, episode, step in one message) and
+steps when an action arrives on ``action``: lock-step by default, or at a fixed
+rate holding the last action (``realtime``), for people watching.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float32MultiArray
+
+from ..core.envs import make_env
+from . import messages
+from .params import GYM_ENV_PARAMS, choices_validator, declare, reject_unknown_overrides
+
+QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class GymEnvNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__('gym_env', **kwargs)
+        reject_unknown_overrides(self, GYM_ENV_PARAMS)
+        self.params = declare(self, GYM_ENV_PARAMS)
+        self.add_on_set_parameters_callback(choices_validator(GYM_ENV_PARAMS))
+        p = self.params
+        self.env = make_env(p['env_id'], p['max_episode_steps'])
+        self.action_dim = int(np.prod(self.env.action_space.shape))
+        self.obs_dim = int(np.prod(self.env.observation_space.shape))
+        self.episode = 0
+        self.step_index = 0
+        self.rejected_actions = 0
+        self.stale_actions = 0
+        self._last_publish = time.monotonic()
+        self._held_action = ((self.env.action_space.low + self.env.action_space.high) / 2).astype(np.float32)
+
+        self.observation_pub = self.create_publisher(Float32MultiArray, 'observation', QOS)
+        self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS)
+        self._reset(seed=p['seed'])
+        if p['realtime']:
+            self.create_timer(1.0 / p['rate_hz'], self._realtime_tick)
+        else:
+            self.create_timer(p['republish_period_s'], self._republish_if_idle)
+        self.get_logger().info(
+            f"{p['env_id']}: obs {self.obs_dim}, action {self.action_dim} in "
+            f"[{self.env.action_space.low.tolist()}, {self.env.action_space.high.tolist()}], "
+            f"{'real-time at %.1f Hz' % p['rate_hz'] if p['realtime'] else 'lock-step'}")
+
+    def _publish(self) -> None:
+        self.observation_pub.publish(self._last_msg)
+        self._last_publish = time.monotonic()
+
+    def _reset(self, seed=None) -> None:
+        obs, _ = self.env.reset(seed=seed)
+        self.step_index = 0
+        self._last_msg = messages.observation_msg(obs, 0.0, False, False, self.episode, 0)
+        self._publish()
+
+    def _step(self, action: np.ndarray) -> None:
+        obs, reward, terminated, truncated, _ = self.env.step(action)
+        self.step_index += 1
+        self._last_msg = messages.observation_msg(obs, reward, terminated, truncated,
+                                                  self.episode, self.step_index)
+        self._publish()
+        if terminated or truncated:
+            self.episode += 1
+            self._reset()
+
+    def _on_action(self, msg: Float32MultiArray) -> None:
+        try:
+            action, tag = messages.parse_action(msg, self.action_dim)
+        except messages.MessageError as error:
+            self.rejected_actions += 1
+            self.get_logger().error(f'rejected action, not stepping: {error}')
+            return
+        if self.params['realtime']:
+            self._held_action = action
+            return
+        if tag is not None and tag != (self.episode, self.step_index):
+            self.stale_actions += 1   # an answer to an observation already stepped past
+            return
+        self._step(action)
+
+    def _realtime_tick(self) -> None:
+        self._step(self._held_action)
+
+    def _republish_if_idle(self) -> None:
+        # Nobody acted on the last observation for a whole period: a learner that
+        # started late, restarted, or lost the message gets it again.
+        if time.monotonic() - self._last_publish >= self.params['republish_period_s']:
+            self._publish()
+
+    def destroy_node(self):
+        self.env.close()
+        return super().destroy_node()
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = GymEnvNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,122 @@
+"""Layouts of the std_msgs/Float32MultiArray messages, built and checked in one place.
+
+Each message labels its fields in ``layout.dim`` (label, size; stride = size), in order:
+
+- observation (env -> learner):  obs[n], reward, terminated, truncated, episode, step
+  One message carries a whole step, so observation, reward and flags are never
+  paired across topics. step == 0 marks the first observation of an episode.
+- action (learner -> env):       action[m], episode, step
+  episode and step name the observation the action answers; the env ignores a
+  tagged action for another step. A bare action[m] (no tag) is accepted too.
+- episode_stats (learner):       see STATS_FIELDS.
+- gate_debug (learner):          see GATE_FIELDS.
+
+Episode and step are float32: exact up to 16,777,216.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+from std_msgs.msg import Float32MultiArray, MultiArrayDimension
+
+OBS_TAIL = ('reward', 'terminated', 'truncated', 'episode', 'step')
+ACTION_TAIL = ('episode', 'step')
+STATS_FIELDS = ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'advice_declined',
+                'advice_failed', 'success', 'total_steps', 'alpha')
+GATE_FIELDS = ('episode', 'step', 'fire', 'ask', 'respond', 'discrepancy', 'entropy',
+               'd_threshold', 'e_threshold')
+
+
+class MessageError(ValueError):
+    """A message that does not fit its layout; the text names what is wrong."""
+
+
+def build(fields: Sequence[tuple[str, Sequence[float]]]) -> Float32MultiArray:
+    msg = Float32MultiArray()
+    data = []
+    for label, values in fields:
+        values = np.atleast_1d(np.asarray(values, dtype=np.float32))
+        msg.layout.dim.append(MultiArrayDimension(label=label, size=len(values), stride=len(values)))
+        data.extend(values.tolist())
+    msg.data = data
+    return msg
+
+
+@dataclass(frozen=True)
+class EnvStep:
+    obs: np.ndarray
+    reward: float
+    terminated: bool
+    truncated: bool
+    episode: int
+    step: int
+
+    @property
+    def done(self) -> bool:
+        return self.terminated or self.truncated
+
+
+def observation_msg(obs, reward: float, terminated: bool, truncated: bool, episode: int, step: int):
+    return build([('obs', obs), ('reward', [reward]), ('terminated', [float(terminated)]),
+                  ('truncated', [float(truncated)]), ('episode', [episode]), ('step', [step])])
+
+
+def parse_observation(msg: Float32MultiArray, obs_dim: int, topic: str = 'observation') -> EnvStep:
+    data = np.asarray(msg.data, dtype=np.float32)
+    expected = obs_dim + len(OBS_TAIL)
+    if data.shape[0] != expected:
+        raise MessageError(f"'{topic}': {data.shape[0]} values, expected {expected} "
+                           f"(obs[{obs_dim}] + {', '.join(OBS_TAIL)})")
+    if not np.isfinite(data).all():
+        bad = [i for i in range(len(data)) if not np.isfinite(data[i])]
+        raise MessageError(f"'{topic}': non-finite value(s) at index {bad}")
+    obs = data[:obs_dim].copy()
+    reward, terminated, truncated, episode, step = data[obs_dim:].tolist()
+    return EnvStep(obs, float(reward), terminated > 0.5, truncated > 0.5, int(episode), int(step))
+
+
+def action_msg(action, episode: Optional[int] = None, step: Optional[int] = None):
+    fields = [('action', action)]
+    if episode is not None:
+        fields += [('episode', [episode]), ('step', [step])]
+    return build(fields)
+
+
+def parse_action(msg: Float32MultiArray, action_dim: int, topic: str = 'action'):
+    """Returns (action, (episode, step) or None). Raises MessageError on size or NaN."""
+    data = np.asarray(msg.data, dtype=np.float32)
+    if data.shape[0] not in (action_dim, action_dim + len(ACTION_TAIL)):
+        raise MessageError(f"'{topic}': {data.shape[0]} values, expected {action_dim} "
+                           f"(or {action_dim + 2} with episode and step)")
+    if not np.isfinite(data).all():
+        raise MessageError(f"'{topic}': non-finite value(s) {data.tolist()}")
+    tag = None
+    if data.shape[0] == action_dim + len(ACTION_TAIL):
+        tag = (int(data[action_dim]), int(data[action_dim + 1]))
+    return data[:action_dim].copy(), tag
+
+
+def stats_msg(summary) -> Float32MultiArray:
+    values = [summary.episode, summary.episode_return, summary.length, summary.advice_asked,
+              summary.advice_given, summary.advice_declined, summary.advice_failed,
+              float(summary.success), summary.total_steps, summary.alpha]
+    return build(list(zip(STATS_FIELDS, ([v] for v in values))))
+
+
+def parse_fields(msg: Float32MultiArray) -> dict:
+    """{label: value or list} from a labelled message (for tests and tools)."""
+    out, offset = {}, 0
+    for dim in msg.layout.dim:
+        values = list(msg.data[offset:offset + dim.size])
+        out[dim.label] = values[0] if dim.size == 1 else values
+        offset += dim.size
+    return out
+
+
+def gate_msg(episode: int, step: int, decision) -> Float32MultiArray:
+    values = [episode, step, float(decision.fire), float(decision.ask), float(decision.respond),
+              decision.discrepancy, decision.entropy, decision.d_threshold, decision.e_threshold]
+    return build(list(zip(GATE_FIELDS, ([v] for v in values))))

@@ -1,0 +1,151 @@
+"""Declared ROS parameters: one table per node, with descriptions and ranges.
+
+rclpy checks each value against its descriptor when the node starts (from a
+params file or --ros-args -p) and on every set_parameters call, and refuses a
+value out of range or of the wrong type with a message naming the parameter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Optional
+
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.node import Node
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    default: Any
+    description: str
+    range: Optional[tuple] = None      # (low, high) for numbers, inclusive
+    choices: Optional[tuple] = None    # allowed strings
+    dynamic: bool = False              # may change while the node runs
+
+    def descriptor(self) -> ParameterDescriptor:
+        text = self.description
+        if self.choices:
+            text += f" (one of: {', '.join(self.choices)})"
+        descriptor = ParameterDescriptor(description=text, read_only=not self.dynamic)
+        if self.range is not None:
+            low, high = self.range
+            if isinstance(self.default, bool):
+                pass
+            elif isinstance(self.default, int):
+                descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=0)]
+            elif isinstance(self.default, float):
+                descriptor.floating_point_range = [
+                    FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
+        return descriptor
+
+
+INT_MAX = 2**31 - 1
+
+# Parameters of the learner that map one-to-one onto core.LearnerConfig fields.
+LEARNER_CONFIG_PARAMS = (
+    Param('mode', 'eqsac', 'Learning mode: plain SAC, QASAC (ask gate only) or EQSAC (ask and respond gates)',
+          choices=('sac', 'qasac', 'eqsac')),
+    Param('hidden_sizes', [256, 256], 'Hidden layer sizes of actor and critics (Table 1: 256x256)'),
+    Param('actor_lr', 1e-4, 'Actor learning rate (Table 1)', (1e-8, 1.0)),
+    Param('critic_lr', 1e-3, 'Critic learning rate (Table 1)', (1e-8, 1.0)),
+    Param('alpha_lr', 1e-4, 'Temperature learning rate (Table 1)', (1e-8, 1.0)),
+    Param('initial_alpha', 1.0, 'Initial entropy temperature alpha', (1e-6, 100.0)),
+    Param('gamma', 0.99, 'Discount factor (Table 1)', (0.0, 1.0)),
+    Param('tau', 0.005, 'Soft target update rate (Table 1)', (1e-6, 1.0)),
+    Param('batch_size', 256, 'Minibatch size (not in the paper; SB3 default)', (1, 65536)),
+    Param('replay_capacity', 500_000, 'Replay buffer size (Table 1)', (1, 50_000_000)),
+    Param('learning_starts', 5_000, 'Transitions stored before updates start (Table 1 "minimal buffer size")',
+          (1, INT_MAX)),
+    Param('updates_per_step', 1, 'Gradient updates per env step', (0, 100)),
+    Param('random_warmup_steps', 0, 'Uniform-random actions for the first N steps (off in the paper)',
+          (0, INT_MAX)),
+    Param('seed', 42, 'Random seed (Table 1)', (0, INT_MAX)),
+    Param('advising_budget', 30, 'Early-advising budget: advice only in episodes below it (Eq. 7)',
+          (0, INT_MAX), dynamic=True),
+    Param('queue_length', 15, 'Length of the D and E FIFO queues (Table 1)', (1, 100_000)),
+    Param('threshold_kind', 'dynamic', 'Dynamic queue thresholds (Eq. 10) or fixed ones',
+          choices=('dynamic', 'fixed')),
+    Param('fixed_d_threshold', 1.0, 'Ask when D(s) exceeds this (threshold_kind fixed)', (0.0, 1e9)),
+    Param('fixed_e_threshold', 0.0, 'Respond when E(s) is below this (threshold_kind fixed)', (-1e9, 1e9)),
+    Param('entropy_samples', 32, 'Monte Carlo samples K of the entropy estimate E(s) (Eq. 9)', (1, 100_000)),
+    Param('actor_on_advice', False, 'Also train the actor on the advice batch'),
+)
+
+LEARNER_NODE_PARAMS = (
+    Param('env_id', 'Pendulum-v1', 'Gymnasium env id: sizes, action bounds and the success criterion'),
+    Param('advice_enabled', True, 'Ask the expert when the gates fire (off: the gates are only logged)',
+          dynamic=True),
+    Param('advice_timeout_s', 0.5, 'Seconds to wait for the expert before acting alone', (0.001, 600.0),
+          dynamic=True),
+    Param('accept_expert', '', 'Accept advice only from this expert name (empty: any)', dynamic=True),
+    Param('output_dir', 'runs/learner', 'Folder for episodes.csv, checkpoints and the exported policy'),
+    Param('checkpoint_every_episodes', 10, 'Save a checkpoint every N episodes (0: only on shutdown)',
+          (0, INT_MAX)),
+    Param('save_replay', False, 'Also save the replay memories with each checkpoint (large)'),
+    Param('resume', False, 'Resume from output_dir/checkpoint.pt at start-up'),
+    Param('max_episodes', 0, 'Stop learning after this many episodes (0: never)', (0, INT_MAX)),
+    Param('shutdown_when_done', False, 'Shut the process down once max_episodes is reached'),
+    Param('publish_gate_debug', False, 'Publish every gate decision on ~/gate_debug', dynamic=True),
+    Param('torch_threads', 0, 'torch intra-op threads (0: torch default)', (0, 256)),
+)
+
+GYM_ENV_PARAMS = (
+    Param('env_id', 'Pendulum-v1', 'Gymnasium env id (any Box action space)'),
+    Param('max_episode_steps', 100, 'Steps before truncation (paper: Pendulum 100, LunarLander 600)',
+          (1, INT_MAX)),
+    Param('seed', 42, 'Seed of the first reset', (0, INT_MAX)),
+    Param('realtime', False, 'Step at rate_hz holding the last action, instead of lock-step on each action'),
+    Param('rate_hz', 20.0, 'Step rate in real-time mode', (0.1, 1000.0)),
+    Param('republish_period_s', 1.0, 'Lock-step: re-send the current observation if no action came for this '
+          'long (a learner that started late or restarted)', (0.01, 3600.0)),
+)
+
+EXPERT_PARAMS = (
+    Param('backend', 'heuristic', 'Who answers: a built-in controller or an exported policy file',
+          choices=('heuristic', 'policy')),
+    Param('env_id', 'Pendulum-v1', 'Env the heuristic controller is for'),
+    Param('policy_path', '', 'Policy file exported by a learner (backend policy)'),
+    Param('response_delay_s', 0.0, 'Artificial delay before answering (to rehearse a slow expert)',
+          (0.0, 600.0), dynamic=True),
+    Param('enabled', True, 'Answer with advice; when false, decline every request', dynamic=True),
+)
+
+
+def declare(node: Node, params: tuple[Param, ...]) -> dict:
+    """Declare every parameter; return {name: value}. Bad values raise with the name in the message."""
+    values = {}
+    for param in params:
+        value = node.declare_parameter(param.name, param.default, param.descriptor()).value
+        if param.choices and value not in param.choices:
+            raise ValueError(f"parameter '{param.name}' is {value!r}; expected one of {param.choices}")
+        values[param.name] = value
+    return values
+
+
+def choices_validator(params: tuple[Param, ...]):
+    """An on-set-parameters callback refusing strings outside a parameter's choices."""
+    by_name = {p.name: p for p in params}
+
+    def validate(changes) -> SetParametersResult:
+        for change in changes:
+            param = by_name.get(change.name)
+            if param and param.choices and change.value not in param.choices:
+                return SetParametersResult(
+                    successful=False, reason=f"'{change.name}' must be one of {param.choices}")
+        return SetParametersResult(successful=True)
+    return validate
+
+
+def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
+    """Refuse parameters given for this node that it does not declare (a typo in a params file).
+
+    rclpy would otherwise ignore them silently and the run would use a default.
+    """
+    known = {p.name for table in tables for p in table} | {'use_sim_time', 'start_type_description_service'}
+    # rclpy keeps the overrides from params files and -p arguments here; there is no public accessor.
+    unknown = sorted(set(getattr(node, '_parameter_overrides', {})) - known)
+    if unknown:
+        raise ValueError(f"unknown parameter(s) for node '{node.get_name()}': {', '.join(unknown)}; "
+                         f"known: {', '.join(sorted(known))}")

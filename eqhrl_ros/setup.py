@@ -1,0 +1,33 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'eqhrl_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['tests']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml', 'README.md']),
+        ('share/' + package_name + '/params', glob('params/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='eqhrl_ros maintainers',
+    maintainer_email='maintainers@eqhrl.dev',
+    description='EQ-HRL human-in-the-loop reinforcement learning for ROS 2.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'gym_env = eqhrl_ros.nodes.gym_env_node:main',
+            'learner = eqhrl_ros.nodes.learner_node:main',
+            'expert = eqhrl_ros.nodes.expert_node:main',
+            'eqhrl-train = eqhrl_ros.bringup:main',
+            'eqhrl-demo = eqhrl_ros.demo:main',
+        ],
+    },
+)

@@ -1,0 +1,284 @@
+"""The env, learner and expert nodes, spun by rclpy executors in the test process."""
+
+import csv
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float32MultiArray
+
+from eqhrl_interfaces.srv import Advise
+from eqhrl_ros.nodes import messages
+from eqhrl_ros.nodes.expert_node import ExpertNode
+from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+from eqhrl_ros.nodes.learner_node import LearnerNode
+
+PARAMS_DIR = Path(__file__).resolve().parents[1] / 'params'
+
+
+def spin_until(executor, condition, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while not condition() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
+    return condition()
+
+
+def params(**values):
+    return [Parameter(name, value=value) for name, value in values.items()]
+
+
+def small_learner_params(tmp_path, **extra):
+    values = dict(env_id='Pendulum-v1', mode='eqsac', hidden_sizes=[16, 16], batch_size=16,
+                  learning_starts=40, queue_length=3, advising_budget=2, advice_timeout_s=0.3,
+                  output_dir=str(tmp_path), publish_gate_debug=True, checkpoint_every_episodes=1)
+    values.update(extra)
+    return params(**values)
+
+
+class Harness:
+    """Nodes in one executor, destroyed at the end of the test."""
+
+    def __init__(self, context):
+        self.context = context
+        self.executor = SingleThreadedExecutor(context=context)
+        self.nodes = []
+
+    def add(self, node):
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def spin_until(self, condition, timeout=10.0):
+        return spin_until(self.executor, condition, timeout)
+
+    def close(self):
+        self.executor.shutdown()
+        for node in self.nodes:
+            if isinstance(node, LearnerNode):
+                node.close()
+            node.destroy_node()
+
+
+@pytest.fixture
+def harness(ros_context):
+    h = Harness(ros_context)
+    yield h
+    h.close()
+
+
+class Probe:
+    """A test node that records observations/stats/gates and can publish actions."""
+
+    def __init__(self, harness, name='probe'):
+        self.node = harness.add(rclpy.create_node(name, context=harness.context))
+        self.observations, self.stats, self.gates = [], [], []
+        self.node.create_subscription(Float32MultiArray, 'observation', self.observations.append, 50)
+        self.node.create_subscription(Float32MultiArray, 'learner/episode_stats', self.stats.append, 100)
+        self.node.create_subscription(Float32MultiArray, 'learner/gate_debug', self.gates.append, 1000)
+        self.action_pub = self.node.create_publisher(Float32MultiArray, 'action', 10)
+
+
+# ------------------------------------------------------------------ env node
+
+def test_env_node_layout_step_reset_and_rejections(harness, ros_context):
+    probe = Probe(harness)
+    env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(
+        max_episode_steps=3, republish_period_s=0.2)))
+    # The first observation is re-sent until someone acts, so a late subscriber gets it.
+    assert harness.spin_until(lambda: len(probe.observations) >= 1)
+    first = probe.observations[-1]
+    assert [(d.label, d.size) for d in first.layout.dim] == [
+        ('obs', 3), ('reward', 1), ('terminated', 1), ('truncated', 1), ('episode', 1), ('step', 1)]
+    step0 = messages.parse_observation(first, 3)
+    assert (step0.episode, step0.step, step0.done) == (0, 0, False)
+
+    probe.observations.clear()
+    probe.action_pub.publish(messages.action_msg([0.5], 0, 0))
+    assert harness.spin_until(lambda: any(messages.parse_observation(m, 3).step == 1 for m in probe.observations))
+
+    for bad in ([0.1, 0.2], [float('nan')]):
+        probe.action_pub.publish(messages.action_msg(bad))
+    assert harness.spin_until(lambda: env.rejected_actions == 2)
+    assert env.step_index == 1
+
+    probe.action_pub.publish(messages.action_msg([0.0], 0, 0))   # stale tag: ignored
+    assert harness.spin_until(lambda: env.stale_actions == 1)
+    assert env.step_index == 1
+
+    probe.observations.clear()
+    for step in (1, 2):
+        probe.action_pub.publish(messages.action_msg([0.0], 0, step))
+        assert harness.spin_until(lambda: env.step_index == step + 1 or env.episode == 1)
+    assert harness.spin_until(lambda: any(messages.parse_observation(m, 3).episode == 1 for m in probe.observations))
+    parsed = [messages.parse_observation(m, 3) for m in probe.observations]
+    last_of_episode = [p for p in parsed if p.episode == 0 and p.step == 3][0]
+    assert last_of_episode.truncated and not last_of_episode.terminated
+    assert any(p.episode == 1 and p.step == 0 for p in parsed)
+
+
+# ------------------------------------------------------------------ learner with stub experts
+
+class StubExpert:
+    """Serves Advise from its own executor thread, like a separate process would."""
+
+    def __init__(self, context, answer='advise', delay=0.0):
+        self.node = rclpy.create_node('stub_expert', context=context)
+        self.requests = []
+        self.answer, self.delay = answer, delay
+        self.node.create_service(Advise, 'advise', self._serve)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def _serve(self, request, response):
+        self.requests.append((request.episode, request.step, request.discrepancy, request.entropy))
+        if self.delay:
+            time.sleep(self.delay)
+        response.expert_name = 'stub'
+        if self.answer == 'advise':
+            response.advised, response.action = True, [1.0]
+        else:
+            response.advised, response.reason = False, 'not now'
+        return response
+
+    def close(self):
+        self.executor.shutdown()
+        self.thread.join(timeout=5)
+        self.node.destroy_node()
+
+
+def run_learner(harness, ros_context, tmp_path, episodes=3, **extra):
+    probe = Probe(harness)
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
+        tmp_path, max_episodes=episodes, **extra)))
+    assert harness.spin_until(lambda: learner.done, timeout=60)
+    return learner, probe
+
+
+def test_learner_asks_exactly_when_gates_fire_and_only_inside_budget(harness, ros_context, tmp_path):
+    expert = StubExpert(ros_context)
+    try:
+        learner, probe = run_learner(harness, ros_context, tmp_path, episodes=4)
+    finally:
+        expert.close()
+    assert harness.spin_until(lambda: len(probe.stats) == 4)
+    gates = [messages.parse_fields(m) for m in probe.gates]
+    fired = [(int(g['episode']), int(g['step'])) for g in gates if g['fire'] > 0.5]
+    assert fired, 'the gates never fired in the budget episodes'
+    assert [(r[0], r[1]) for r in expert.requests] == fired
+    assert all(episode < 2 for episode, _ in fired)              # advising_budget = 2
+    assert all(np.isfinite(r[3]) for r in expert.requests)       # eqsac sends E(s)
+    totals = learner.learner.advice_total
+    assert totals.asked == totals.given == len(fired)
+    assert len(learner.learner.advice_replay) == len(fired)
+
+
+def test_sac_mode_never_calls_the_service(harness, ros_context, tmp_path):
+    expert = StubExpert(ros_context)
+    try:
+        learner, _ = run_learner(harness, ros_context, tmp_path, episodes=2, mode='sac')
+    finally:
+        expert.close()
+    assert expert.requests == [] and learner.learner.advice_total.asked == 0
+
+
+@pytest.mark.parametrize('answer,delay,kind', [('decline', 0.0, 'declined'), ('advise', 0.6, 'timeout'),
+                                               (None, 0.0, 'unavailable')])
+def test_declining_slow_or_absent_expert_leaves_training_going(harness, ros_context, tmp_path,
+                                                               answer, delay, kind):
+    expert = StubExpert(ros_context, answer, delay) if answer else None
+    try:
+        learner, probe = run_learner(harness, ros_context, tmp_path, episodes=3, mode='qasac')
+    finally:
+        if expert:
+            expert.close()
+    totals = learner.learner.advice_total
+    assert learner.learner.episode == 3 and learner.learner.total_steps == 75
+    assert totals.asked > 0 and totals.given == 0
+    counted = totals.declined if kind == 'declined' else totals.failed[kind]
+    assert counted == totals.asked
+    assert len(learner.learner.advice_replay) == 0
+
+
+# ------------------------------------------------------------------ all three nodes
+
+def read_csv(path):
+    with open(path, newline='') as f:
+        return list(csv.DictReader(f))
+
+
+def test_three_nodes_run_and_resume_from_checkpoint(harness, ros_context, tmp_path):
+    harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
+    learner, probe = run_learner(harness, ros_context, tmp_path, episodes=3)
+    assert harness.spin_until(lambda: len(probe.stats) == 3)
+    rows = read_csv(tmp_path / 'episodes.csv')
+    stats = [messages.parse_fields(m) for m in probe.stats]
+    assert [int(r['episode']) for r in rows] == [0, 1, 2]
+    for row, stat in zip(rows, stats):
+        assert int(row['episode']) == int(stat['episode']) and int(row['length']) == int(stat['length']) == 25
+        assert float(row['return']) == pytest.approx(stat['return'], rel=1e-5)
+        assert int(row['advice_given']) == int(stat['advice_given'])
+    assert sum(int(r['advice_given']) for r in rows) > 0     # the heuristic expert answered
+    assert (tmp_path / 'checkpoint.pt').exists() and (tmp_path / 'policy.pt').exists()
+    steps_before = learner.learner.total_steps
+    for node in list(harness.nodes):
+        if isinstance(node, LearnerNode):
+            harness.executor.remove_node(node)
+            harness.nodes.remove(node)
+            node.close()
+            node.destroy_node()
+
+    resumed = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
+        tmp_path, max_episodes=5, resume=True)))
+    assert resumed.learner.episode == 3 and resumed.learner.total_steps == steps_before
+    assert harness.spin_until(lambda: resumed.done, timeout=60)
+    assert [int(r['episode']) for r in read_csv(tmp_path / 'episodes.csv')] == [0, 1, 2, 3, 4]
+
+
+# ------------------------------------------------------------------ parameters
+
+@pytest.mark.parametrize('name', ['pendulum', 'lunar_lander', 'demo'])
+def test_each_params_file_loads_into_all_three_nodes(name, tmp_path):
+    context = rclpy.Context()
+    rclpy.init(context=context, args=['--ros-args', '--params-file', str(PARAMS_DIR / f'{name}.yaml')])
+    nodes = []
+    try:
+        nodes.append(GymEnvNode(context=context))
+        nodes.append(ExpertNode(context=context))
+        nodes.append(LearnerNode(context=context, parameter_overrides=params(output_dir=str(tmp_path))))
+        env_id = nodes[0].params['env_id']
+        assert nodes[2].params['env_id'] == env_id == nodes[1].params['env_id']
+        assert nodes[2].config.advising_budget == {'pendulum': 30, 'lunar_lander': 300, 'demo': 20}[name]
+    finally:
+        for node in nodes:
+            if isinstance(node, LearnerNode):
+                node.close()
+            node.destroy_node()
+        context.try_shutdown()
+
+
+@pytest.mark.parametrize('override,message', [
+    (dict(gamma=1.5), 'gamma'),
+    (dict(mode='ddpg'), 'mode'),
+    (dict(batch_size='big'), 'batch_size'),
+    (dict(advice_timeuot_s=1.0), 'advice_timeuot_s'),
+])
+def test_bad_parameters_are_refused_at_start_up_naming_the_key(ros_context, tmp_path, override, message):
+    with pytest.raises(Exception, match=message):
+        LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, **override))
+
+
+def test_run_time_parameters_are_range_checked_and_applied(harness, ros_context, tmp_path):
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    results = learner.set_parameters(params(advising_budget=-1))
+    assert not results[0].successful
+    assert learner.set_parameters(params(advising_budget=7))[0].successful
+    assert learner.learner.gates.advising_budget == 7
+    assert not learner.set_parameters(params(seed=3))[0].successful    # read-only while running
