@@ -18,7 +18,7 @@ CMAKE_VENV_ARGS := -DPython3_EXECUTABLE=$(CURDIR)/$(VPY) \
 	-DCMAKE_PROJECT_INCLUDE=$(CURDIR)/tools/cmake/venv_underlay_fixes.cmake \
 	-DBUILD_TESTING=OFF
 # pip on some machines lists index folders that do not exist; keep its output readable.
-PIP_QUIET := grep -v "is ignored: it is neither a file nor a directory" || true
+PIP_QUIET := { grep -v "is ignored: it is neither a file nor a directory" || true; }
 
 INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 # Everything that goes into the installed eqhrl_ros (tests run from the source tree).
@@ -36,7 +36,7 @@ $(VENV)/.stamp-deps: requirements.txt constraints.txt
 	touch $@
 
 $(VENV)/.stamp-interfaces: $(VENV)/.stamp-deps $(INTERFACE_SRC) tools/cmake/venv_underlay_fixes.cmake
-	rm -rf $(BUILD)/eqhrl_interfaces
+	rm -rf $(BUILD)/eqhrl_interfaces && mkdir -p $(BUILD)
 	$(ROS_ENV) $(VENV)/bin/cmake -S eqhrl_interfaces -B $(BUILD)/eqhrl_interfaces \
 		-DCMAKE_INSTALL_PREFIX=$(CURDIR)/$(VENV) $(CMAKE_VENV_ARGS) >$(BUILD)/interfaces-configure.log \
 		|| { cat $(BUILD)/interfaces-configure.log; exit 1; }
