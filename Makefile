@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: setup test demo clean lock
+.PHONY: setup test demo bench clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -56,6 +56,14 @@ test: setup
 
 demo: setup
 	$(VENV)/bin/eqhrl-demo
+
+# Benchmarks (not part of the tests): Stable-Baselines3 is a benchmark-only dependency.
+$(VENV)/.stamp-bench: $(VENV)/.stamp-eqhrl_ros benchmarks/requirements.txt
+	$(VPY) -m pip install -q -r benchmarks/requirements.txt -c constraints.txt 2>&1 | $(PIP_QUIET)
+	touch $@
+
+bench: $(VENV)/.stamp-bench
+	$(VPY) benchmarks/bench_learner.py
 
 # Refresh constraints.txt from the current .venv (after changing requirements.txt).
 lock: $(VENV)/.stamp-deps

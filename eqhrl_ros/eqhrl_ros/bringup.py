@@ -13,13 +13,15 @@ import sys
 import time
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+import rclpy.exceptions
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from .core.checkpoint import CheckpointError
 from .nodes.expert_node import ExpertNode
 from .nodes.gym_env_node import GymEnvNode
 from .nodes.learner_node import LearnerNode
+from .nodes.lifecycle import spin
 from .paths import params_file
 
 
@@ -68,9 +70,8 @@ def run(args) -> LearnerNode | None:
         for node in nodes:
             executor.add_node(node)
         start = time.monotonic()
-        try:
-            executor.spin()   # returns when the learner shuts the context down (max_episodes)
-        except (KeyboardInterrupt, ExternalShutdownException):
+        spin(executor)   # returns at max_episodes (the learner shuts the context down) or on a signal
+        if not learner.done:
             print('\ninterrupted: saving a checkpoint', file=sys.stderr)
         learner.wall_time_s = time.monotonic() - start
         return learner

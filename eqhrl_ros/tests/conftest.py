@@ -28,3 +28,14 @@ def ros_context():
         yield context
     finally:
         context.try_shutdown()
+
+
+@pytest.fixture
+def harness(ros_context):
+    """Nodes spun by one executor in the test thread; all destroyed after the test."""
+    from ros_helpers import Harness
+    h = Harness(ros_context)
+    try:
+        yield h
+    finally:
+        h.close()

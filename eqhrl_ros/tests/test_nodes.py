@@ -1,87 +1,17 @@
 """The env, learner and expert nodes, spun by rclpy executors in the test process."""
 
 import csv
-import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
-from std_msgs.msg import Float32MultiArray
 
-from eqhrl_interfaces.srv import Advise
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
-
-PARAMS_DIR = Path(__file__).resolve().parents[1] / 'params'
-
-
-def spin_until(executor, condition, timeout=10.0):
-    deadline = time.monotonic() + timeout
-    while not condition() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.02)
-    return condition()
-
-
-def params(**values):
-    return [Parameter(name, value=value) for name, value in values.items()]
-
-
-def small_learner_params(tmp_path, **extra):
-    values = dict(env_id='Pendulum-v1', mode='eqsac', hidden_sizes=[16, 16], batch_size=16,
-                  learning_starts=40, queue_length=3, advising_budget=2, advice_timeout_s=0.3,
-                  output_dir=str(tmp_path), publish_gate_debug=True, checkpoint_every_episodes=1)
-    values.update(extra)
-    return params(**values)
-
-
-class Harness:
-    """Nodes in one executor, destroyed at the end of the test."""
-
-    def __init__(self, context):
-        self.context = context
-        self.executor = SingleThreadedExecutor(context=context)
-        self.nodes = []
-
-    def add(self, node):
-        self.nodes.append(node)
-        self.executor.add_node(node)
-        return node
-
-    def spin_until(self, condition, timeout=10.0):
-        return spin_until(self.executor, condition, timeout)
-
-    def close(self):
-        self.executor.shutdown()
-        for node in self.nodes:
-            if isinstance(node, LearnerNode):
-                node.close()
-            node.destroy_node()
-
-
-@pytest.fixture
-def harness(ros_context):
-    h = Harness(ros_context)
-    yield h
-    h.close()
-
-
-class Probe:
-    """A test node that records observations/stats/gates and can publish actions."""
-
-    def __init__(self, harness, name='probe'):
-        self.node = harness.add(rclpy.create_node(name, context=harness.context))
-        self.observations, self.stats, self.gates = [], [], []
-        self.node.create_subscription(Float32MultiArray, 'observation', self.observations.append, 50)
-        self.node.create_subscription(Float32MultiArray, 'learner/episode_stats', self.stats.append, 100)
-        self.node.create_subscription(Float32MultiArray, 'learner/gate_debug', self.gates.append, 1000)
-        self.action_pub = self.node.create_publisher(Float32MultiArray, 'action', 10)
-
+from ros_helpers import PARAMS_DIR, Probe, StubExpert, params, run_learner, small_learner_params
 
 # ------------------------------------------------------------------ env node
 
@@ -122,45 +52,6 @@ def test_env_node_layout_step_reset_and_rejections(harness, ros_context):
 
 
 # ------------------------------------------------------------------ learner with stub experts
-
-class StubExpert:
-    """Serves Advise from its own executor thread, like a separate process would."""
-
-    def __init__(self, context, answer='advise', delay=0.0):
-        self.node = rclpy.create_node('stub_expert', context=context)
-        self.requests = []
-        self.answer, self.delay = answer, delay
-        self.node.create_service(Advise, 'advise', self._serve)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
-
-    def _serve(self, request, response):
-        self.requests.append((request.episode, request.step, request.discrepancy, request.entropy))
-        if self.delay:
-            time.sleep(self.delay)
-        response.expert_name = 'stub'
-        if self.answer == 'advise':
-            response.advised, response.action = True, [1.0]
-        else:
-            response.advised, response.reason = False, 'not now'
-        return response
-
-    def close(self):
-        self.executor.shutdown()
-        self.thread.join(timeout=5)
-        self.node.destroy_node()
-
-
-def run_learner(harness, ros_context, tmp_path, episodes=3, **extra):
-    probe = Probe(harness)
-    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-        tmp_path, max_episodes=episodes, **extra)))
-    assert harness.spin_until(lambda: learner.done, timeout=60)
-    return learner, probe
-
 
 def test_learner_asks_exactly_when_gates_fire_and_only_inside_budget(harness, ros_context, tmp_path):
     expert = StubExpert(ros_context)
@@ -282,3 +173,23 @@ def test_run_time_parameters_are_range_checked_and_applied(harness, ros_context,
     assert learner.set_parameters(params(advising_budget=7))[0].successful
     assert learner.learner.gates.advising_budget == 7
     assert not learner.set_parameters(params(seed=3))[0].successful    # read-only while running
+
+
+def test_realtime_env_steps_at_its_rate_holding_the_last_action(harness, ros_context):
+    probe = Probe(harness)
+    env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(
+        realtime=True, rate_hz=50.0, max_episode_steps=1000)))
+    assert harness.spin_until(lambda: env.step_index >= 5)             # no action needed to step
+    probe.action_pub.publish(messages.action_msg([2.0]))
+    assert harness.spin_until(lambda: float(env._held_action[0]) == 2.0)
+    start_step, start = env.step_index, time.monotonic()
+    assert harness.spin_until(lambda: env.step_index >= start_step + 10)
+    rate = (env.step_index - start_step) / (time.monotonic() - start)
+    assert 10.0 < rate < 80.0, rate   # 50 Hz asked; wide bounds for a loaded machine
+
+
+def test_launch_file_is_valid_python_naming_the_three_executables():
+    source = (PARAMS_DIR.parent / 'launch' / 'train.launch.py').read_text()
+    compile(source, 'train.launch.py', 'exec')
+    for executable in ('gym_env', 'expert', 'learner'):
+        assert f"executable='{executable}'" in source

@@ -49,7 +49,7 @@ Expert = Callable[[AdviceRequest], Advice]
 
 
 # Kinds of failed advice, counted apart from advice given and advice declined.
-FAILURE_KINDS = ('unavailable', 'timeout', 'error', 'wrong_size', 'non_finite', 'out_of_bounds')
+FAILURE_KINDS = ('unavailable', 'timeout', 'error', 'wrong_size', 'non_finite', 'out_of_bounds', 'untrusted')
 
 
 def check_advised_action(action, low: np.ndarray, high: np.ndarray,

@@ -83,6 +83,17 @@ class LearnerConfig:
             if not ok:
                 raise ValueError(f'LearnerConfig.{name} must be {expected}, got {getattr(self, name)!r}')
 
+    @classmethod
+    def from_params(cls, params: dict, **overrides) -> 'LearnerConfig':
+        """From a learner's ROS parameters (a params-file dict): config fields are taken,
+        ``hidden_sizes`` becomes ``hidden``, node-only keys are ignored."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        values = {k: v for k, v in params.items() if k in names}
+        if 'hidden_sizes' in params:
+            values['hidden'] = tuple(params['hidden_sizes'])
+        values.update(overrides)
+        return cls(**values)
+
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d['hidden'] = list(self.hidden)

@@ -6,13 +6,13 @@ import time
 
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from eqhrl_interfaces.srv import Advise
 
 from ..core.checkpoint import PolicyExpert
 from ..core.experts import AdviceRequest, heuristic_expert
+from .lifecycle import spin
 from .params import EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
 
 
@@ -72,9 +72,7 @@ def main(args=None):
     node = None
     try:
         node = ExpertNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin(node)
     finally:
         if node is not None:
             node.destroy_node()

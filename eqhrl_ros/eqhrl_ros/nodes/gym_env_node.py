@@ -11,13 +11,13 @@ import time
 
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32MultiArray
 
 from ..core.envs import make_env
 from . import messages
+from .lifecycle import spin
 from .params import GYM_ENV_PARAMS, choices_validator, declare, reject_unknown_overrides
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -106,9 +106,7 @@ def main(args=None):
     node = None
     try:
         node = GymEnvNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin(node)
     finally:
         if node is not None:
             node.destroy_node()

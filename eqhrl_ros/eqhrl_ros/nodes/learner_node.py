@@ -11,7 +11,10 @@ shutdown, under a single-threaded executor or a multi-threaded one. (A synchrono
 from __future__ import annotations
 
 import csv
+import sys
 import threading
+import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -19,8 +22,8 @@ from typing import Optional
 import gymnasium as gym
 import numpy as np
 import rclpy
+import rclpy.exceptions
 import torch
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32MultiArray
@@ -32,6 +35,7 @@ from ..core.envs import success_criterion
 from ..core.experts import Advice
 from ..core.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
 from . import messages
+from .lifecycle import spin
 from .params import (LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, choices_validator, declare,
                      reject_unknown_overrides)
 
@@ -84,8 +88,7 @@ class LearnerNode(Node):
         if p['torch_threads'] > 0:
             torch.set_num_threads(p['torch_threads'])
 
-        values['hidden'] = tuple(values.pop('hidden_sizes'))
-        self.config = LearnerConfig(**values)
+        self.config = LearnerConfig.from_params(values)
         obs_dim, low, high = env_spaces(p['env_id'])
         self.learner = EQSACLearner(obs_dim, low, high, self.config, success_criterion(p['env_id']))
         self.output_dir = Path(p['output_dir'])
@@ -121,6 +124,10 @@ class LearnerNode(Node):
         self._pending: Optional[PendingAdvice] = None
         self._token = 0
         self.dropped_messages = 0
+        self.stalled_episodes = 0
+        self.experts_heard: Counter = Counter()    # expert_name -> advice answers this episode
+        self._last_observation_time = time.monotonic()
+        self.create_timer(0.25, self._check_stall)
         self.done = False
         self.summaries: list[EpisodeSummary] = []
         self.get_logger().info(
@@ -145,6 +152,7 @@ class LearnerNode(Node):
         with self._lock:
             if self.done:
                 return
+            self._last_observation_time = time.monotonic()
             try:
                 env_step = messages.parse_observation(msg, self.learner.obs_dim)
             except messages.MessageError as error:
@@ -253,11 +261,12 @@ class LearnerNode(Node):
                 action, advised = self.learner.resolve_advice(pending.proposal, failure='error')
                 self._finish_step(action, advised)
                 return
+            self.experts_heard[response.expert_name or '(unnamed)'] += 1
             accept = self.params['accept_expert']
             if accept and response.expert_name != accept:
                 self.get_logger().warn(f"ignored advice from '{response.expert_name}' "
                                        f"(accept_expert is '{accept}')", throttle_duration_sec=5.0)
-                action, advised = self.learner.resolve_advice(pending.proposal, failure='error')
+                action, advised = self.learner.resolve_advice(pending.proposal, failure='untrusted')
             else:
                 advice = Advice(np.asarray(response.action, dtype=np.float32) if response.advised else None,
                                 response.reason, response.expert_name)
@@ -272,6 +281,23 @@ class LearnerNode(Node):
     def _publish_action(self, action: np.ndarray) -> None:
         self.action_pub.publish(messages.action_msg(action, *self._key))
 
+    # ------------------------------------------------------------------ a vanished env
+
+    def _check_stall(self) -> None:
+        with self._lock:
+            if self.done or self._state is None or self._pending is not None:
+                return
+            silent = time.monotonic() - self._last_observation_time
+            if silent < self.params['stall_timeout_s']:
+                return
+            self.stalled_episodes += 1
+            self.get_logger().warn(
+                f'no observation for {silent:.1f} s: abandoning episode {self.learner.episode} after '
+                f'{self.learner.episode_step} steps; waiting for the env to start a new one')
+            self.learner.abandon_episode()
+            self._state = self._key = self._last_action = None
+            self.experts_heard.clear()
+
     # ------------------------------------------------------------------ episodes
 
     def _on_episode_end(self, summary: EpisodeSummary) -> None:
@@ -281,12 +307,15 @@ class LearnerNode(Node):
         self._csv_file.flush()
         failed = self.learner.advice_total.failed
         failures = ', '.join(f'{k} {v}' for k, v in failed.items() if v)
+        experts = ', '.join(f'{name} {n}' for name, n in self.experts_heard.items())
+        self.experts_heard.clear()
         self.get_logger().info(
             f'episode {summary.episode:4d}  return {summary.episode_return:9.2f}  len {summary.length:4d}  '
             f'advice {summary.advice_given}/{summary.advice_asked}'
             f'{"  declined %d" % summary.advice_declined if summary.advice_declined else ""}'
             f'{"  failed %d (total: %s)" % (summary.advice_failed, failures) if summary.advice_failed else ""}'
-            f'  success {int(summary.success)}  steps {summary.total_steps}  alpha {summary.alpha:.3f}')
+            f'  success {int(summary.success)}  steps {summary.total_steps}  alpha {summary.alpha:.3f}'
+            f'{"  answered by: " + experts if experts else ""}')
         every = self.params['checkpoint_every_episodes']
         if every and self.learner.episode % every == 0:
             self.save()
@@ -317,12 +346,10 @@ def main(args=None):
     node = None
     try:
         node = LearnerNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (CheckpointError, ValueError) as error:
+        spin(node)
+    except (CheckpointError, ValueError, rclpy.exceptions.ParameterException) as error:
         # Start-up refusals (bad parameters, unusable checkpoint): one clear line, exit code 1.
-        print(f'learner: {error}')
+        print(f'learner: refused to start: {error}', file=sys.stderr)
         raise SystemExit(1)
     finally:
         if node is not None:

@@ -87,6 +87,9 @@ LEARNER_NODE_PARAMS = (
     Param('resume', False, 'Resume from output_dir/checkpoint.pt at start-up'),
     Param('max_episodes', 0, 'Stop learning after this many episodes (0: never)', (0, INT_MAX)),
     Param('shutdown_when_done', False, 'Shut the process down once max_episodes is reached'),
+    Param('stall_timeout_s', 5.0, 'Abandon the current episode when no observation came for this long '
+          '(the env died); its partial statistics are dropped, no transition is invented', (0.1, 86400.0),
+          dynamic=True),
     Param('publish_gate_debug', False, 'Publish every gate decision on ~/gate_debug', dynamic=True),
     Param('torch_threads', 0, 'torch intra-op threads (0: torch default)', (0, 256)),
 )

@@ -1,0 +1,112 @@
+"""Shared helpers for tests that spin ROS nodes in the test process."""
+
+import threading
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float32MultiArray
+
+from eqhrl_interfaces.srv import Advise
+from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+from eqhrl_ros.nodes.learner_node import LearnerNode
+
+PARAMS_DIR = Path(__file__).resolve().parents[1] / 'params'
+
+
+def spin_until(executor, condition, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while not condition() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
+    return condition()
+
+
+def params(**values):
+    return [Parameter(name, value=value) for name, value in values.items()]
+
+
+def small_learner_params(tmp_path, **extra):
+    values = dict(env_id='Pendulum-v1', mode='eqsac', hidden_sizes=[16, 16], batch_size=16,
+                  learning_starts=40, queue_length=3, advising_budget=2, advice_timeout_s=0.3,
+                  output_dir=str(tmp_path), publish_gate_debug=True, checkpoint_every_episodes=1)
+    values.update(extra)
+    return params(**values)
+
+
+class Harness:
+    """Nodes in one executor, destroyed at the end of the test."""
+
+    def __init__(self, context):
+        self.context = context
+        self.executor = SingleThreadedExecutor(context=context)
+        self.nodes = []
+
+    def add(self, node):
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def spin_until(self, condition, timeout=10.0):
+        return spin_until(self.executor, condition, timeout)
+
+    def close(self):
+        self.executor.shutdown()
+        for node in self.nodes:
+            if isinstance(node, LearnerNode):
+                node.close()
+            node.destroy_node()
+
+
+class Probe:
+    """A test node that records observations/stats/gates and can publish actions."""
+
+    def __init__(self, harness, name='probe'):
+        self.node = harness.add(rclpy.create_node(name, context=harness.context))
+        self.observations, self.stats, self.gates = [], [], []
+        self.node.create_subscription(Float32MultiArray, 'observation', self.observations.append, 50)
+        self.node.create_subscription(Float32MultiArray, 'learner/episode_stats', self.stats.append, 100)
+        self.node.create_subscription(Float32MultiArray, 'learner/gate_debug', self.gates.append, 1000)
+        self.action_pub = self.node.create_publisher(Float32MultiArray, 'action', 10)
+
+
+class StubExpert:
+    """Serves Advise from its own executor thread, like a separate process would."""
+
+    def __init__(self, context, answer='advise', delay=0.0, name='stub_expert'):
+        self.node = rclpy.create_node(name, context=context)
+        self.requests = []
+        self.answer, self.delay = answer, delay
+        self.node.create_service(Advise, 'advise', self._serve)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def _serve(self, request, response):
+        self.requests.append((request.episode, request.step, request.discrepancy, request.entropy))
+        if self.delay:
+            time.sleep(self.delay)
+        response.expert_name = 'stub'
+        if isinstance(self.answer, list):          # a given (possibly bad) action
+            response.advised, response.action = True, self.answer
+        elif self.answer == 'advise':
+            response.advised, response.action = True, [1.0]
+        else:
+            response.advised, response.reason = False, 'not now'
+        return response
+
+    def close(self):
+        self.executor.shutdown()
+        self.thread.join(timeout=5)
+        self.node.destroy_node()
+
+
+def run_learner(harness, ros_context, tmp_path, episodes=3, **extra):
+    probe = Probe(harness)
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
+        tmp_path, max_episodes=episodes, **extra)))
+    assert harness.spin_until(lambda: learner.done, timeout=60)
+    return learner, probe

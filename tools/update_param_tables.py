@@ -1,0 +1,40 @@
+"""Regenerate the parameter tables of eqhrl_ros/README.md from the node declarations.
+
+    .venv/bin/python tools/update_param_tables.py
+
+tests/test_docs.py fails when a declared parameter is missing from the README.
+"""
+
+from pathlib import Path
+
+from eqhrl_ros.nodes.params import EXPERT_PARAMS, GYM_ENV_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS
+
+README = Path(__file__).resolve().parents[1] / 'eqhrl_ros' / 'README.md'
+
+
+def number(value) -> str:
+    return '2³¹−1' if value == 2**31 - 1 else f'{value:g}'
+
+
+def table(title, params) -> str:
+    lines = [f'#### {title}', '', '| parameter | default | range / choices | run-time | description |',
+             '|---|---|---|---|---|']
+    for p in params:
+        allowed = ', '.join(p.choices) if p.choices else (
+            f'{number(p.range[0])} … {number(p.range[1])}' if p.range else '')
+        default = f'`{p.default}`' if p.default != '' else '`""`'
+        lines.append(f"| `{p.name}` | {default} | {allowed} | {'yes' if p.dynamic else ''} | {p.description} |")
+    return '\n'.join(lines)
+
+
+def main():
+    text = README.read_text()
+    start, end = text.index('#### gym_env'), text.index('## Benchmarks')
+    tables = '\n\n'.join([table('gym_env', GYM_ENV_PARAMS), table('expert', EXPERT_PARAMS),
+                          table('learner: algorithm (core.LearnerConfig)', LEARNER_CONFIG_PARAMS),
+                          table('learner: node', LEARNER_NODE_PARAMS)])
+    README.write_text(text[:start] + tables + '\n\n' + text[end:])
+
+
+if __name__ == '__main__':
+    main()
