@@ -28,6 +28,8 @@ setup(
             'expert = eqhrl_ros.nodes.expert_node:main',
             'eqhrl-train = eqhrl_ros.bringup:main',
             'eqhrl-demo = eqhrl_ros.demo:main',
+            'eqhrl-experiment = eqhrl_ros.experiment:main',
+            'eqhrl-report = eqhrl_ros.report:main',
         ],
     },
 )

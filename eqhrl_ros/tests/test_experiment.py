@@ -1,0 +1,94 @@
+"""eqhrl-experiment and eqhrl-report on tiny settings and synthetic data with known values."""
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from eqhrl_ros import experiment, report
+
+
+def read(path):
+    with open(path, newline='') as f:
+        return list(csv.DictReader(f))
+
+
+def tiny_run(output, *extra):
+    return experiment.main(['--params', 'demo', '--algorithms', 'sac', 'eqsac', '--seeds', '0', '1',
+                            '--episodes', '2', '--max-steps', '15', '--jobs', '2', '--output', str(output),
+                            *extra])
+
+
+def test_runner_writes_the_documented_columns_and_resume_skips_finished_runs(tmp_path, capsys):
+    assert tiny_run(tmp_path) == 0
+    rows = read(tmp_path / 'episodes.csv')
+    assert tuple(rows[0].keys()) == experiment.COLUMNS
+    assert len(rows) == 2 * 2 * 2
+    assert {(r['algorithm'], r['seed']) for r in rows} == {('sac', '0'), ('sac', '1'), ('eqsac', '0'), ('eqsac', '1')}
+    assert all(int(r['length']) == 15 for r in rows)
+    assert all(int(r['advice_asked']) == 0 for r in rows if r['algorithm'] == 'sac')
+
+    finished = tmp_path / 'sac' / 'seed0' / 'episodes.csv'
+    kept_mtime = finished.stat().st_mtime_ns
+    (tmp_path / 'eqsac' / 'seed1' / 'DONE').unlink()     # as if interrupted during this run
+    capsys.readouterr()
+    assert tiny_run(tmp_path) == 0
+    assert '1 runs to do (3 finished already)' in capsys.readouterr().out
+    assert finished.stat().st_mtime_ns == kept_mtime
+    assert len(read(tmp_path / 'episodes.csv')) == 8
+
+
+def write_synthetic(folder):
+    """SAC: constant returns -100 (seed 0) and -300 (seed 1), no advice.
+    EQSAC: returns -500 for 20 episodes then 0 for 20; one piece of advice in each of
+    the first 5 episodes (seed 0) or first 3 (seed 1); success from episode 20 on."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / 'settings.yaml').write_text('env_id: Pendulum-v1\n')
+    with open(folder / 'episodes.csv', 'w', newline='') as f:
+        writer = csv.writer(f)
+        writer.writerow(experiment.COLUMNS)
+        for seed, level in ((0, -100.0), (1, -300.0)):
+            for episode in range(40):
+                writer.writerow(['sac', seed, episode, level, 100, 0, 0, 0])
+        for seed, advised in ((0, 5), (1, 3)):
+            for episode in range(40):
+                ret = -500.0 if episode < 20 else 0.0
+                given = 1 if episode < advised else 0
+                writer.writerow(['eqsac', seed, episode, ret, 100, given + 1 if given else 0, given,
+                                 int(episode >= 20)])
+
+
+def test_report_table_shows_the_known_values(tmp_path):
+    write_synthetic(tmp_path / 'runs')
+    table = {row['algorithm']: row for row in report.summarize(report.read_runs([tmp_path / 'runs']), -200.0)}
+    sac, eqsac = table['sac'], table['eqsac']
+    assert sac['final_return'] == pytest.approx((-200.0, 100.0))
+    assert sac['advice_given'] == (0.0, 0.0) and sac['reached'] == 1     # only seed 0 is above -200
+    assert eqsac['advice_given'] == pytest.approx((4.0, 1.0))
+    assert eqsac['advice_asked'] == pytest.approx((8.0, 2.0))
+    assert eqsac['final_return'] == pytest.approx((0.0, 0.0))
+    assert eqsac['final_success'] == pytest.approx((1.0, 0.0))
+    assert eqsac['success'] == pytest.approx((0.5, 0.0))
+    assert eqsac['reached'] == 2 and 17 <= eqsac['episodes_to_threshold'][0] <= 21
+    text = report.format_table(list(table.values()), -200.0)
+    assert '| EQSAC | 2 | 40 | 4 ± 1 | 8 ± 2 | 0.0 ± 0.0 | 100 ± 0 % | 50 ± 0 % |' in text
+    assert '(1 of 2 runs reached it)' in text
+
+
+def test_report_command_writes_table_and_figures(tmp_path):
+    write_synthetic(tmp_path / 'runs')
+    assert report.main([str(tmp_path / 'runs'), '--output', str(tmp_path / 'out')]) == 0
+    assert 'EQSAC' in (tmp_path / 'out' / 'table.md').read_text()
+    for name in ('returns.png', 'advice.png', 'success.png', 'advice_heatmap.png'):
+        data = (tmp_path / 'out' / name).read_bytes()
+        assert data[:8] == b'\x89PNG\r\n\x1a\n' and len(data) > 5000, name
+
+
+def test_report_refuses_a_folder_without_results(tmp_path, capsys):
+    assert report.main([str(tmp_path), '--output', str(tmp_path / 'out')]) == 1
+    assert 'no episodes.csv' in capsys.readouterr().err
+
+
+def test_episodes_to_reach_is_nan_when_never_reached():
+    assert math.isnan(report.episodes_to_reach(np.full(30, -500.0), -200.0))
