@@ -26,6 +26,8 @@ setup(
             'gym_env = eqhrl_ros.nodes.gym_env_node:main',
             'learner = eqhrl_ros.nodes.learner_node:main',
             'expert = eqhrl_ros.nodes.expert_node:main',
+            'teleop_expert = eqhrl_ros.nodes.teleop_expert_node:main',
+            'keyboard_teleop = eqhrl_ros.nodes.keyboard_teleop:main',
             'eqhrl-train = eqhrl_ros.bringup:main',
             'eqhrl-demo = eqhrl_ros.demo:main',
             'eqhrl-experiment = eqhrl_ros.experiment:main',

@@ -7,7 +7,9 @@ tests/test_docs.py fails when a declared parameter is missing from the README.
 
 from pathlib import Path
 
-from eqhrl_ros.nodes.params import EXPERT_PARAMS, GYM_ENV_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS
+from eqhrl_ros.nodes.keyboard_teleop import KEYBOARD_PARAMS
+from eqhrl_ros.nodes.params import (EXPERT_PARAMS, GYM_ENV_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS,
+                                    TELEOP_EXPERT_PARAMS)
 
 README = Path(__file__).resolve().parents[1] / 'eqhrl_ros' / 'README.md'
 
@@ -32,7 +34,9 @@ def main():
     start, end = text.index('#### gym_env'), text.index('## Benchmarks')
     tables = '\n\n'.join([table('gym_env', GYM_ENV_PARAMS), table('expert', EXPERT_PARAMS),
                           table('learner: algorithm (core.LearnerConfig)', LEARNER_CONFIG_PARAMS),
-                          table('learner: node', LEARNER_NODE_PARAMS)])
+                          table('learner: node', LEARNER_NODE_PARAMS),
+                          table('teleop_expert', TELEOP_EXPERT_PARAMS),
+                          table('keyboard_teleop', KEYBOARD_PARAMS)])
     README.write_text(text[:start] + tables + '\n\n' + text[end:])
 
 

@@ -1,6 +1,7 @@
 """eqhrl-train: env, expert and learner nodes in one process, for machines without ros2 launch.
 
     eqhrl-train --params pendulum --output runs/pendulum_eqsac [--mode qasac] [--episodes 50]
+    eqhrl-train --params teleop_pendulum --expert-node teleop     (a person advises)
 
 The three nodes are the same classes `ros2 run` starts; here one executor spins
 them together. Ctrl-C saves a checkpoint; --resume continues from it.
@@ -22,6 +23,7 @@ from .nodes.expert_node import ExpertNode
 from .nodes.gym_env_node import GymEnvNode
 from .nodes.learner_node import LearnerNode
 from .nodes.lifecycle import spin
+from .nodes.teleop_expert_node import TeleopExpertNode
 from .paths import params_file
 
 
@@ -35,7 +37,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument('--episodes', type=int, help='overrides learner max_episodes')
     parser.add_argument('--seed', type=int, help='overrides the env and learner seeds')
     parser.add_argument('--resume', action='store_true', help='continue from <output>/checkpoint.pt')
-    parser.add_argument('--no-expert', action='store_true', help='start no expert node')
+    parser.add_argument('--expert-node', choices=('expert', 'teleop', 'none'), default='expert',
+                        help='which expert to start: the built-in/policy expert, the teleop expert '
+                             '(a person advises, e.g. with keyboard_teleop), or none')
     return parser.parse_args(argv)
 
 
@@ -62,8 +66,10 @@ def run(args) -> LearnerNode | None:
     try:
         env_overrides = [Parameter('seed', value=args.seed)] if args.seed is not None else []
         nodes.append(GymEnvNode(parameter_overrides=env_overrides))
-        if not args.no_expert:
+        if args.expert_node == 'expert':
             nodes.append(ExpertNode())
+        elif args.expert_node == 'teleop':
+            nodes.append(TeleopExpertNode())
         learner = LearnerNode(parameter_overrides=learner_overrides(args))
         nodes.append(learner)
         executor = SingleThreadedExecutor()

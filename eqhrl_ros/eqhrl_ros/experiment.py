@@ -112,7 +112,7 @@ def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Pa
                '--output', str(directory), '--mode', algorithm, '--episodes', str(settings.episodes),
                '--seed', str(seed)]
     if settings.expert_backend == 'none':
-        command.append('--no-expert')
+        command += ['--expert-node', 'none']
     env = dict(os.environ, OMP_NUM_THREADS='1')
     # A private domain per run, so that parallel runs never exchange messages.
     env['ROS_DOMAIN_ID'] = str(1 + (os.getpid() + seed * 7 + ALGORITHMS.index(algorithm)) % 100)

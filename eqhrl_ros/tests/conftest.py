@@ -10,6 +10,7 @@ import os
 os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)   # 1..100, valid on every platform
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
+os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')   # pygame renders rgb_array frames without a display
 
 import pytest  # noqa: E402
 import torch  # noqa: E402

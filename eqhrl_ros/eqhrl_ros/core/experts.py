@@ -35,6 +35,7 @@ class Advice:
     action: Optional[np.ndarray]
     reason: str = ''
     expert_name: str = ''
+    human: bool = False             # a person gave it (teleop)
 
     @property
     def advised(self) -> bool:

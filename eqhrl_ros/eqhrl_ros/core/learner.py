@@ -113,6 +113,7 @@ class Proposal:
 class AdviceCounts:
     asked: int = 0
     given: int = 0
+    human: int = 0          # of the given advice, how much came from a person
     declined: int = 0
     failed: dict = field(default_factory=lambda: {kind: 0 for kind in FAILURE_KINDS})
 
@@ -123,19 +124,20 @@ class AdviceCounts:
     def add(self, other: 'AdviceCounts') -> None:
         self.asked += other.asked
         self.given += other.given
+        self.human += other.human
         self.declined += other.declined
         for kind, n in other.failed.items():
             self.failed[kind] += n
 
     def to_dict(self) -> dict:
-        return {'asked': self.asked, 'given': self.given, 'declined': self.declined,
+        return {'asked': self.asked, 'given': self.given, 'human': self.human, 'declined': self.declined,
                 'failed': dict(self.failed)}
 
     @staticmethod
     def from_dict(d: dict) -> 'AdviceCounts':
         failed = {kind: 0 for kind in FAILURE_KINDS}
         failed.update({k: int(v) for k, v in d['failed'].items() if k in failed})
-        return AdviceCounts(int(d['asked']), int(d['given']), int(d['declined']), failed)
+        return AdviceCounts(int(d['asked']), int(d['given']), int(d.get('human', 0)), int(d['declined']), failed)
 
 
 @dataclass(frozen=True)
@@ -147,19 +149,20 @@ class EpisodeSummary:
     length: int
     advice_asked: int
     advice_given: int
+    advice_human: int
     advice_declined: int
     advice_failed: int
     success: bool
     total_steps: int
     alpha: float
 
-    CSV_FIELDS = ('episode', 'return', 'length', 'advice_asked', 'advice_given',
+    CSV_FIELDS = ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'advice_human',
                   'advice_declined', 'advice_failed', 'success', 'total_steps', 'alpha')
 
     def csv_row(self) -> list:
         return [self.episode, f'{self.episode_return:.4f}', self.length, self.advice_asked,
-                self.advice_given, self.advice_declined, self.advice_failed, int(self.success),
-                self.total_steps, f'{self.alpha:.6f}']
+                self.advice_given, self.advice_human, self.advice_declined, self.advice_failed,
+                int(self.success), self.total_steps, f'{self.alpha:.6f}']
 
 
 class EQSACLearner:
@@ -287,6 +290,7 @@ class EQSACLearner:
             counts.failed[failure] += 1
             return proposal.action, False
         counts.given += 1
+        counts.human += int(advice.human)
         return action, True
 
     # ------------------------------------------------------------------ storing and learning
@@ -390,7 +394,8 @@ class EQSACLearner:
         counts = self._episode_advice
         summary = EpisodeSummary(
             episode=self.episode, episode_return=self._episode_return, length=self.episode_step,
-            advice_asked=counts.asked, advice_given=counts.given, advice_declined=counts.declined,
+            advice_asked=counts.asked, advice_given=counts.given, advice_human=counts.human,
+            advice_declined=counts.declined,
             advice_failed=counts.failed_total,
             success=bool(self.success.success(self._episode_return)),
             total_steps=self.total_steps, alpha=self.alpha)

@@ -13,6 +13,7 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
 from std_msgs.msg import Float32MultiArray
 
 from ..core.envs import make_env
@@ -30,7 +31,8 @@ class GymEnvNode(Node):
         self.params = declare(self, GYM_ENV_PARAMS)
         self.add_on_set_parameters_callback(choices_validator(GYM_ENV_PARAMS))
         p = self.params
-        self.env = make_env(p['env_id'], p['max_episode_steps'])
+        self.env = make_env(p['env_id'], p['max_episode_steps'],
+                            render_mode='rgb_array' if p['publish_images'] else None)
         self.action_dim = int(np.prod(self.env.action_space.shape))
         self.obs_dim = int(np.prod(self.env.observation_space.shape))
         self.episode = 0
@@ -47,6 +49,9 @@ class GymEnvNode(Node):
             self.create_timer(1.0 / p['rate_hz'], self._realtime_tick)
         else:
             self.create_timer(p['republish_period_s'], self._republish_if_idle)
+        if p['publish_images']:
+            self.image_pub = self.create_publisher(Image, '~/image', 2)
+            self.create_timer(1.0 / p['image_rate_hz'], self._publish_image)
         self.get_logger().info(
             f"{p['env_id']}: obs {self.obs_dim}, action {self.action_dim} in "
             f"[{self.env.action_space.low.tolist()}, {self.env.action_space.high.tolist()}], "
@@ -89,6 +94,16 @@ class GymEnvNode(Node):
 
     def _realtime_tick(self) -> None:
         self._step(self._held_action)
+
+    def _publish_image(self) -> None:
+        if self.image_pub.get_subscription_count() == 0:
+            return   # rendering costs time: only for someone watching
+        frame = np.ascontiguousarray(self.env.render(), dtype=np.uint8)
+        msg = Image(height=frame.shape[0], width=frame.shape[1], encoding='rgb8', is_bigendian=0,
+                    step=frame.shape[1] * 3, data=frame.tobytes())
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = 'gym_env'
+        self.image_pub.publish(msg)
 
     def _republish_if_idle(self) -> None:
         # Nobody acted on the last observation for a whole period: a learner that

@@ -14,7 +14,7 @@ import csv
 import sys
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -25,7 +25,7 @@ import rclpy
 import rclpy.exceptions
 import torch
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.srv import Advise
@@ -41,6 +41,9 @@ from .params import (LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, choices_validat
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 STATS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+# The latest advice request stays available to a UI that starts later.
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 @dataclass
@@ -49,6 +52,7 @@ class PendingAdvice:
     proposal: Proposal
     key: tuple            # (env episode, env step) the advice is for
     timer: object
+    sent: float = 0.0     # time.monotonic() when the request went out
 
 
 def env_spaces(env_id: str) -> tuple[int, np.ndarray, np.ndarray]:
@@ -113,6 +117,7 @@ class LearnerNode(Node):
         self.action_pub = self.create_publisher(Float32MultiArray, 'action', QOS)
         self.stats_pub = self.create_publisher(Float32MultiArray, '~/episode_stats', STATS_QOS)
         self.gate_pub = self.create_publisher(Float32MultiArray, '~/gate_debug', QOS)
+        self.request_pub = self.create_publisher(Float32MultiArray, '~/advice_request', LATCHED_QOS)
         self.create_subscription(Float32MultiArray, 'observation', self._on_observation, QOS)
         self.advice_client = self.create_client(Advise, 'advise')
 
@@ -125,6 +130,9 @@ class LearnerNode(Node):
         self._token = 0
         self.dropped_messages = 0
         self.stalled_episodes = 0
+        self.observation_gaps = 0        # an observation that skipped steps (a message was lost)
+        self.repeated_observations = 0   # the env re-sent an observation (our action did not arrive in time)
+        self.advice_latencies: deque = deque(maxlen=100_000)   # seconds, request to answer
         self.experts_heard: Counter = Counter()    # expert_name -> advice answers this episode
         self._last_observation_time = time.monotonic()
         self.create_timer(0.25, self._check_stall)
@@ -162,17 +170,22 @@ class LearnerNode(Node):
                 return
             key = (env_step.episode, env_step.step)
             if key == self._key:
+                self.repeated_observations += 1
                 # The env sent the same observation again: our action did not reach it.
                 if self._pending is None and self._last_action is not None:
                     self._publish_action(self._last_action)
                 return
             if self._pending is not None:
-                return   # still deciding on the previous observation
+                self._observe_while_waiting(env_step, key)
+                return
 
-            if env_step.step > 0 and self._state is not None and self._key is not None \
-                    and key == (self._key[0], self._key[1] + 1):
+            if self._follows(key):
                 if self._store(env_step):
                     return   # the episode ended; the env's reset message starts the next
+            elif env_step.step > 0 and self._key is not None and self._state is not None:
+                self.observation_gaps += 1
+                self.get_logger().warn(f'observation {key} does not follow {self._key}; '
+                                       'starting from it without a transition', throttle_duration_sec=5.0)
             elif env_step.step == 0 and self.learner.episode_step > 0:
                 # The env started a new episode in the middle of ours (it restarted).
                 self.get_logger().warn(f'env restarted; abandoning episode {self.learner.episode} '
@@ -184,6 +197,26 @@ class LearnerNode(Node):
                 self._state = None
                 return
             self._act(env_step.obs, key)
+
+    def _follows(self, key: tuple) -> bool:
+        return (key[1] > 0 and self._state is not None and self._key is not None
+                and key == (self._key[0], self._key[1] + 1))
+
+    def _observe_while_waiting(self, env_step: messages.EnvStep, key: tuple) -> None:
+        """A real-time env keeps stepping with the held (previous) action while the person
+        decides: those are real transitions, stored as such; the advice, when it comes,
+        applies to the latest observation. (A lock-step env sends nothing meanwhile.)"""
+        if not self._follows(key) or self._last_action is None:
+            return
+        if env_step.done:
+            # The episode ends before the answer: the request counts as timed out in it.
+            pending = self._take_pending(self._pending.token)
+            self.learner.resolve_advice(pending.proposal, failure='timeout')
+            self.request_pub.publish(messages.advice_request_msg(
+                'failed', pending.proposal.request, self.params['advice_timeout_s']))
+        self._last_advised = False
+        if not self._store(env_step):
+            self._state, self._key = env_step.obs, key
 
     def _store(self, env_step: messages.EnvStep) -> bool:
         """Store the transition the message completes; returns True when the episode ended."""
@@ -220,7 +253,9 @@ class LearnerNode(Node):
         token = self._token
         request = self._request_msg(proposal)
         timer = self.create_timer(self.params['advice_timeout_s'], lambda: self._on_advice_timeout(token))
-        self._pending = PendingAdvice(token, proposal, key, timer)
+        self._pending = PendingAdvice(token, proposal, key, timer, time.monotonic())
+        self.request_pub.publish(messages.advice_request_msg('pending', proposal.request,
+                                                             self.params['advice_timeout_s']))
         future = self.advice_client.call_async(request)
         future.add_done_callback(lambda f: self._on_advice_response(token, f))
 
@@ -241,37 +276,45 @@ class LearnerNode(Node):
         self.destroy_timer(pending.timer)
         return pending
 
+    def _resolve(self, pending: PendingAdvice, advice: Optional[Advice] = None, failure: str = '') -> None:
+        """Count the outcome, tell the person's UI, and act."""
+        counts = self.learner.episode_advice
+        given, declined = counts.given, counts.declined
+        action, advised = self.learner.resolve_advice(pending.proposal, advice, failure)
+        outcome = ('given' if counts.given > given else 'declined' if counts.declined > declined else 'failed')
+        self.request_pub.publish(messages.advice_request_msg(outcome, pending.proposal.request,
+                                                             self.params['advice_timeout_s']))
+        self._finish_step(action, advised)
+
     def _on_advice_timeout(self, token: int) -> None:
         with self._lock:
             pending = self._take_pending(token)
             if pending is None:
                 return
-            action, advised = self.learner.resolve_advice(pending.proposal, failure='timeout')
-            self._finish_step(action, advised)
+            self._resolve(pending, failure='timeout')
 
     def _on_advice_response(self, token: int, future) -> None:
         with self._lock:
             pending = self._take_pending(token)
             if pending is None:
                 return
+            self.advice_latencies.append(time.monotonic() - pending.sent)
             try:
                 response = future.result()
             except Exception as error:
                 self.get_logger().warn(f'advice call failed: {error!r}', throttle_duration_sec=5.0)
-                action, advised = self.learner.resolve_advice(pending.proposal, failure='error')
-                self._finish_step(action, advised)
+                self._resolve(pending, failure='error')
                 return
             self.experts_heard[response.expert_name or '(unnamed)'] += 1
             accept = self.params['accept_expert']
             if accept and response.expert_name != accept:
                 self.get_logger().warn(f"ignored advice from '{response.expert_name}' "
                                        f"(accept_expert is '{accept}')", throttle_duration_sec=5.0)
-                action, advised = self.learner.resolve_advice(pending.proposal, failure='untrusted')
+                self._resolve(pending, failure='untrusted')
             else:
-                advice = Advice(np.asarray(response.action, dtype=np.float32) if response.advised else None,
-                                response.reason, response.expert_name)
-                action, advised = self.learner.resolve_advice(pending.proposal, advice)
-            self._finish_step(action, advised)
+                self._resolve(pending, Advice(
+                    np.asarray(response.action, dtype=np.float32) if response.advised else None,
+                    response.reason, response.expert_name, bool(response.human)))
 
     def _finish_step(self, action: np.ndarray, advised: bool) -> None:
         self._last_action = np.asarray(action, dtype=np.float32)
@@ -312,6 +355,7 @@ class LearnerNode(Node):
         self.get_logger().info(
             f'episode {summary.episode:4d}  return {summary.episode_return:9.2f}  len {summary.length:4d}  '
             f'advice {summary.advice_given}/{summary.advice_asked}'
+            f'{" (%d from a person)" % summary.advice_human if summary.advice_human else ""}'
             f'{"  declined %d" % summary.advice_declined if summary.advice_declined else ""}'
             f'{"  failed %d (total: %s)" % (summary.advice_failed, failures) if summary.advice_failed else ""}'
             f'  success {int(summary.success)}  steps {summary.total_steps}  alpha {summary.alpha:.3f}'

@@ -10,6 +10,8 @@ Each message labels its fields in ``layout.dim`` (label, size; stride = size), i
   tagged action for another step. A bare action[m] (no tag) is accepted too.
 - episode_stats (learner):       see STATS_FIELDS.
 - gate_debug (learner):          see GATE_FIELDS.
+- advice_request (learner):      outcome, episode, step, discrepancy, entropy, timeout_s,
+  observation[n], proposed_action[m]; outcome 0 while the learner waits (see ADVICE_OUTCOMES).
 
 Episode and step are float32: exact up to 16,777,216.
 """
@@ -24,8 +26,11 @@ from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 
 OBS_TAIL = ('reward', 'terminated', 'truncated', 'episode', 'step')
 ACTION_TAIL = ('episode', 'step')
-STATS_FIELDS = ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'advice_declined',
-                'advice_failed', 'success', 'total_steps', 'alpha')
+STATS_FIELDS = ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'advice_human',
+                'advice_declined', 'advice_failed', 'success', 'total_steps', 'alpha')
+# learner/advice_request: what the learner is asking a person right now.
+ADVICE_OUTCOMES = {'pending': 0, 'given': 1, 'declined': 2, 'failed': 3}
+ADVICE_REQUEST_TAIL = ('outcome', 'episode', 'step', 'discrepancy', 'entropy', 'timeout_s')
 GATE_FIELDS = ('episode', 'step', 'fire', 'ask', 'respond', 'discrepancy', 'entropy',
                'd_threshold', 'e_threshold')
 
@@ -101,7 +106,7 @@ def parse_action(msg: Float32MultiArray, action_dim: int, topic: str = 'action')
 
 def stats_msg(summary) -> Float32MultiArray:
     values = [summary.episode, summary.episode_return, summary.length, summary.advice_asked,
-              summary.advice_given, summary.advice_declined, summary.advice_failed,
+              summary.advice_given, summary.advice_human, summary.advice_declined, summary.advice_failed,
               float(summary.success), summary.total_steps, summary.alpha]
     return build(list(zip(STATS_FIELDS, ([v] for v in values))))
 
@@ -120,3 +125,10 @@ def gate_msg(episode: int, step: int, decision) -> Float32MultiArray:
     values = [episode, step, float(decision.fire), float(decision.ask), float(decision.respond),
               decision.discrepancy, decision.entropy, decision.d_threshold, decision.e_threshold]
     return build(list(zip(GATE_FIELDS, ([v] for v in values))))
+
+
+def advice_request_msg(outcome: str, request, timeout_s: float) -> Float32MultiArray:
+    return build([('outcome', [ADVICE_OUTCOMES[outcome]]), ('episode', [request.episode]),
+                  ('step', [request.step]), ('discrepancy', [request.discrepancy]),
+                  ('entropy', [request.entropy]), ('timeout_s', [timeout_s]),
+                  ('observation', request.observation), ('proposed_action', request.proposed_action)])

@@ -101,6 +101,9 @@ GYM_ENV_PARAMS = (
     Param('seed', 42, 'Seed of the first reset', (0, INT_MAX)),
     Param('realtime', False, 'Step at rate_hz holding the last action, instead of lock-step on each action'),
     Param('rate_hz', 20.0, 'Step rate in real-time mode', (0.1, 1000.0)),
+    Param('publish_images', False, 'Publish rendered frames on ~/image (sensor_msgs/Image, rgb8) for a person '
+          'watching in rqt_image_view or rviz'),
+    Param('image_rate_hz', 10.0, 'Most frames per second on ~/image', (0.1, 120.0)),
     Param('republish_period_s', 1.0, 'Lock-step: re-send the current observation if no action came for this '
           'long (a learner that started late or restarted)', (0.01, 3600.0)),
 )
@@ -152,3 +155,19 @@ def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
     if unknown:
         raise ValueError(f"unknown parameter(s) for node '{node.get_name()}': {', '.join(unknown)}; "
                          f"known: {', '.join(sorted(known))}")
+
+
+TELEOP_EXPERT_PARAMS = (
+    Param('source', 'joy', 'Which teleop input becomes advice', choices=('joy', 'twist', 'array')),
+    Param('axes', [0], 'joy: joystick axis index for each action dimension (teleop_twist_joy style); '
+          'array: command value index for each action dimension', dynamic=True),
+    Param('twist_fields', ['angular.z'], 'twist: Twist field for each action dimension, e.g. linear.x, angular.z',
+          dynamic=True),
+    Param('scales', [1.0], 'Scale for each action dimension: action = input * scale + offset', dynamic=True),
+    Param('offsets', [0.0], 'Offset for each action dimension', dynamic=True),
+    Param('require_enable_button', True, 'joy: advise only while the enable (deadman) button is held',
+          dynamic=True),
+    Param('enable_button', 0, 'joy: index of the enable (deadman) button', (0, 128), dynamic=True),
+    Param('stale_after_s', 0.5, 'Decline when the latest command is older than this', (0.01, 3600.0),
+          dynamic=True),
+)

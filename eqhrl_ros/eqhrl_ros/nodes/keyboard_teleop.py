@@ -1,0 +1,142 @@
+"""keyboard_teleop: advise the learner from a terminal, no joystick needed.
+
+Keys act at once (no Enter). The node publishes the current command on
+``teleop_command`` (std_msgs/Float32MultiArray, values in [-1, 1]) at ``rate_hz``
+for a teleop_expert with ``source: array``, and shows when the learner is asking
+for advice (from ``learner/advice_request``). q or Ctrl-C quits and restores the
+terminal.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import sys
+import termios
+import time
+import tty
+
+import numpy as np
+import rclpy
+import rclpy.exceptions
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float32MultiArray
+
+from . import messages
+from .lifecycle import spin
+from .params import Param, declare, reject_unknown_overrides
+
+KEYBOARD_PARAMS = (
+    Param('dimensions', 1, 'Action dimensions to command (Pendulum 1, LunarLander 2)', (1, 2)),
+    Param('step', 0.25, 'Change per key press, in [-1, 1] units', (0.01, 1.0)),
+    Param('rate_hz', 10.0, 'Publishing rate of teleop_command', (0.5, 100.0)),
+)
+
+KEYS = {'a': (0, -1), 'd': (0, +1), 'w': (1, +1), 's': (1, -1)}
+CLEAR, HOME, REVERSE, RESET = '\x1b[2J', '\x1b[H', '\x1b[7m', '\x1b[0m'
+HIDE_CURSOR, SHOW_CURSOR = '\x1b[?25l', '\x1b[?25h'
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
+
+
+class KeyboardTeleop(Node):
+    def __init__(self, fd: int, out, **kwargs):
+        super().__init__('keyboard_teleop', **kwargs)
+        reject_unknown_overrides(self, KEYBOARD_PARAMS)
+        self.params = declare(self, KEYBOARD_PARAMS)
+        self.fd, self.out = fd, out
+        self.command = np.zeros(self.params['dimensions'], dtype=np.float32)
+        self.sending = True
+        self.quit = False
+        self.request = None            # the latest advice_request fields
+        self.request_seen = 0.0
+        self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
+        self.create_subscription(Float32MultiArray, 'learner/advice_request', self._on_request, LATCHED)
+        self.create_timer(1.0 / self.params['rate_hz'], self._publish)
+        self.create_timer(0.02, self._read_keys)
+        self.create_timer(0.2, self.draw)
+        self.draw()
+
+    def _on_request(self, msg: Float32MultiArray) -> None:
+        self.request = messages.parse_fields(msg)
+        self.request_seen = time.monotonic()
+        self.draw()
+
+    def _publish(self) -> None:
+        if self.sending:
+            self.publisher.publish(messages.build([('command', self.command)]))
+
+    def _read_keys(self) -> None:
+        while select.select([self.fd], [], [], 0)[0]:
+            data = os.read(self.fd, 32)
+            if not data:
+                self.quit = True
+                break
+            for key in data.decode(errors='ignore'):
+                self.on_key(key)
+        if self.quit:
+            self.context.try_shutdown()
+
+    def on_key(self, key: str) -> None:
+        key = key.lower()
+        if key in KEYS and KEYS[key][0] < len(self.command):
+            index, sign = KEYS[key]
+            self.command[index] = np.clip(self.command[index] + sign * self.params['step'], -1.0, 1.0)
+        elif key == ' ':
+            self.command[:] = 0.0
+        elif key == 'p':
+            self.sending = not self.sending
+        elif key in ('q', '\x03'):
+            self.quit = True
+        self._publish()
+        self.draw()
+
+    def draw(self) -> None:
+        n = len(self.command)
+        lines = ['eqhrl_ros keyboard teleop: you are the expert', '',
+                 '  a / d : action[0] - / +' + ('      w / s : action[1] + / -' if n > 1 else ''),
+                 '  space : zero        p : pause/resume sending        q : quit', '',
+                 f"  command: [{', '.join(f'{v:+.2f}' for v in self.command)}]   "
+                 + (f"sending at {self.params['rate_hz']:g} Hz" if self.sending
+                    else 'PAUSED (the expert declines: no fresh command)'), '']
+        request = self.request
+        if request and int(request['outcome']) == messages.ADVICE_OUTCOMES['pending']:
+            waited = time.monotonic() - self.request_seen
+            lines.append(f"{REVERSE}  >>> THE LEARNER ASKS FOR ADVICE: episode {int(request['episode'])}, "
+                         f"step {int(request['step'])}, {waited:.1f} s of {request['timeout_s']:.1f} s <<<  {RESET}")
+        elif request:
+            lines.append(f"  learner: no request pending (last one: {OUTCOME_NAMES.get(int(request['outcome']), '?')})")
+        else:
+            lines.append('  learner: no request yet')
+        self.out.write(HOME + CLEAR + '\r\n'.join(lines) + '\r\n')
+        self.out.flush()
+
+
+def main(args=None):
+    fd = sys.stdin.fileno()
+    if not os.isatty(fd):
+        print('keyboard_teleop: needs a terminal (stdin is not a tty)', file=sys.stderr)
+        raise SystemExit(1)
+    saved = termios.tcgetattr(fd)
+    rclpy.init(args=args)
+    node = None
+    try:
+        tty.setcbreak(fd)        # keys without Enter, no echo; Ctrl-C still signals
+        sys.stdout.write(HIDE_CURSOR)
+        node = KeyboardTeleop(fd, sys.stdout)
+        spin(node)
+    except (ValueError, rclpy.exceptions.ParameterException) as error:
+        print(f'keyboard_teleop: refused to start: {error}', file=sys.stderr)
+        raise SystemExit(1)
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)   # the terminal as we found it
+        sys.stdout.write(SHOW_CURSOR + '\n')
+        sys.stdout.flush()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,252 @@
+"""A person as the expert: teleop mapping, the teleop_expert node, frames, and keyboard_teleop in tmux."""
+
+import csv
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import Twist
+from sensor_msgs.msg import Image, Joy
+from std_msgs.msg import Float32MultiArray
+
+from eqhrl_interfaces.srv import Advise
+from eqhrl_ros.core.experts import AdviceRequest
+from eqhrl_ros.core.teleop import TeleopExpert, array_command, joy_command, twist_command
+from eqhrl_ros.nodes import messages
+from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+from eqhrl_ros.nodes.learner_node import LearnerNode
+from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
+from ros_helpers import params, small_learner_params
+
+
+def request(low=(-2.0,), high=(2.0,)):
+    n = len(low)
+    return AdviceRequest(np.zeros(3, np.float32), np.zeros(n, np.float32), np.array(low, np.float32),
+                         np.array(high, np.float32), 1.0, -1.0, 0, 0)
+
+
+class FakeClock:
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+# ------------------------------------------------------------------ core mapping
+
+def test_joy_mapping_scales_axes_and_requires_the_deadman():
+    held = joy_command([0.1, -0.5, 0.9], [0, 1], axis_indices=[1, 2], scales=[2.0, -1.0], offsets=[0.0, 0.5],
+                       require_enable_button=True, enable_button=1)
+    assert held.enabled and held.values.tolist() == pytest.approx([-1.0, -0.4])
+    released = joy_command([0.1, -0.5, 0.9], [0, 0], [1], [1.0], [0.0], True, 1)
+    assert not released.enabled and 'button 1 is not held' in released.disabled_reason
+    assert joy_command([0.3], [], [0, 7], [1.0, 1.0], [0.0, 0.0], False).values.tolist() == pytest.approx([0.3, 0.0])
+
+
+def test_twist_and_array_mappings():
+    fields = {'linear.x': 0.5, 'angular.z': -1.0}
+    command = twist_command(fields.get, ['linear.x', 'angular.z'], [1.0, -1.0], [0.0, 0.0])
+    assert command.enabled and command.values.tolist() == [0.5, 1.0]
+    assert array_command([0.25, -0.5], [1, 0], [2.0, 1.0], [0.0, 0.0]).values.tolist() == [-1.0, 0.25]
+    with pytest.raises(ValueError, match='indices'):
+        array_command([0.1], [0, 1], [1.0, 1.0], [0.0, 0.0])
+
+
+def test_teleop_expert_declines_with_reasons_and_clips():
+    clock = FakeClock()
+    expert = TeleopExpert(stale_after_s=0.5, name='person', clock=clock)
+    assert 'no teleop command' in expert(request()).reason
+    expert.update(array_command([0.9], [0], [4.0], [0.0]))          # 3.6, beyond the torque limit
+    advice = expert(request())
+    assert advice.advised and advice.human and advice.action.tolist() == [2.0]
+    clock.now += 0.6
+    assert not expert(request()).advised and 'old' in expert(request()).reason
+    expert.update(joy_command([0.5], [0], [0], [1.0], [0.0], True, 0))
+    assert 'not held' in expert(request()).reason
+    expert.update(array_command([0.1, 0.2], [0, 1], [1.0, 1.0], [0.0, 0.0]))
+    assert 'has 2 values' in expert(request()).reason
+
+
+# ------------------------------------------------------------------ the node
+
+def call_advise(harness, client, low=(-2.0,), high=(2.0,)):
+    assert harness.spin_until(client.service_is_ready)
+    future = client.call_async(Advise.Request(observation=[0.0, 0.0, 0.0], proposed_action=[0.0] * len(low),
+                                              action_low=list(low), action_high=list(high), episode=0, step=0))
+    assert harness.spin_until(future.done)
+    return future.result()
+
+
+def test_teleop_expert_node_follows_joy_with_deadman_and_staleness(harness, ros_context):
+    harness.add(TeleopExpertNode(context=ros_context, parameter_overrides=params(
+        source='joy', axes=[1], scales=[3.0], offsets=[0.0], enable_button=2, stale_after_s=0.3)))
+    probe = harness.add(rclpy.create_node('joy_probe', context=ros_context))
+    joy_pub = probe.create_publisher(Joy, 'joy', 10)
+    client = probe.create_client(Advise, 'advise')
+
+    assert call_advise(harness, client).reason == 'no teleop command received yet'
+    assert harness.spin_until(lambda: joy_pub.get_subscription_count() > 0)
+
+    def send(axes, buttons):
+        joy_pub.publish(Joy(axes=axes, buttons=buttons))
+        harness.spin_until(lambda: False, timeout=0.1)
+
+    send([0.0, 0.4], [0, 0, 1])
+    response = call_advise(harness, client)
+    assert response.advised and response.human and list(response.action) == pytest.approx([1.2])
+    assert response.expert_name == '/teleop_expert'
+    send([0.0, -0.9], [0, 0, 1])                                   # -2.7: clipped to the bound
+    assert list(call_advise(harness, client).action) == pytest.approx([-2.0])
+    send([0.0, 0.4], [0, 0, 0])                                    # deadman released
+    response = call_advise(harness, client)
+    assert not response.advised and 'button 2 is not held' in response.reason
+    send([0.0, 0.4], [0, 0, 1])
+    harness.spin_until(lambda: False, timeout=0.5)                 # no new command: stale
+    response = call_advise(harness, client)
+    assert not response.advised and 'old' in response.reason
+
+
+def test_teleop_expert_node_follows_twist(harness, ros_context):
+    harness.add(TeleopExpertNode(context=ros_context, parameter_overrides=params(
+        source='twist', twist_fields=['linear.x', 'angular.z'], axes=[0, 1], scales=[1.0, -1.0],
+        offsets=[0.0, 0.0])))
+    probe = harness.add(rclpy.create_node('twist_probe', context=ros_context))
+    twist_pub = probe.create_publisher(Twist, 'cmd_vel', 10)
+    client = probe.create_client(Advise, 'advise')
+    assert harness.spin_until(lambda: twist_pub.get_subscription_count() > 0)
+    twist = Twist()
+    twist.linear.x, twist.angular.z = 0.5, 0.8
+    twist_pub.publish(twist)
+    harness.spin_until(lambda: False, timeout=0.1)
+    response = call_advise(harness, client, low=(-1.0, -1.0), high=(1.0, 1.0))
+    assert response.advised and list(response.action) == pytest.approx([0.5, -0.8])
+
+
+def test_teleop_mapping_of_the_wrong_length_is_refused(ros_context):
+    with pytest.raises(ValueError, match="'axes' has 2 values"):
+        TeleopExpertNode(context=ros_context, parameter_overrides=params(source='joy', axes=[0, 1], scales=[1.0]))
+
+
+def test_env_publishes_frames_of_the_right_size_and_encoding(harness, ros_context):
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(publish_images=True, image_rate_hz=20.0)))
+    probe = harness.add(rclpy.create_node('image_probe', context=ros_context))
+    frames = []
+    probe.create_subscription(Image, 'gym_env/image', frames.append, 5)
+    assert harness.spin_until(lambda: len(frames) >= 2)
+    frame = frames[-1]
+    assert frame.encoding == 'rgb8' and (frame.height, frame.width) == (500, 500)
+    assert frame.step == 500 * 3 and len(frame.data) == 500 * 500 * 3
+    pixels = np.frombuffer(bytes(frame.data), np.uint8)
+    assert pixels.min() < pixels.max()      # a picture, not a blank buffer
+
+
+def test_advice_from_a_person_is_marked_in_stats_and_csv(harness, ros_context, tmp_path):
+    harness.add(TeleopExpertNode(context=ros_context, parameter_overrides=params(
+        source='array', axes=[0], scales=[2.0], offsets=[0.0], stale_after_s=5.0)))
+    probe = harness.add(rclpy.create_node('person', context=ros_context))
+    command_pub = probe.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    requests = []
+    from eqhrl_ros.nodes.keyboard_teleop import LATCHED
+    probe.create_subscription(Float32MultiArray, 'learner/advice_request', requests.append, LATCHED)
+    assert harness.spin_until(lambda: command_pub.get_subscription_count() > 0)
+    command_pub.publish(messages.build([('command', [0.5])]))
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
+        tmp_path, mode='qasac', max_episodes=2)))
+    assert harness.spin_until(lambda: learner.done, timeout=60)
+    totals = learner.learner.advice_total
+    assert totals.given > 0 and totals.human == totals.given
+    with open(tmp_path / 'episodes.csv', newline='') as f:
+        rows = list(csv.DictReader(f))
+    assert sum(int(r['advice_human']) for r in rows) == totals.human
+    outcomes = [int(messages.parse_fields(m)['outcome']) for m in requests]
+    assert messages.ADVICE_OUTCOMES['pending'] in outcomes and messages.ADVICE_OUTCOMES['given'] in outcomes
+
+
+# ------------------------------------------------------------------ keyboard_teleop, for real, in tmux
+
+class Tmux:
+    def __init__(self, name):
+        if shutil.which('tmux') is None:
+            pytest.fail('tmux is needed for this test: apt-get install tmux')
+        self.base = ['tmux', '-L', name]      # a private server: inherits this test's ROS domain
+        subprocess.run(self.base + ['new-session', '-d', '-s', 'kb', '-x', '110', '-y', '20',
+                                    'bash --norc --noprofile'], check=True, env=dict(os.environ, PS1='$ '))
+
+    def send(self, *keys):
+        subprocess.run(self.base + ['send-keys', '-t', 'kb', *keys], check=True)
+
+    def screen(self) -> str:
+        return subprocess.run(self.base + ['capture-pane', '-p', '-t', 'kb'], check=True,
+                              capture_output=True, text=True).stdout
+
+    def wait_for(self, text, timeout=20.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.screen():
+                return True
+            time.sleep(0.1)
+        return False
+
+    def running(self) -> str:
+        return subprocess.run(self.base + ['display-message', '-p', '-t', 'kb', '#{pane_current_command}'],
+                              check=True, capture_output=True, text=True).stdout.strip()
+
+    def close(self):
+        subprocess.run(self.base + ['kill-server'], capture_output=True)
+
+
+def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
+    probe = harness.add(rclpy.create_node('keyboard_probe', context=ros_context))
+    commands = []
+    probe.create_subscription(Float32MultiArray, 'teleop_command', commands.append, 50)
+    from eqhrl_ros.nodes.keyboard_teleop import LATCHED
+    request_pub = probe.create_publisher(Float32MultiArray, 'learner/advice_request', LATCHED)
+    ask = AdviceRequest(np.zeros(3, np.float32), np.zeros(2, np.float32), -np.ones(2, np.float32),
+                        np.ones(2, np.float32), 2.0, -1.0, 3, 41)
+    request_pub.publish(messages.advice_request_msg('pending', ask, 2.0))
+
+    tmux = Tmux(f'eqhrl_test_{os.getpid()}')
+    try:
+        tmux.send(f'{Path(sys.prefix) / "bin" / "keyboard_teleop"} --ros-args -p dimensions:=2', 'Enter')
+        assert tmux.wait_for('q : quit'), tmux.screen()
+        assert tmux.wait_for('THE LEARNER ASKS FOR ADVICE: episode 3, step 41'), tmux.screen()
+
+        def latest():
+            harness.spin_until(lambda: False, timeout=0.3)
+            return list(commands[-1].data) if commands else None
+
+        tmux.send('d', 'd', 'w')
+        assert harness.spin_until(lambda: commands and list(commands[-1].data) == [0.5, 0.25])
+        assert tmux.wait_for('command: [+0.50, +0.25]'), tmux.screen()
+        tmux.send('a', 'a', 'a', 'a', 'a', 'a')                   # clipped at -1
+        assert harness.spin_until(lambda: list(commands[-1].data) == [-1.0, 0.25])
+        tmux.send('Space')
+        assert harness.spin_until(lambda: list(commands[-1].data) == [0.0, 0.0])
+        tmux.send('p')
+        assert tmux.wait_for('PAUSED'), tmux.screen()
+        count = len(commands)
+        assert latest() is not None and len(commands) - count <= 1   # nothing sent while paused
+
+        request_pub.publish(messages.advice_request_msg('given', ask, 2.0))
+        assert tmux.wait_for('no request pending (last one: given)'), tmux.screen()
+
+        tmux.send('q')
+        deadline = time.monotonic() + 20
+        while tmux.running() != 'bash' and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert tmux.running() == 'bash', tmux.screen()                     # keyboard_teleop exited
+        tmux.send('clear; stty -a | tr " " "\\n" | grep -x -e icanon -e -icanon -e echo -e -echo', 'Enter')
+        assert tmux.wait_for('icanon'), tmux.screen()
+        settings = tmux.screen().split()
+        assert 'icanon' in settings and 'echo' in settings, tmux.screen()     # the terminal is restored
+        assert '-icanon' not in settings and '-echo' not in settings
+    finally:
+        tmux.close()
