@@ -14,15 +14,13 @@ import sys
 import time
 
 import rclpy
-import rclpy.exceptions
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
-from .core.checkpoint import CheckpointError
 from .nodes.expert_node import ExpertNode
 from .nodes.gym_env_node import GymEnvNode
 from .nodes.learner_node import LearnerNode
-from .nodes.lifecycle import spin
+from .nodes.lifecycle import START_UP_ERRORS, spin
 from .nodes.teleop_expert_node import TeleopExpertNode
 from .paths import params_file
 
@@ -94,8 +92,7 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     try:
         learner = run(args)
-    except (CheckpointError, ValueError, FileNotFoundError,
-            rclpy.exceptions.ParameterException) as error:
+    except START_UP_ERRORS as error:
         print(f'eqhrl-train: {error}', file=sys.stderr)
         return 1
     print(f'done: {learner.learner.episode} episodes, results in {learner.output_dir}')

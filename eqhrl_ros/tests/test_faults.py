@@ -1,7 +1,6 @@
 """Faults injected one by one: the learner keeps training, counts what happened, loses nothing."""
 
 import csv
-import os
 import signal
 import subprocess
 import sys
@@ -13,7 +12,6 @@ import pytest
 import torch
 from std_msgs.msg import Float32MultiArray
 
-from eqhrl_ros.core import CheckpointError, load_checkpoint
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
@@ -41,7 +39,6 @@ def test_bad_advice_is_counted_by_kind_and_never_used(harness, ros_context, tmp_
 
 
 def test_expert_that_crashes_and_comes_back(harness, ros_context, tmp_path):
-    probe = Probe(harness)
     harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
         tmp_path, mode='qasac', advising_budget=1000, max_episodes=9, advice_timeout_s=0.2)))
@@ -75,7 +72,6 @@ def test_untrusted_expert_is_refused(harness, ros_context, tmp_path):
 
 
 def test_env_that_dies_mid_episode_and_restarts(harness, ros_context, tmp_path):
-    probe = Probe(harness)
     env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
         tmp_path, mode='sac', max_episodes=4, stall_timeout_s=0.5)))

@@ -1,9 +1,6 @@
 """EQSACLearner behaviour: advice handling, dual replay, update order, determinism, checkpoints."""
 
-import io
 import os
-import pickle
-import zipfile
 
 import numpy as np
 import pytest

@@ -7,7 +7,7 @@ controller, a trained policy, a ROS service or a person answers.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Callable, Optional
 

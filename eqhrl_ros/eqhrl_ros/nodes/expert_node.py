@@ -5,14 +5,13 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import rclpy
 from rclpy.node import Node
 
 from eqhrl_interfaces.srv import Advise
 
 from ..core.checkpoint import PolicyExpert
 from ..core.experts import AdviceRequest, heuristic_expert
-from .lifecycle import spin
+from .lifecycle import run_node
 from .params import EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
 
 
@@ -68,16 +67,7 @@ class ExpertNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = ExpertNode()
-        spin(node)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    run_node(ExpertNode, args)
 
 if __name__ == '__main__':
     main()

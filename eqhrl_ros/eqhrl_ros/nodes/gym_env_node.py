@@ -10,7 +10,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
@@ -18,7 +17,7 @@ from std_msgs.msg import Float32MultiArray
 
 from ..core.envs import make_env
 from . import messages
-from .lifecycle import spin
+from .lifecycle import run_node
 from .params import GYM_ENV_PARAMS, choices_validator, declare, reject_unknown_overrides
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -117,16 +116,7 @@ class GymEnvNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = GymEnvNode()
-        spin(node)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    run_node(GymEnvNode, args)
 
 if __name__ == '__main__':
     main()

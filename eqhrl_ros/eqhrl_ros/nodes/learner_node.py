@@ -11,7 +11,6 @@ shutdown, under a single-threaded executor or a multi-threaded one. (A synchrono
 from __future__ import annotations
 
 import csv
-import sys
 import threading
 import time
 from collections import Counter, deque
@@ -21,8 +20,6 @@ from typing import Optional
 
 import gymnasium as gym
 import numpy as np
-import rclpy
-import rclpy.exceptions
 import torch
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -30,12 +27,12 @@ from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.srv import Advise
 
-from ..core.checkpoint import CheckpointError, export_policy, load_checkpoint, save_checkpoint
+from ..core.checkpoint import export_policy, load_checkpoint, save_checkpoint
 from ..core.envs import success_criterion
 from ..core.experts import Advice
 from ..core.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
 from . import messages
-from .lifecycle import spin
+from .lifecycle import run_node
 from .params import (LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, choices_validator, declare,
                      reject_unknown_overrides)
 
@@ -385,23 +382,13 @@ class LearnerNode(Node):
                 self._csv_file.close()
 
 
-def main(args=None):
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = LearnerNode()
-        spin(node)
-    except (CheckpointError, ValueError, rclpy.exceptions.ParameterException) as error:
-        # Start-up refusals (bad parameters, unusable checkpoint): one clear line, exit code 1.
-        print(f'learner: refused to start: {error}', file=sys.stderr)
-        raise SystemExit(1)
-    finally:
-        if node is not None:
-            node.save()      # Ctrl-C and SIGTERM included: rclpy turns both into a clean exit
-            node.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
+def _save_and_close(node: LearnerNode) -> None:
+    node.save()      # Ctrl-C and SIGTERM included: rclpy turns both into a clean exit
+    node.close()
 
+
+def main(args=None):
+    run_node(LearnerNode, args, on_exit=_save_and_close)
 
 if __name__ == '__main__':
     main()

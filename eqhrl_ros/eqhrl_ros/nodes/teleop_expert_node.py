@@ -8,11 +8,8 @@ Subscribes to ``joy`` (sensor_msgs/Joy, from the `joy` node), ``cmd_vel``
 
 from __future__ import annotations
 
-import sys
 from functools import reduce
 
-import rclpy
-import rclpy.exceptions
 from geometry_msgs.msg import Twist
 from rclpy.node import Node
 from rcl_interfaces.msg import SetParametersResult
@@ -23,7 +20,7 @@ from eqhrl_interfaces.srv import Advise
 
 from ..core.teleop import TWIST_FIELDS, TeleopExpert, array_command, joy_command, twist_command
 from .expert_node import request_from_msg
-from .lifecycle import spin
+from .lifecycle import run_node
 from .params import TELEOP_EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
 
 
@@ -103,19 +100,7 @@ class TeleopExpertNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = TeleopExpertNode()
-        spin(node)
-    except (ValueError, rclpy.exceptions.ParameterException) as error:
-        print(f'teleop_expert: refused to start: {error}', file=sys.stderr)
-        raise SystemExit(1)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    run_node(TeleopExpertNode, args)
 
 if __name__ == '__main__':
     main()
