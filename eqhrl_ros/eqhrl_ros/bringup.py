@@ -34,6 +34,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument('--mode', choices=('sac', 'qasac', 'eqsac'), help='overrides learner mode')
     parser.add_argument('--episodes', type=int, help='overrides learner max_episodes')
     parser.add_argument('--seed', type=int, help='overrides the env and learner seeds')
+    parser.add_argument('--max-steps', type=int, help='overrides gym_env max_episode_steps')
+    parser.add_argument('--budget', type=int, help='overrides learner advising_budget')
     parser.add_argument('--resume', action='store_true', help='continue from <output>/checkpoint.pt')
     parser.add_argument('--expert-node', choices=('expert', 'teleop', 'none'), default='expert',
                         help='which expert to start: the built-in/policy expert, the teleop expert '
@@ -51,6 +53,8 @@ def learner_overrides(args) -> list[Parameter]:
         overrides.append(Parameter('max_episodes', value=args.episodes))
     if args.seed is not None:
         overrides.append(Parameter('seed', value=args.seed))
+    if args.budget is not None:
+        overrides.append(Parameter('advising_budget', value=args.budget))
     if args.resume:
         overrides.append(Parameter('resume', value=True))
     return overrides
@@ -63,6 +67,8 @@ def run(args) -> LearnerNode | None:
     learner = None
     try:
         env_overrides = [Parameter('seed', value=args.seed)] if args.seed is not None else []
+        if args.max_steps is not None:
+            env_overrides.append(Parameter('max_episode_steps', value=args.max_steps))
         nodes.append(GymEnvNode(parameter_overrides=env_overrides))
         if args.expert_node == 'expert':
             nodes.append(ExpertNode())

@@ -110,7 +110,9 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
 def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress) -> None:
     command = [str(Path(sys.prefix) / 'bin' / 'eqhrl-train'), '--params', settings.params_path,
                '--output', str(directory), '--mode', algorithm, '--episodes', str(settings.episodes),
-               '--seed', str(seed)]
+               '--seed', str(seed), '--max-steps', str(settings.max_episode_steps)]
+    if 'advising_budget' in settings.learner:
+        command += ['--budget', str(settings.learner['advising_budget'])]
     if settings.expert_backend == 'none':
         command += ['--expert-node', 'none']
     env = dict(os.environ, OMP_NUM_THREADS='1')

@@ -92,3 +92,25 @@ def test_report_refuses_a_folder_without_results(tmp_path, capsys):
 
 def test_episodes_to_reach_is_nan_when_never_reached():
     assert math.isnan(report.episodes_to_reach(np.full(30, -500.0), -200.0))
+
+
+def test_in_process_and_through_ros_give_the_same_numbers(tmp_path):
+    """Lock-step ROS runs the same algorithm on the same seed: the same episodes, with the
+    same advice, and returns equal up to float32 rounding of rewards in the messages."""
+    params_file = tmp_path / 'tiny.yaml'
+    params_file.write_text(
+        'gym_env:\n  ros__parameters:\n    env_id: Pendulum-v1\n    max_episode_steps: 30\n'
+        'expert:\n  ros__parameters:\n    backend: heuristic\n    env_id: Pendulum-v1\n'
+        'learner:\n  ros__parameters:\n    env_id: Pendulum-v1\n    hidden_sizes: [16, 16]\n'
+        '    batch_size: 16\n    learning_starts: 20\n    queue_length: 3\n    advising_budget: 2\n'
+        '    max_episodes: 3\n')
+    common = ['--params', str(params_file), '--algorithms', 'eqsac', '--seeds', '5', '--jobs', '1']
+    assert experiment.main([*common, '--output', str(tmp_path / 'core')]) == 0
+    assert experiment.main([*common, '--through-ros', '--output', str(tmp_path / 'ros')]) == 0
+    core, ros = read(tmp_path / 'core' / 'episodes.csv'), read(tmp_path / 'ros' / 'episodes.csv')
+    assert len(core) == len(ros) == 3
+    for a, b in zip(core, ros):
+        assert (a['episode'], a['length'], a['advice_asked'], a['advice_given']) == \
+               (b['episode'], b['length'], b['advice_asked'], b['advice_given'])
+        assert float(a['return']) == pytest.approx(float(b['return']), rel=1e-3)
+    assert sum(int(r['advice_given']) for r in core) > 0
