@@ -193,3 +193,26 @@ def test_launch_file_is_valid_python_naming_the_three_executables():
     compile(source, 'train.launch.py', 'exec')
     for executable in ('gym_env', 'expert', 'learner'):
         assert f"executable='{executable}'" in source
+
+
+def test_realtime_env_with_a_slow_expert_keeps_every_transition(harness, ros_context, tmp_path):
+    """While a (human-slow) expert decides, a real-time env keeps stepping with the held
+    action: those steps are stored as transitions, none is lost, and advice still lands."""
+    expert = StubExpert(ros_context, 'advise', delay=0.15)
+    try:
+        harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(
+            realtime=True, rate_hz=60.0, max_episode_steps=40)))
+        learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
+            tmp_path, mode='qasac', advising_budget=100, max_episodes=3, advice_timeout_s=1.0)))
+        assert harness.spin_until(lambda: learner.done, timeout=60)
+    finally:
+        expert.close()
+    totals = learner.learner.advice_total
+    assert totals.given > 0
+    # Only a request still open when its episode ends times out (1 s timeout, 0.15 s answers).
+    assert totals.failed['timeout'] <= 3
+    assert learner.observation_gaps == 0
+    # A real-time env does not wait for a learner that starts late: episode 0 may miss its
+    # first steps; the later ones are complete, every step stored.
+    assert [s.length for s in learner.summaries][1:] == [40, 40]
+    assert len(learner.learner.replay) == learner.learner.total_steps >= 115
