@@ -224,7 +224,7 @@ def main(argv=None) -> int:
                         r.get()   # re-raise a worker's error here
                 finished += newly
                 now = time.monotonic()
-                if now - last_print > 5.0 or newly:
+                if now - last_print > 15.0 or newly:
                     last_print = now
                     rate = done_episodes / max(now - start, 1e-9)
                     eta = (total - done_episodes) / rate if rate > 0 else float('nan')
