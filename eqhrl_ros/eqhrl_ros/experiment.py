@@ -25,7 +25,7 @@ import queue
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
@@ -45,7 +45,6 @@ class Settings:
     expert_backend: str = 'heuristic'
     policy_path: str = ''
     params_path: str = ''
-    overrides: dict = field(default_factory=dict)
 
 
 def load_settings(args) -> Settings:

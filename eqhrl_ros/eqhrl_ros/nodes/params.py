@@ -31,9 +31,7 @@ class Param:
         descriptor = ParameterDescriptor(description=text, read_only=not self.dynamic)
         if self.range is not None:
             low, high = self.range
-            if isinstance(self.default, bool):
-                pass
-            elif isinstance(self.default, int):
+            if isinstance(self.default, int):
                 descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=0)]
             elif isinstance(self.default, float):
                 descriptor.floating_point_range = [
