@@ -101,7 +101,8 @@ def main(argv=None) -> int:
     except START_UP_ERRORS as error:
         print(f'eqhrl-train: {error}', file=sys.stderr)
         return 1
-    print(f'done: {learner.learner.episode} episodes, results in {learner.output_dir}')
+    print(f'done: {learner.learner.episode} episodes in {learner.wall_time_s:.0f} s, '
+          f'results in {learner.output_dir}')
     return 0
 
 
