@@ -130,7 +130,7 @@ def test_update_order_main_critic_then_advice_critic_then_actor(monkeypatch):
     calls = []
     original_critic = learner._critic_update
     original_actor = learner._actor_and_alpha_update
-    monkeypatch.setattr(learner, '_critic_update', lambda b: calls.append(('critic', b)) or original_critic(b))
+    monkeypatch.setattr(learner, '_critic_update', lambda b, y: calls.append(('critic', b)) or original_critic(b, y))
     monkeypatch.setattr(learner, '_actor_and_alpha_update',
                         lambda b: calls.append(('actor', b)) or original_actor(b))
     for _ in range(40):
@@ -155,7 +155,7 @@ def test_qasac_also_uses_the_advice_critic_step_but_sac_does_not(monkeypatch):
         learner = small_learner(mode=mode)
         count = []
         original = learner._critic_update
-        monkeypatch.setattr(learner, '_critic_update', lambda b: count.append(1) or original(b))
+        monkeypatch.setattr(learner, '_critic_update', lambda b, y: count.append(1) or original(b, y))
         for _ in range(20):
             learner.replay.add(np.random.randn(3), [0.1], -1.0, np.random.randn(3), False)
             learner.advice_replay.add(np.random.randn(3), [0.1], -1.0, np.random.randn(3), False)
