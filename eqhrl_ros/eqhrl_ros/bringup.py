@@ -14,13 +14,12 @@ import sys
 import time
 
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from .nodes.expert_node import ExpertNode
 from .nodes.gym_env_node import GymEnvNode
 from .nodes.learner_node import LearnerNode
-from .nodes.lifecycle import START_UP_ERRORS, spin
+from .nodes.lifecycle import EXECUTORS, START_UP_ERRORS, make_executor, spin
 from .nodes.teleop_expert_node import TeleopExpertNode
 from .paths import params_file
 
@@ -40,6 +39,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument('--expert-node', choices=('expert', 'teleop', 'none'), default='expert',
                         help='which expert to start: the built-in/policy expert, the teleop expert '
                              '(a person advises, e.g. with keyboard_teleop), or none')
+    parser.add_argument('--executor', choices=EXECUTORS, default=None,
+                        help='rclpy executor for the three nodes (default: $EQHRL_EXECUTOR, else events)')
     return parser.parse_args(argv)
 
 
@@ -76,7 +77,7 @@ def run(args) -> LearnerNode | None:
             nodes.append(TeleopExpertNode())
         learner = LearnerNode(parameter_overrides=learner_overrides(args))
         nodes.append(learner)
-        executor = SingleThreadedExecutor()
+        executor = make_executor(args.executor)
         for node in nodes:
             executor.add_node(node)
         start = time.monotonic()

@@ -2,6 +2,7 @@
 
 import csv
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -195,6 +196,15 @@ class Tmux:
             time.sleep(0.1)
         return False
 
+    def wait_for_line(self, pattern, timeout=20.0) -> bool:
+        """A whole screen line matching the regular expression ``pattern``."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if re.search(f'^{pattern}$', self.screen(), re.M):
+                return True
+            time.sleep(0.1)
+        return False
+
     def running(self) -> str:
         return subprocess.run(self.base + ['display-message', '-p', '-t', 'kb', '#{pane_current_command}'],
                               check=True, capture_output=True, text=True).stdout.strip()
@@ -243,9 +253,11 @@ def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
         while tmux.running() != 'bash' and time.monotonic() < deadline:
             time.sleep(0.1)
         assert tmux.running() == 'bash', tmux.screen()                     # keyboard_teleop exited
-        tmux.send('clear; stty -a | tr " " "\\n" | grep -x -e icanon -e -icanon -e echo -e -echo', 'Enter')
-        assert tmux.wait_for('icanon'), tmux.screen()
-        settings = tmux.screen().split()
+        # The typed line holds 'DONE""' and '-icanon'; only the output holds 'FLAGS: ... DONE'.
+        tmux.send('clear; echo FLAGS: $(stty -a | tr " " "\\n" | grep -x -e icanon -e -icanon -e echo -e -echo) DONE""',
+                  'Enter')
+        assert tmux.wait_for_line(r'FLAGS: .* DONE'), tmux.screen()
+        settings = re.search(r'^FLAGS: (.*) DONE$', tmux.screen(), re.M).group(1).split()
         assert 'icanon' in settings and 'echo' in settings, tmux.screen()     # the terminal is restored
         assert '-icanon' not in settings and '-echo' not in settings
     finally:

@@ -202,9 +202,10 @@ class EQSACLearner:
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.log_alpha = torch.tensor(math.log(cfg.initial_alpha), requires_grad=True)
         self.target_entropy = -float(self.action_dim)   # Table 1: target alpha = -action dim
-        self.actor_optimizer = adam(self.actor.parameters(), cfg.actor_lr)
-        self.critic_optimizer = adam(self.critic.parameters(), cfg.critic_lr)
-        self.alpha_optimizer = adam([self.log_alpha], cfg.alpha_lr)
+        # The optimisers are made at the first update: torch imports its compiler
+        # (torch._dynamo, ~1.4 s here) when the first one is made, which would otherwise
+        # delay the first env step by that much.
+        self._optimizers_made = False
 
         # One random stream per purpose, so that e.g. estimating E(s) never shifts
         # the noise of the policy's own actions.
@@ -241,7 +242,7 @@ class EQSACLearner:
             raise ValueError('observation holds a non-finite value (NaN or inf)')
         return torch.from_numpy(array).unsqueeze(0)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def act(self, obs, deterministic: bool = False) -> np.ndarray:
         """The policy's action in env units, without gates or counters (evaluation)."""
         mean, log_std = self.actor(self._obs_tensor(obs))
@@ -251,7 +252,7 @@ class EQSACLearner:
         action, _ = eq.squashed_gaussian_sample(mean, log_std, noise)
         return self.scaler.to_env(action[0].numpy())
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def propose(self, obs) -> Proposal:
         """a_t ~ pi(.|s_t), then D(s) (Eq. 8), E(s) (Eq. 9) and the gates (Eq. 7, Eq. 10)."""
         obs_t = self._obs_tensor(obs)
@@ -335,8 +336,17 @@ class EQSACLearner:
             return self.end_episode()
         return None
 
+    def _make_optimizers(self) -> None:
+        if not self._optimizers_made:
+            cfg = self.config
+            self.actor_optimizer = adam(self.actor.parameters(), cfg.actor_lr)
+            self.critic_optimizer = adam(self.critic.parameters(), cfg.critic_lr)
+            self.alpha_optimizer = adam([self.log_alpha], cfg.alpha_lr)
+            self._optimizers_made = True
+
     def update(self) -> dict:
         """One gradient update (Algorithm 1, inner loop), in the paper's order."""
+        self._make_optimizers()
         cfg = self.config
         info = {}
         batch = self.replay.sample(cfg.batch_size, self.rng['replay'])
@@ -450,6 +460,7 @@ class EQSACLearner:
 
     def state_dict(self) -> dict:
         """Everything needed to resume, as tensors and plain Python values only."""
+        self._make_optimizers()
         return {
             'config': self.config.to_dict(),
             'obs_dim': self.obs_dim,
@@ -499,6 +510,7 @@ class EQSACLearner:
         self.actor, self.critic, self.critic_target = actor, critic, critic_target
         self.log_alpha = log_alpha
         self.actor_optimizer, self.critic_optimizer, self.alpha_optimizer = actor_opt, critic_opt, alpha_opt
+        self._optimizers_made = True
         self.gates = gates
         self.rng = rng
         self.episode = int(counters['episode'])

@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
@@ -17,7 +18,7 @@ from std_msgs.msg import Float32MultiArray
 
 from ..core.envs import make_env
 from . import messages
-from .lifecycle import run_node
+from .lifecycle import run_node, seconds_since_process_start
 from .params import GYM_ENV_PARAMS, choices_validator, declare, reject_unknown_overrides
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -36,12 +37,15 @@ class GymEnvNode(Node):
         self.obs_dim = int(np.prod(self.env.observation_space.shape))
         self.episode = 0
         self.step_index = 0
+        self.steps_taken = 0
         self.rejected_actions = 0
         self.stale_actions = 0
         self._last_publish = time.monotonic()
         self._held_action = ((self.env.action_space.low + self.env.action_space.high) / 2).astype(np.float32)
 
-        self.observation_pub = self.create_publisher(Float32MultiArray, 'observation', QOS)
+        self.observation_pub = self.create_publisher(
+            Float32MultiArray, 'observation', QOS,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_subscriber_matched))
         self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS)
         self._reset(seed=p['seed'])
         if p['realtime']:
@@ -69,6 +73,9 @@ class GymEnvNode(Node):
     def _step(self, action: np.ndarray) -> None:
         obs, reward, terminated, truncated, _ = self.env.step(action)
         self.step_index += 1
+        self.steps_taken += 1
+        if self.steps_taken == 1:
+            self.get_logger().info(f'first env step {seconds_since_process_start():.2f} s after the process started')
         self._last_msg = messages.observation_msg(obs, reward, terminated, truncated,
                                                   self.episode, self.step_index)
         self._publish()
@@ -103,6 +110,12 @@ class GymEnvNode(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = 'gym_env'
         self.image_pub.publish(msg)
+
+    def _on_subscriber_matched(self, info) -> None:
+        # A learner that subscribes after the first observation went out would otherwise
+        # wait a whole republish period for it (this was most of the start-up time).
+        if info.current_count_change > 0 and not self.params['realtime'] and hasattr(self, '_last_msg'):
+            self._publish()
 
     def _republish_if_idle(self) -> None:
         # Nobody acted on the last observation for a whole period: a learner that

@@ -18,11 +18,13 @@ Episode and step are float32: exact up to 16,777,216.
 
 from __future__ import annotations
 
+import array
+import functools
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
-from std_msgs.msg import Float32MultiArray, MultiArrayDimension
+from std_msgs.msg import Float32MultiArray, MultiArrayDimension, MultiArrayLayout
 
 OBS_TAIL = ('reward', 'terminated', 'truncated', 'episode', 'step')
 ACTION_TAIL = ('episode', 'step')
@@ -39,14 +41,19 @@ class MessageError(ValueError):
     """A message that does not fit its layout; the text names what is wrong."""
 
 
+@functools.lru_cache(maxsize=256)
+def _layout(dims: tuple[tuple[str, int], ...]) -> MultiArrayLayout:
+    # A layout is the same for every message of a topic: built once, shared (never mutated).
+    return MultiArrayLayout(dim=[MultiArrayDimension(label=label, size=size, stride=size)
+                                 for label, size in dims])
+
+
 def build(fields: Sequence[tuple[str, Sequence[float]]]) -> Float32MultiArray:
+    arrays = [np.atleast_1d(np.asarray(values, dtype=np.float32)).reshape(-1) for _, values in fields]
     msg = Float32MultiArray()
-    data = []
-    for label, values in fields:
-        values = np.atleast_1d(np.asarray(values, dtype=np.float32))
-        msg.layout.dim.append(MultiArrayDimension(label=label, size=len(values), stride=len(values)))
-        data.extend(values.tolist())
-    msg.data = data
+    msg.layout = _layout(tuple((label, len(a)) for (label, _), a in zip(fields, arrays)))
+    # array('f') is the message's own storage type: assigned without a per-element check.
+    msg.data = array.array('f', np.concatenate(arrays).tobytes())
     return msg
 
 
