@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: setup test demo bench clean lock
+.PHONY: setup test demo bench bench-learner bench-ros profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -62,8 +62,21 @@ $(VENV)/.stamp-bench: $(VENV)/.stamp-eqhrl_ros benchmarks/requirements.txt
 	$(VPY) -m pip install -q -r benchmarks/requirements.txt -c constraints.txt 2>&1 | $(PIP_QUIET)
 	touch $@
 
+# Each exits non-zero when a speed target of issue 8 is missed; `bench` runs both.
 bench: $(VENV)/.stamp-bench
+	$(VPY) benchmarks/bench_learner.py; learner=$$?; $(VPY) benchmarks/bench_ros.py; ros=$$?; \
+	  exit $$(( learner || ros ))
+
+bench-learner: $(VENV)/.stamp-bench
 	$(VPY) benchmarks/bench_learner.py
+
+bench-ros: $(VENV)/.stamp-eqhrl_ros
+	$(VPY) benchmarks/bench_ros.py
+
+# Where a training step's time goes (torch.profiler's top operators).
+profile: $(VENV)/.stamp-eqhrl_ros
+	$(VPY) benchmarks/profile_learner.py --mode sac
+	$(VPY) benchmarks/profile_learner.py --mode eqsac
 
 # Refresh constraints.txt from the current .venv (after changing requirements.txt).
 lock: $(VENV)/.stamp-deps

@@ -32,10 +32,13 @@ def ros_context():
 
 
 @pytest.fixture
-def harness(ros_context):
-    """Nodes spun by one executor in the test thread; all destroyed after the test."""
+def harness(ros_context, request):
+    """Nodes spun by one executor in the test thread; all destroyed after the test.
+
+    The executor is rclpy's SingleThreadedExecutor unless a test parametrizes
+    ``harness`` indirectly with another kind ('events', 'multi')."""
     from ros_helpers import Harness
-    h = Harness(ros_context)
+    h = Harness(ros_context, getattr(request, 'param', 'single'))
     try:
         yield h
     finally:

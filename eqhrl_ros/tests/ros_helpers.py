@@ -12,6 +12,7 @@ from std_msgs.msg import Float32MultiArray
 from eqhrl_interfaces.srv import Advise
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
+from eqhrl_ros.nodes.lifecycle import make_executor
 
 PARAMS_DIR = Path(__file__).resolve().parents[1] / 'params'
 
@@ -38,9 +39,9 @@ def small_learner_params(tmp_path, **extra):
 class Harness:
     """Nodes in one executor, destroyed at the end of the test."""
 
-    def __init__(self, context):
+    def __init__(self, context, executor='single'):
         self.context = context
-        self.executor = SingleThreadedExecutor(context=context)
+        self.executor = make_executor(executor, context=context)
         self.nodes = []
 
     def add(self, node):

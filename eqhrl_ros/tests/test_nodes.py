@@ -51,6 +51,35 @@ def test_env_node_layout_step_reset_and_rejections(harness, ros_context):
     assert any(p.episode == 1 and p.step == 0 for p in parsed)
 
 
+@pytest.mark.parametrize('harness', ['single', 'events'], indirect=True)
+def test_a_late_subscriber_gets_the_observation_when_it_connects(harness, ros_context):
+    # Re-sending only every republish period cost start-up a whole period; the env
+    # re-sends as soon as a subscriber connects.
+    env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(republish_period_s=60.0)))
+    harness.spin_until(lambda: False, timeout=0.3)      # the first observation went out to nobody
+    start = time.monotonic()
+    probe = Probe(harness)
+    assert harness.spin_until(lambda: len(probe.observations) >= 1, timeout=10)
+    assert time.monotonic() - start < 10 and env.step_index == 0
+    assert messages.parse_observation(probe.observations[0], 3).step == 0
+
+
+def test_executor_kinds():
+    from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+
+    from eqhrl_ros.nodes.lifecycle import make_executor
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        assert isinstance(make_executor('single', context=context), SingleThreadedExecutor)
+        assert isinstance(make_executor('multi', context=context), MultiThreadedExecutor)
+        assert type(make_executor('events', context=context)).__name__ == 'EventsExecutor'
+        with pytest.raises(ValueError, match='not one of'):
+            make_executor('fast', context=context)
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
 # ------------------------------------------------------------------ learner with stub experts
 
 def test_learner_asks_exactly_when_gates_fire_and_only_inside_budget(harness, ros_context, tmp_path):
@@ -82,6 +111,7 @@ def test_sac_mode_never_calls_the_service(harness, ros_context, tmp_path):
 
 @pytest.mark.parametrize('answer,delay,kind', [('decline', 0.0, 'declined'), ('advise', 0.6, 'timeout'),
                                                (None, 0.0, 'unavailable')])
+@pytest.mark.parametrize('harness', ['single', 'events'], indirect=True)
 def test_declining_slow_or_absent_expert_leaves_training_going(harness, ros_context, tmp_path,
                                                                answer, delay, kind):
     expert = StubExpert(ros_context, answer, delay) if answer else None
@@ -105,6 +135,7 @@ def read_csv(path):
         return list(csv.DictReader(f))
 
 
+@pytest.mark.parametrize('harness', ['single', 'events'], indirect=True)
 def test_three_nodes_run_and_resume_from_checkpoint(harness, ros_context, tmp_path):
     harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
     learner, probe = run_learner(harness, ros_context, tmp_path, episodes=3)

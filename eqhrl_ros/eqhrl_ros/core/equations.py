@@ -98,6 +98,12 @@ def log_one_minus_tanh_squared(u: torch.Tensor) -> torch.Tensor:
     return 2.0 * (LOG_2 - u - F.softplus(-2.0 * u))
 
 
+def squashed_gaussian_action(mean: torch.Tensor, log_std: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+    """a = tanh(mean + std * noise): the action of ``squashed_gaussian_sample`` without log pi
+    (acting needs no log-probability)."""
+    return torch.tanh(mean + log_std.exp() * noise)
+
+
 def squashed_gaussian_sample(
     mean: torch.Tensor, log_std: torch.Tensor, noise: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:

@@ -249,8 +249,7 @@ class EQSACLearner:
         if deterministic:
             return self.scaler.to_env(torch.tanh(mean)[0].numpy())
         noise = torch.randn(mean.shape, generator=self.rng['act'])
-        action, _ = eq.squashed_gaussian_sample(mean, log_std, noise)
-        return self.scaler.to_env(action[0].numpy())
+        return self.scaler.to_env(eq.squashed_gaussian_action(mean, log_std, noise)[0].numpy())
 
     @torch.inference_mode()
     def propose(self, obs) -> Proposal:
@@ -261,7 +260,7 @@ class EQSACLearner:
             action = torch.rand(mean.shape, generator=self.rng['warmup']) * 2.0 - 1.0
         else:
             noise = torch.randn(mean.shape, generator=self.rng['act'])
-            action, _ = eq.squashed_gaussian_sample(mean, log_std, noise)
+            action = eq.squashed_gaussian_action(mean, log_std, noise)
 
         if self.gates.needs_evaluation(self.episode):
             q1, q2 = self.critic(obs_t, action)

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 # Range of the actor's log standard deviation, reached smoothly through a tanh
@@ -34,13 +35,25 @@ class _NumpyTanh(torch.autograd.Function):
         return torch.ops.aten.tanh_backward(grad, y)
 
 
+NUMPY_TANH_FROM = 4096   # elements
+
+
+def tanh(x: torch.Tensor) -> torch.Tensor:
+    """torch.tanh, on numpy's kernel for a batch on CPU (see _NumpyTanh).
+
+    Small inputs (acting on one observation) keep torch.tanh, where the autograd
+    Function's own overhead would cost more than it saves; so do other devices and dtypes.
+    """
+    if x.numel() >= NUMPY_TANH_FROM and x.device.type == 'cpu' and x.dtype == torch.float32:
+        return _NumpyTanh.apply(x)
+    return torch.tanh(x)
+
+
 class Tanh(nn.Module):
-    """nn.Tanh, faster on CPU (see _NumpyTanh); other devices and dtypes use torch.tanh."""
+    """nn.Tanh with the faster ``tanh`` above."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if x.device.type == 'cpu' and x.dtype == torch.float32:
-            return _NumpyTanh.apply(x)
-        return torch.tanh(x)
+        return tanh(x)
 
 
 def _kaiming_linear(in_features: int, out_features: int, nonlinearity: str) -> nn.Linear:
@@ -64,9 +77,15 @@ class SquashedGaussianActor(nn.Module):
         # Mean and log-std heads in one layer: one matmul instead of two.
         self.heads = _kaiming_linear(width, 2 * action_dim, 'linear')
         self.action_dim = action_dim
+        # The body's Linear layers, called directly in forward: acting on one observation
+        # is dominated by per-module call overhead, not arithmetic.
+        self._hidden = [layer for layer in self.body if isinstance(layer, nn.Linear)]
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        mean, raw_log_std = self.heads(self.body(obs)).split(self.action_dim, dim=-1)
+        x = obs
+        for layer in self._hidden:                     # = self.body(obs)
+            x = tanh(F.linear(x, layer.weight, layer.bias))
+        mean, raw_log_std = F.linear(x, self.heads.weight, self.heads.bias).split(self.action_dim, dim=-1)
         log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (torch.tanh(raw_log_std) + 1.0)
         return mean, log_std
 
