@@ -43,6 +43,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_learner import OursLoop  # noqa: E402
 
 BIN = Path(sys.prefix) / 'bin'
+EXECUTOR = None   # --executor: None is make_executor's default (events)
 ENV_ID = 'Pendulum-v1'
 
 
@@ -68,7 +69,7 @@ class Wiring:
             Parameter(k, value=v) for k, v in params.items()])
         nodes.append(self.learner)
         self.nodes = nodes
-        self.executor = make_executor(context=self.context)
+        self.executor = make_executor(EXECUTOR, context=self.context)
         for node in nodes:
             self.executor.add_node(node)
         if expert == 'process':
@@ -167,7 +168,11 @@ def main() -> int:
     parser.add_argument('--warmup', type=int, default=500)
     parser.add_argument('--start-runs', type=int, default=3)
     parser.add_argument('--threads', type=int, default=2)
+    parser.add_argument('--executor', choices=('events', 'single', 'multi'), default=None,
+                        help='executor of the in-process wiring (start-up always uses the default)')
     args = parser.parse_args()
+    global EXECUTOR
+    EXECUTOR = args.executor
     torch.set_num_threads(args.threads)
     results = []   # (what, figure, target text, met)
 
