@@ -43,6 +43,7 @@ class GymEnvNode(Node):
         self._last_publish = time.monotonic()
         self._held_action = ((self.env.action_space.low + self.env.action_space.high) / 2).astype(np.float32)
 
+        self._subscribers_seen = 0
         self.observation_pub = self.create_publisher(
             Float32MultiArray, 'observation', QOS,
             event_callbacks=PublisherEventCallbacks(matched=self._on_subscriber_matched))
@@ -114,7 +115,12 @@ class GymEnvNode(Node):
     def _on_subscriber_matched(self, info) -> None:
         # A learner that subscribes after the first observation went out would otherwise
         # wait a whole republish period for it (this was most of the start-up time).
-        if info.current_count_change > 0 and not self.params['realtime'] and hasattr(self, '_last_msg'):
+        # Compared with the count we last saw, not with info.current_count_change: under
+        # rclpy 7.1's EventsExecutor the change fields of an event that arrived before
+        # spinning began read 0.
+        joined = info.current_count > self._subscribers_seen
+        self._subscribers_seen = info.current_count
+        if joined and not self.params['realtime'] and hasattr(self, '_last_msg'):
             self._publish()
 
     def _republish_if_idle(self) -> None:
