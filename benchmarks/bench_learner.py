@@ -11,7 +11,9 @@ inside its advising budget with the heuristic expert, so it also pays for D(s),
 E(s) and the second critic step on the advice batch.
 
 Prints steps/s for each contender and its ratio to SB3; exits with 1 if a ratio
-misses its target (issue 8: SAC >= 2.5x, EQSAC >= 2x).
+misses its target (issue 8: SAC >= 2.5x, EQSAC >= 2x). Also prints the compute floor
+measured in the same run: the time of an update's 256x256x256 matrix products alone
+(PRODUCTS), the speed an update would reach if nothing else cost anything.
 """
 
 from __future__ import annotations
@@ -27,6 +29,13 @@ from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_e
 
 ENVS = ('Pendulum-v1', 'LunarLanderContinuous-v3')
 TARGETS = {'sac': 2.5, 'eqsac': 2.0}
+# Matrix products of 256x256 by 256x256 in one update (Table 1 sizes, batch 256): each
+# hidden-to-hidden layer costs one forward and, in a backward pass, up to two more (weight
+# and input gradients); the small first and last layers are left out.
+#   SAC:   Eq. 4 target (actor 1, target critics 2) + Eq. 5 (2 critics x 3)
+#          + Eq. 6 (actor 3, critics 2 forward and 2 input-gradient)             = 16
+#   EQSAC: + Eq. 4 on the advice batch (3) + the second Eq. 5 step (6)           = 25
+PRODUCTS = {'sac': 16, 'eqsac': 25}
 
 
 class OursLoop:
@@ -83,6 +92,17 @@ def compare(env_id: str, args) -> dict:
     return {name: steps / s for name, s in seconds.items()}
 
 
+def matmul_ms(size: int = 256, repeats: int = 300) -> float:
+    """Milliseconds of one size x size x size float32 matrix product, best case (hot cache)."""
+    a, b, out = torch.randn(size, size), torch.randn(size, size), torch.empty(size, size)
+    for _ in range(30):
+        torch.mm(a, b, out=out)
+    start = time.perf_counter()
+    for _ in range(repeats):
+        torch.mm(a, b, out=out)
+    return (time.perf_counter() - start) / repeats * 1e3
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--rounds', type=int, default=8)
@@ -107,6 +127,12 @@ def main() -> int:
             if target is not None and ratio < target:
                 missed.append(f'{env_id} {name}: {ratio:.2f}x < {target}x')
             print(f'{env_id:26s} {name:10s} {rate:8.1f} {ratio:7.2f} {verdict:>7s}', flush=True)
+        # The compute floor, measured now: an update that cost only its matrix products.
+        mm = matmul_ms()
+        for mode, products in PRODUCTS.items():
+            ceiling = 1e3 / (products * mm)
+            print(f'{"":26s} floor {mode}: {products} products x {mm:.3f} ms = {products * mm:.2f} ms per update; '
+                  f'nothing else costing, at most {ceiling:.0f} steps/s = {ceiling / reference:.2f}x SB3', flush=True)
     if missed:
         print('targets missed: ' + '; '.join(missed))
         return 1

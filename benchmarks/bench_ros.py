@@ -118,11 +118,16 @@ def with_updates(output: Path, rounds: int, round_steps: int, warmup: int) -> tu
     try:
         wiring.run(warmup + round_steps)     # fill the replay memory; first updates, not timed
         ros_s = loop_s = 0.0
-        for _ in range(rounds):
-            ros_s += wiring.run(round_steps)
+        for i in range(rounds):
+            # Alternate who goes first, so that a machine slowing down within a round
+            # does not always fall on the same one.
+            if i % 2 == 0:
+                ros_s += wiring.run(round_steps)
             start = time.perf_counter()
             loop.run(round_steps)
             loop_s += time.perf_counter() - start
+            if i % 2 == 1:
+                ros_s += wiring.run(round_steps)
         return rounds * round_steps / ros_s, rounds * round_steps / loop_s
     finally:
         wiring.close()
@@ -163,7 +168,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--steps', type=int, default=3000, help='timed steps, updates off')
     parser.add_argument('--advice-steps', type=int, default=2000)
-    parser.add_argument('--rounds', type=int, default=6)
+    parser.add_argument('--rounds', type=int, default=16)
     parser.add_argument('--round-steps', type=int, default=100)
     parser.add_argument('--warmup', type=int, default=500)
     parser.add_argument('--start-runs', type=int, default=3)
