@@ -75,3 +75,36 @@ def test_tests_run_in_a_private_domain():
     import os
     assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert 1 <= int(os.environ['ROS_DOMAIN_ID']) <= 100
+
+
+def test_a_reused_outgoing_message_delivers_what_each_publish_held(ros_context):
+    # The env and learner refill one message per topic (messages.OutgoingMessage). That
+    # is only right if publish() serializes before returning: three refills published
+    # back to back, with no spinning in between, must arrive as three different steps.
+    from eqhrl_ros.nodes import messages
+
+    node = rclpy.create_node('reuse', context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    received = []
+    try:
+        node.create_subscription(Float32MultiArray, 'observation', received.append, 10)
+        publisher = node.create_publisher(Float32MultiArray, 'observation', 10)
+        executor.add_node(node)
+        assert spin_until(executor, lambda: publisher.get_subscription_count() > 0)
+        out = messages.observation_out(3)
+        for step in range(3):
+            msg = out.fill([0.1 * step, 0.2, 0.3], -float(step), step == 2, False, 4, step)
+            assert msg is out.msg
+            publisher.publish(msg)
+        assert spin_until(executor, lambda: len(received) == 3)
+        steps = [messages.parse_observation(m, 3) for m in received]
+        assert [s.step for s in steps] == [0, 1, 2]
+        assert [s.reward for s in steps] == [0.0, -1.0, -2.0]
+        assert [s.terminated for s in steps] == [False, False, True]
+        assert [s.obs[0] for s in steps] == pytest.approx([0.0, 0.1, 0.2])
+        assert messages.parse_fields(received[2])['episode'] == 4.0
+        with pytest.raises(messages.MessageError, match='2 \\+ 5 values for a message of 3 \\+ 5'):
+            out.fill([0.1, 0.2], 0.0, False, False, 4, 3)
+    finally:
+        executor.shutdown()
+        node.destroy_node()

@@ -44,6 +44,9 @@ class GymEnvNode(Node):
         self._held_action = ((self.env.action_space.low + self.env.action_space.high) / 2).astype(np.float32)
 
         self._subscribers_seen = 0
+        # The one observation message, rewritten before each publish (and re-sent as is).
+        self._last_msg = None
+        self._observation_out = messages.observation_out(self.obs_dim)
         self.observation_pub = self.create_publisher(
             Float32MultiArray, 'observation', QOS,
             event_callbacks=PublisherEventCallbacks(matched=self._on_subscriber_matched))
@@ -68,7 +71,7 @@ class GymEnvNode(Node):
     def _reset(self, seed=None) -> None:
         obs, _ = self.env.reset(seed=seed)
         self.step_index = 0
-        self._last_msg = messages.observation_msg(obs, 0.0, False, False, self.episode, 0)
+        self._last_msg = self._observation_out.fill(obs, 0.0, False, False, self.episode, 0)
         self._publish()
 
     def _step(self, action: np.ndarray) -> None:
@@ -77,8 +80,8 @@ class GymEnvNode(Node):
         self.steps_taken += 1
         if self.steps_taken == 1:
             self.get_logger().info(f'first env step {seconds_since_process_start():.2f} s after the process started')
-        self._last_msg = messages.observation_msg(obs, reward, terminated, truncated,
-                                                  self.episode, self.step_index)
+        self._last_msg = self._observation_out.fill(obs, reward, terminated, truncated,
+                                                    self.episode, self.step_index)
         self._publish()
         if terminated or truncated:
             self.episode += 1
@@ -120,7 +123,7 @@ class GymEnvNode(Node):
         # spinning began read 0.
         joined = info.current_count > self._subscribers_seen
         self._subscribers_seen = info.current_count
-        if joined and not self.params['realtime'] and hasattr(self, '_last_msg'):
+        if joined and not self.params['realtime'] and self._last_msg is not None:
             self._publish()
 
     def _republish_if_idle(self) -> None:

@@ -112,6 +112,7 @@ class LearnerNode(Node):
             self._csv_file.flush()
 
         self.action_pub = self.create_publisher(Float32MultiArray, 'action', QOS)
+        self._action_out = messages.action_out(self.learner.action_dim)   # rewritten per step
         self.stats_pub = self.create_publisher(Float32MultiArray, '~/episode_stats', STATS_QOS)
         self.gate_pub = self.create_publisher(Float32MultiArray, '~/gate_debug', QOS)
         self.request_pub = self.create_publisher(Float32MultiArray, '~/advice_request', LATCHED_QOS)
@@ -319,7 +320,7 @@ class LearnerNode(Node):
         self._publish_action(self._last_action)
 
     def _publish_action(self, action: np.ndarray) -> None:
-        self.action_pub.publish(messages.action_msg(action, *self._key))
+        self.action_pub.publish(self._action_out.fill(action, *self._key))
 
     # ------------------------------------------------------------------ a vanished env
 

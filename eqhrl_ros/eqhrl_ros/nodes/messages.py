@@ -57,6 +57,35 @@ def build(fields: Sequence[tuple[str, Sequence[float]]]) -> Float32MultiArray:
     return msg
 
 
+class OutgoingMessage:
+    """One message of a fixed layout, written in place before each publish.
+
+    Why: a per-step topic (observation, action) would otherwise build a new message,
+    its layout and its data array every step: 12-16 us each on a 2-core machine,
+    about 6% of an env step through the topics with updates off. Writing into the
+    same message costs about 1 us. Reuse is safe because ``publish`` serializes the
+    message before it returns; a subscriber never sees this object.
+    """
+
+    def __init__(self, dims: Sequence[tuple[str, int]]):
+        dims = tuple((label, int(size)) for label, size in dims)
+        self.head_size = dims[0][1]
+        self.size = sum(size for _, size in dims)
+        self.msg = Float32MultiArray(layout=_layout(dims), data=array.array('f', bytes(4 * self.size)))
+        # A writable numpy view of msg.data's own storage (array('f') exports its buffer).
+        self._values = np.frombuffer(self.msg.data, dtype=np.float32)
+
+    def fill(self, head, *tail: float) -> Float32MultiArray:
+        """The first field's values (``head``), then one value per remaining field."""
+        head = np.asarray(head, dtype=np.float32).reshape(-1)
+        if head.shape[0] != self.head_size or self.head_size + len(tail) != self.size:
+            raise MessageError(f'{head.shape[0]} + {len(tail)} values for a message of '
+                               f'{self.head_size} + {self.size - self.head_size}')
+        self._values[:self.head_size] = head
+        self._values[self.head_size:] = tail
+        return self.msg
+
+
 @dataclass(frozen=True)
 class EnvStep:
     obs: np.ndarray
@@ -74,6 +103,11 @@ class EnvStep:
 def observation_msg(obs, reward: float, terminated: bool, truncated: bool, episode: int, step: int):
     return build([('obs', obs), ('reward', [reward]), ('terminated', [float(terminated)]),
                   ('truncated', [float(truncated)]), ('episode', [episode]), ('step', [step])])
+
+
+def observation_out(obs_dim: int) -> OutgoingMessage:
+    """The env's observation message, refilled each step with ``fill(obs, *OBS_TAIL values)``."""
+    return OutgoingMessage((('obs', obs_dim), *((label, 1) for label in OBS_TAIL)))
 
 
 def parse_observation(msg: Float32MultiArray, obs_dim: int, topic: str = 'observation') -> EnvStep:
@@ -95,6 +129,11 @@ def action_msg(action, episode: Optional[int] = None, step: Optional[int] = None
     if episode is not None:
         fields += [('episode', [episode]), ('step', [step])]
     return build(fields)
+
+
+def action_out(action_dim: int) -> OutgoingMessage:
+    """The learner's tagged action message, refilled with ``fill(action, episode, step)``."""
+    return OutgoingMessage((('action', action_dim), *((label, 1) for label in ACTION_TAIL)))
 
 
 def parse_action(msg: Float32MultiArray, action_dim: int, topic: str = 'action'):
