@@ -1,5 +1,6 @@
 """ROS plumbing: the built Advise service and Float32MultiArray topics, in a private domain."""
 
+import contextlib
 import time
 
 import pytest
@@ -54,21 +55,28 @@ def test_advise_service_round_trip(ros_context):
         client_node.destroy_node()
 
 
-def test_float32_multiarray_publish_subscribe(ros_context):
-    node = rclpy.create_node('pubsub', context=ros_context)
+@contextlib.contextmanager
+def loopback(ros_context, topic: str):
+    """A node subscribed to its own publisher on ``topic``: (publisher, received, executor)."""
+    node = rclpy.create_node('loopback', context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     received = []
     try:
-        node.create_subscription(Float32MultiArray, 'numbers', received.append, 10)
-        publisher = node.create_publisher(Float32MultiArray, 'numbers', 10)
+        node.create_subscription(Float32MultiArray, topic, received.append, 10)
+        publisher = node.create_publisher(Float32MultiArray, topic, 10)
         executor.add_node(node)
         assert spin_until(executor, lambda: publisher.get_subscription_count() > 0)
-        publisher.publish(Float32MultiArray(data=[1.0, -2.5, 3.25]))
-        assert spin_until(executor, lambda: len(received) == 1)
-        assert list(received[0].data) == pytest.approx([1.0, -2.5, 3.25])
+        yield publisher, received, executor
     finally:
         executor.shutdown()
         node.destroy_node()
+
+
+def test_float32_multiarray_publish_subscribe(ros_context):
+    with loopback(ros_context, 'numbers') as (publisher, received, executor):
+        publisher.publish(Float32MultiArray(data=[1.0, -2.5, 3.25]))
+        assert spin_until(executor, lambda: len(received) == 1)
+        assert list(received[0].data) == pytest.approx([1.0, -2.5, 3.25])
 
 
 def test_tests_run_in_a_private_domain():
@@ -83,14 +91,7 @@ def test_a_reused_outgoing_message_delivers_what_each_publish_held(ros_context):
     # back to back, with no spinning in between, must arrive as three different steps.
     from eqhrl_ros.nodes import messages
 
-    node = rclpy.create_node('reuse', context=ros_context)
-    executor = SingleThreadedExecutor(context=ros_context)
-    received = []
-    try:
-        node.create_subscription(Float32MultiArray, 'observation', received.append, 10)
-        publisher = node.create_publisher(Float32MultiArray, 'observation', 10)
-        executor.add_node(node)
-        assert spin_until(executor, lambda: publisher.get_subscription_count() > 0)
+    with loopback(ros_context, 'observation') as (publisher, received, executor):
         out = messages.observation_out(3)
         for step in range(3):
             msg = out.fill([0.1 * step, 0.2, 0.3], -float(step), step == 2, False, 4, step)
@@ -105,6 +106,3 @@ def test_a_reused_outgoing_message_delivers_what_each_publish_held(ros_context):
         assert messages.parse_fields(received[2])['episode'] == 4.0
         with pytest.raises(messages.MessageError, match='2 \\+ 5 values for a message of 3 \\+ 5'):
             out.fill([0.1, 0.2], 0.0, False, False, 4, 3)
-    finally:
-        executor.shutdown()
-        node.destroy_node()
