@@ -35,6 +35,8 @@ import rclpy  # noqa: E402
 import torch  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
+from eqhrl_interfaces.srv import Advise  # noqa: E402
+
 from eqhrl_ros.nodes.expert_node import ExpertNode  # noqa: E402
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode  # noqa: E402
 from eqhrl_ros.nodes.learner_node import LearnerNode  # noqa: E402
@@ -55,15 +57,14 @@ class Wiring:
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.children = []
+        if expert == 'process':
+            self._start_expert_process()
         env = GymEnvNode(context=self.context, parameter_overrides=[
             Parameter('env_id', value=ENV_ID), Parameter('max_episode_steps', value=200),
             Parameter('seed', value=0)])
         nodes = [env]
         if expert == 'inprocess':
             nodes.append(ExpertNode(context=self.context))
-        elif expert == 'process':
-            self.children.append(subprocess.Popen([str(BIN / 'expert')], stdout=subprocess.DEVNULL,
-                                                  stderr=subprocess.DEVNULL))
         params = {'env_id': ENV_ID, 'output_dir': str(output), 'checkpoint_every_episodes': 0,
                   'seed': 0, **learner_params}
         self.learner = LearnerNode(context=self.context, parameter_overrides=[
@@ -73,10 +74,18 @@ class Wiring:
         self.executor = make_executor(EXECUTOR, context=self.context)
         for node in nodes:
             self.executor.add_node(node)
-        if expert == 'process':
-            deadline = time.monotonic() + 20
-            while not self.learner.advice_client.service_is_ready() and time.monotonic() < deadline:
-                self.executor.spin_once(timeout_sec=0.05)
+
+    def _start_expert_process(self) -> None:
+        """Start the expert node in its own process and wait for its service before the
+        env and learner exist (they would otherwise step on, the advice 'unavailable')."""
+        self.children.append(subprocess.Popen([str(BIN / 'expert')], stdout=subprocess.DEVNULL,
+                                              stderr=subprocess.DEVNULL))
+        probe = rclpy.create_node('bench_probe', context=self.context)
+        try:
+            if not probe.create_client(Advise, 'advise').wait_for_service(timeout_sec=30.0):
+                raise RuntimeError("the expert process did not offer 'advise' within 30 s")
+        finally:
+            probe.destroy_node()
 
     def run(self, steps: int) -> float:
         """Spin until the learner has stored ``steps`` more transitions; returns seconds."""
