@@ -381,22 +381,37 @@ class EQSACLearner:
         """Eq. 4 for the batch from D and, if any, the one from D_advising (else None)."""
         batches = [batch] if advice_batch is None else [batch, advice_batch]
         sizes = [len(b.reward) for b in batches]
-        next_obs = torch.cat([b.next_obs for b in batches])
-        alpha = self.log_alpha.detach().exp()
-        next_mean, next_log_std = self.actor(next_obs)
         # One draw per batch, in order: the same noise as computing each batch on its own.
         noise = torch.cat([torch.randn((n, self.action_dim), generator=self.rng['update']) for n in sizes])
-        next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, noise)
-        next_q1, next_q2 = self.critic_target(next_obs, next_action)
-        y = eq.soft_bellman_target(torch.cat([b.reward for b in batches]),
-                                   torch.cat([b.terminated for b in batches]),
-                                   next_q1, next_q2, next_log_prob, alpha, self.config.gamma)
+        y = self._targets(torch.cat([b.next_obs for b in batches]), torch.cat([b.reward for b in batches]),
+                          torch.cat([b.terminated for b in batches]), noise, self.log_alpha.detach().exp())
         y = y.split(sizes)
         return y[0], (y[1] if advice_batch is not None else None)
 
+    # The three loss computations below are pure functions of their tensor arguments (no
+    # RNG, no optimiser): benchmarks/bench_update_variants.py swaps in compiled copies.
+
+    def _targets(self, next_obs, reward, terminated, noise, alpha) -> torch.Tensor:
+        """Eq. 4's y, a' = tanh(mean + std * noise) drawn from the current actor."""
+        next_mean, next_log_std = self.actor(next_obs)
+        next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, noise)
+        next_q1, next_q2 = self.critic_target(next_obs, next_action)
+        return eq.soft_bellman_target(reward, terminated, next_q1, next_q2, next_log_prob, alpha,
+                                      self.config.gamma)
+
+    def _critic_loss(self, obs, action, y) -> torch.Tensor:
+        q1, q2 = self.critic(obs, action)
+        return eq.critic_loss(q1, y) + eq.critic_loss(q2, y)                             # Eq. 5, i = 1, 2
+
+    def _actor_loss(self, obs, noise, alpha) -> tuple[torch.Tensor, torch.Tensor]:
+        """Eq. 6 with a = tanh(mean + std * noise); also log pi(a|s) for the temperature."""
+        mean, log_std = self.actor(obs)
+        action, log_prob = eq.squashed_gaussian_sample(mean, log_std, noise)
+        q1, q2 = self.critic(obs, action)
+        return eq.actor_loss(log_prob, q1, q2, alpha), log_prob
+
     def _critic_update(self, batch: Batch, y: torch.Tensor) -> float:
-        q1, q2 = self.critic(batch.obs, batch.action)
-        loss = eq.critic_loss(q1, y) + eq.critic_loss(q2, y)                             # Eq. 5, i = 1, 2
+        loss = self._critic_loss(batch.obs, batch.action, y)
         self.critic_optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.critic_optimizer.step()
@@ -404,11 +419,8 @@ class EQSACLearner:
 
     def _actor_and_alpha_update(self, batch: Batch) -> dict:
         alpha = self.log_alpha.detach().exp()
-        mean, log_std = self.actor(batch.obs)
-        noise = torch.randn(mean.shape, generator=self.rng['update'])
-        action, log_prob = eq.squashed_gaussian_sample(mean, log_std, noise)
-        q1, q2 = self.critic(batch.obs, action)
-        loss = eq.actor_loss(log_prob, q1, q2, alpha)                                    # Eq. 6
+        noise = torch.randn((len(batch.reward), self.action_dim), generator=self.rng['update'])
+        loss, log_prob = self._actor_loss(batch.obs, noise, alpha)
         self.actor_optimizer.zero_grad(set_to_none=True)
         # Gradients for the actor only: the critics' weights are not trained by Eq. 6.
         loss.backward(inputs=list(self.actor.parameters()))

@@ -42,9 +42,11 @@ def tanh(x: torch.Tensor) -> torch.Tensor:
     """torch.tanh, on numpy's kernel for a batch on CPU (see _NumpyTanh).
 
     Small inputs (acting on one observation) keep torch.tanh, where the autograd
-    Function's own overhead would cost more than it saves; so do other devices and dtypes.
+    Function's own overhead would cost more than it saves; so do other devices and dtypes,
+    and code traced by torch.compile, which generates its own vectorised tanh.
     """
-    if x.numel() >= NUMPY_TANH_FROM and x.device.type == 'cpu' and x.dtype == torch.float32:
+    if (x.numel() >= NUMPY_TANH_FROM and x.device.type == 'cpu' and x.dtype == torch.float32
+            and not torch.compiler.is_compiling()):
         return _NumpyTanh.apply(x)
     return torch.tanh(x)
 
