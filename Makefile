@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: setup test demo bench bench-learner bench-ros profile clean lock
+.PHONY: setup test demo bench bench-learner bench-ros bench-variants profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -72,6 +72,10 @@ bench-learner: $(VENV)/.stamp-bench
 
 bench-ros: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_ros.py
+
+# What torch.compile and bfloat16 matrix products would buy the update (evidence, no target).
+bench-variants: $(VENV)/.stamp-eqhrl_ros
+	$(VPY) benchmarks/bench_update_variants.py
 
 # Where a training step's time goes (torch.profiler's top operators).
 profile: $(VENV)/.stamp-eqhrl_ros
