@@ -35,8 +35,6 @@ import rclpy  # noqa: E402
 import torch  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
-from eqhrl_interfaces.srv import Advise  # noqa: E402
-
 from eqhrl_ros.nodes.expert_node import ExpertNode  # noqa: E402
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode  # noqa: E402
 from eqhrl_ros.nodes.learner_node import LearnerNode  # noqa: E402
@@ -58,7 +56,8 @@ class Wiring:
         rclpy.init(context=self.context)
         self.children = []
         if expert == 'process':
-            self._start_expert_process()
+            self.children.append(subprocess.Popen([str(BIN / 'expert')], stdout=subprocess.DEVNULL,
+                                                  stderr=subprocess.DEVNULL))
         env = GymEnvNode(context=self.context, parameter_overrides=[
             Parameter('env_id', value=ENV_ID), Parameter('max_episode_steps', value=200),
             Parameter('seed', value=0)])
@@ -74,18 +73,13 @@ class Wiring:
         self.executor = make_executor(EXECUTOR, context=self.context)
         for node in nodes:
             self.executor.add_node(node)
-
-    def _start_expert_process(self) -> None:
-        """Start the expert node in its own process and wait for its service before the
-        env and learner exist (they would otherwise step on, the advice 'unavailable')."""
-        self.children.append(subprocess.Popen([str(BIN / 'expert')], stdout=subprocess.DEVNULL,
-                                              stderr=subprocess.DEVNULL))
-        probe = rclpy.create_node('bench_probe', context=self.context)
-        try:
-            if not probe.create_client(Advise, 'advise').wait_for_service(timeout_sec=30.0):
+        if expert == 'process':
+            # Nothing steps before the executor spins. Wait until the learner's own client
+            # sees the expert process's service (a probe client seeing it is not enough:
+            # each client discovers it on its own), else the first steps count as 'unavailable'.
+            if not self.learner.advice_client.wait_for_service(timeout_sec=30.0):
+                self.close()
                 raise RuntimeError("the expert process did not offer 'advise' within 30 s")
-        finally:
-            probe.destroy_node()
 
     def run(self, steps: int) -> float:
         """Spin until the learner has stored ``steps`` more transitions; returns seconds."""
