@@ -111,6 +111,40 @@ def test_observation_error_names_topic_and_sizes():
         messages.parse_observation(messages.build([('x', [0.0] * 7)]), 3)
 
 
+def test_serialized_reader_deserializes_once_per_layout(monkeypatch):
+    from rclpy.serialization import serialize_message
+    out = messages.observation_out(3)
+    calls = []
+    real = messages.deserialize_message
+    monkeypatch.setattr(messages, 'deserialize_message', lambda *a: calls.append(1) or real(*a))
+    reader = messages.SerializedReader()
+    for step in range(4):
+        values = reader.values(out.fill([0.1, 0.2, step], -1.0, False, False, 0, step))
+        assert messages.parse_observation(values, 3).step == step
+        assert messages.parse_observation(values, 3).obs[2] == step
+    assert len(calls) == 1
+    # Another layout is read in full, then becomes the fast one; a bad message is an error.
+    other = serialize_message(Float32MultiArray(data=[0.0, 0.2, 0.3, 0.0, 0.0, 0.0, 0.0, 5.0]))
+    assert messages.parse_observation(reader.values(other), 3).step == 5
+    assert messages.parse_observation(reader.values(other), 3).step == 5
+    assert len(calls) == 2
+    short = serialize_message(Float32MultiArray(data=[0.0] * 7))
+    with pytest.raises(messages.MessageError, match=r"7 values, expected 8"):
+        messages.parse_observation(reader.values(short), 3)
+
+
+def test_outgoing_message_falls_back_to_the_message_if_bytes_are_not_as_expected(monkeypatch):
+    from rclpy.serialization import serialize_message
+    # A middleware whose encoding does not end with the values (here: 4 extra bytes).
+    monkeypatch.setattr(messages, 'serialize_message', lambda msg: serialize_message(msg) + bytes(4))
+    out = messages.action_out(2)
+    assert not out.serialized
+    msg = out.fill([0.5, -0.5], 3, 4)
+    assert isinstance(msg, Float32MultiArray)
+    assert messages.parse_action(msg, 2)[1] == (3, 4)
+    assert messages.parse_fields(msg)['action'] == [0.5, -0.5]
+
+
 # ------------------------------------------------------------------ processes
 
 def start(executable, *args, log_dir):

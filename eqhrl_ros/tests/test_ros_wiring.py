@@ -85,24 +85,59 @@ def test_tests_run_in_a_private_domain():
     assert 1 <= int(os.environ['ROS_DOMAIN_ID']) <= 100
 
 
-def test_a_reused_outgoing_message_delivers_what_each_publish_held(ros_context):
-    # The env and learner refill one message per topic (messages.OutgoingMessage). That
-    # is only right if publish() serializes before returning: three refills published
-    # back to back, with no spinning in between, must arrive as three different steps.
+def test_serialized_outgoing_messages_arrive_as_labelled_messages(ros_context):
+    # The env and learner publish per-step messages as bytes written in place
+    # (messages.OutgoingMessage). A plain subscriber must receive the labelled message,
+    # and three refills published back to back must arrive as three different steps.
     from eqhrl_ros.nodes import messages
 
     with loopback(ros_context, 'observation') as (publisher, received, executor):
         out = messages.observation_out(3)
+        assert out.serialized
         for step in range(3):
-            msg = out.fill([0.1 * step, 0.2, 0.3], -float(step), step == 2, False, 4, step)
-            assert msg is out.msg
-            publisher.publish(msg)
+            data = out.fill([0.1 * step, 0.2, 0.3], -float(step), step == 2, False, 4, step)
+            assert isinstance(data, bytes)
+            publisher.publish(data)
         assert spin_until(executor, lambda: len(received) == 3)
         steps = [messages.parse_observation(m, 3) for m in received]
         assert [s.step for s in steps] == [0, 1, 2]
         assert [s.reward for s in steps] == [0.0, -1.0, -2.0]
         assert [s.terminated for s in steps] == [False, False, True]
         assert [s.obs[0] for s in steps] == pytest.approx([0.0, 0.1, 0.2])
+        assert received[2].layout == messages.observation_msg([0.0] * 3, 0.0, False, False, 0, 0).layout
         assert messages.parse_fields(received[2])['episode'] == 4.0
         with pytest.raises(messages.MessageError, match='2 \\+ 5 values for a message of 3 \\+ 5'):
             out.fill([0.1, 0.2], 0.0, False, False, 4, 3)
+
+
+def test_a_raw_subscription_reads_any_publishers_layout(ros_context):
+    # The learner and env subscribe raw (messages.SerializedReader): the fast path for
+    # the layout it has seen, full deserialization for anything else.
+    from eqhrl_ros.nodes import messages
+
+    node = rclpy.create_node('raw_loopback', context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    received = []
+    try:
+        node.create_subscription(Float32MultiArray, 'action', received.append, 10, raw=True)
+        publisher = node.create_publisher(Float32MultiArray, 'action', 10)
+        executor.add_node(node)
+        assert spin_until(executor, lambda: publisher.get_subscription_count() > 0)
+        out = messages.action_out(2)
+        publisher.publish(out.fill([0.5, -0.5], 1, 7))
+        publisher.publish(out.fill([0.25, 1.0], 1, 8))
+        publisher.publish(Float32MultiArray(data=[0.75, -1.0]))              # bare, unlabelled
+        publisher.publish(messages.action_msg([0.1, 0.2], 2, 0))             # built elsewhere
+        publisher.publish(out.fill([float('nan'), 0.0], 2, 1))
+        assert spin_until(executor, lambda: len(received) == 5)
+        assert all(isinstance(data, bytes) for data in received)
+        reader = messages.SerializedReader()
+        parsed = [messages.parse_action(reader.values(data), 2) for data in received[:4]]
+        assert [(a.tolist(), tag) for a, tag in parsed] == [
+            ([0.5, -0.5], (1, 7)), ([0.25, 1.0], (1, 8)), ([0.75, -1.0], None),
+            (pytest.approx([0.1, 0.2]), (2, 0))]
+        with pytest.raises(messages.MessageError, match='non-finite'):
+            messages.parse_action(reader.values(received[4]), 2)
+    finally:
+        executor.shutdown()
+        node.destroy_node()

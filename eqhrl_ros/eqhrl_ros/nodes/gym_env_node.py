@@ -50,7 +50,9 @@ class GymEnvNode(Node):
         self.observation_pub = self.create_publisher(
             Float32MultiArray, 'observation', QOS,
             event_callbacks=PublisherEventCallbacks(matched=self._on_subscriber_matched))
-        self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS)
+        # Actions arrive serialized (raw): see messages.SerializedReader.
+        self._action_reader = messages.SerializedReader()
+        self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS, raw=True)
         self._reset(seed=p['seed'])
         if p['realtime']:
             self.create_timer(1.0 / p['rate_hz'], self._realtime_tick)
@@ -87,9 +89,9 @@ class GymEnvNode(Node):
             self.episode += 1
             self._reset()
 
-    def _on_action(self, msg: Float32MultiArray) -> None:
+    def _on_action(self, data: bytes) -> None:
         try:
-            action, tag = messages.parse_action(msg, self.action_dim)
+            action, tag = messages.parse_action(self._action_reader.values(data), self.action_dim)
         except messages.MessageError as error:
             self.rejected_actions += 1
             self.get_logger().error(f'rejected action, not stepping: {error}')

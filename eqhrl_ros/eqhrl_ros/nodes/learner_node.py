@@ -116,7 +116,9 @@ class LearnerNode(Node):
         self.stats_pub = self.create_publisher(Float32MultiArray, '~/episode_stats', STATS_QOS)
         self.gate_pub = self.create_publisher(Float32MultiArray, '~/gate_debug', QOS)
         self.request_pub = self.create_publisher(Float32MultiArray, '~/advice_request', LATCHED_QOS)
-        self.create_subscription(Float32MultiArray, 'observation', self._on_observation, QOS)
+        # Observations arrive serialized (raw): see messages.SerializedReader.
+        self._observation_reader = messages.SerializedReader()
+        self.create_subscription(Float32MultiArray, 'observation', self._on_observation, QOS, raw=True)
         self.advice_client = self.create_client(Advise, 'advise')
 
         self._lock = threading.RLock()       # callbacks may run on several threads
@@ -154,13 +156,14 @@ class LearnerNode(Node):
 
     # ------------------------------------------------------------------ observations
 
-    def _on_observation(self, msg: Float32MultiArray) -> None:
+    def _on_observation(self, data: bytes) -> None:
         with self._lock:
             if self.done:
                 return
             self._last_observation_time = time.monotonic()
             try:
-                env_step = messages.parse_observation(msg, self.learner.obs_dim)
+                env_step = messages.parse_observation(self._observation_reader.values(data),
+                                                      self.learner.obs_dim)
             except messages.MessageError as error:
                 self.dropped_messages += 1
                 self.get_logger().error(f'dropped observation: {error}',
