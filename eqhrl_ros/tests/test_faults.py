@@ -131,6 +131,9 @@ def test_serialized_reader_deserializes_once_per_layout(monkeypatch):
     short = serialize_message(Float32MultiArray(data=[0.0] * 7))
     with pytest.raises(messages.MessageError, match=r"7 values, expected 8"):
         messages.parse_observation(reader.values(short), 3)
+    with pytest.raises(messages.MessageError, match='not a Float32MultiArray'):
+        reader.values(b'\x00\x01\x00\x00\xff\xff\xff\xff')
+    assert messages.parse_observation(reader.values(other), 3).step == 5   # still reads
 
 
 def test_outgoing_message_falls_back_to_the_message_if_bytes_are_not_as_expected(monkeypatch):

@@ -118,11 +118,14 @@ class SerializedReader:
         self._head = None
 
     def values(self, data: bytes) -> np.ndarray:
-        """The message's data values (read-only)."""
+        """The message's data values (read-only). Raises MessageError on bytes that do not decode."""
         head = self._head
         if head is not None and len(data) == len(head) + 4 * self._count and data.startswith(head):
             return np.frombuffer(data, dtype=np.float32, offset=len(head))
-        values = np.asarray(deserialize_message(data, Float32MultiArray).data, dtype=np.float32)
+        try:
+            values = np.asarray(deserialize_message(data, Float32MultiArray).data, dtype=np.float32)
+        except Exception as error:   # rclpy raises RMWError; any failure here is a bad message
+            raise MessageError(f'not a Float32MultiArray ({len(data)} bytes): {error}') from error
         start = len(data) - 4 * len(values)
         # Keep the leading bytes only if the tail really is the values (CDR as expected).
         if start >= 0 and data[start:] == values.tobytes():
