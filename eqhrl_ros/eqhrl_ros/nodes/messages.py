@@ -85,7 +85,10 @@ class OutgoingMessage:
     def _tail_holds_the_values(self) -> bool:
         probe = np.arange(1, self.size + 1, dtype=np.float32)
         self._cdr_values[:] = probe
-        decoded = deserialize_message(bytes(self._cdr), Float32MultiArray)
+        try:
+            decoded = deserialize_message(bytes(self._cdr), Float32MultiArray)
+        except Exception:   # the bytes do not even decode: not the encoding assumed here
+            return False
         return decoded.layout == self.msg.layout and np.array_equal(np.asarray(decoded.data), probe)
 
     def fill(self, head, *tail: float) -> bytes | Float32MultiArray:
@@ -115,7 +118,8 @@ class SerializedReader:
     """
 
     def __init__(self):
-        self._head = None
+        self._head: Optional[bytes] = None   # leading bytes of the layout last seen
+        self._count = 0                      # and its number of values
 
     def values(self, data: bytes) -> np.ndarray:
         """The message's data values (read-only). Raises MessageError on bytes that do not decode."""
