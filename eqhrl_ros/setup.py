@@ -23,11 +23,11 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'gym_env = eqhrl_ros.nodes.gym_env_node:main',
-            'learner = eqhrl_ros.nodes.learner_node:main',
-            'expert = eqhrl_ros.nodes.expert_node:main',
-            'teleop_expert = eqhrl_ros.nodes.teleop_expert_node:main',
-            'keyboard_teleop = eqhrl_ros.nodes.keyboard_teleop:main',
+            'gym_env = eqhrl_ros.cli.nodes:gym_env',
+            'learner = eqhrl_ros.cli.nodes:learner',
+            'expert = eqhrl_ros.cli.nodes:expert',
+            'teleop_expert = eqhrl_ros.cli.nodes:teleop_expert',
+            'keyboard_teleop = eqhrl_ros.cli.nodes:keyboard_teleop',
             'eqhrl-train = eqhrl_ros.bringup:main',
             'eqhrl-demo = eqhrl_ros.demo:main',
             'eqhrl-experiment = eqhrl_ros.experiment:main',

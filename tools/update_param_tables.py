@@ -7,9 +7,8 @@ tests/test_docs.py fails when a declared parameter is missing from the README.
 
 from pathlib import Path
 
-from eqhrl_ros.nodes.keyboard_teleop import KEYBOARD_PARAMS
-from eqhrl_ros.nodes.params import (EXPERT_PARAMS, GYM_ENV_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS,
-                                    TELEOP_EXPERT_PARAMS)
+from eqhrl_ros.nodes.params import (EXPERT_PARAMS, GYM_ENV_PARAMS, KEYBOARD_PARAMS, LEARNER_CONFIG_PARAMS,
+                                    LEARNER_NODE_PARAMS, TELEOP_EXPERT_PARAMS)
 
 README = Path(__file__).resolve().parents[1] / 'eqhrl_ros' / 'README.md'
 

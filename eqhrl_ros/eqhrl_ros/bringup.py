@@ -4,24 +4,29 @@
     eqhrl-train --params teleop_pendulum --expert-node teleop     (a person advises)
 
 The three nodes are the same classes `ros2 run` starts; here one executor spins
-them together. Ctrl-C saves a checkpoint; --resume continues from it.
+them together. Ctrl-C saves a checkpoint; --resume continues from it. An output
+folder that holds a run is refused unless --resume or --overwrite is given.
+
+Discovery: with the built-in expert the run is private to this process (ROS
+discovery off), so two runs on one machine never exchange messages. A person's
+expert (--expert-node teleop) or your own (none) must reach the nodes from outside,
+so those runs use this machine's discovery (localhost). --discovery chooses.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
-import rclpy
-from rclpy.parameter import Parameter
+from .nodes.lifecycle import EXECUTORS
 
-from .nodes.expert_node import ExpertNode
-from .nodes.gym_env_node import GymEnvNode
-from .nodes.learner_node import LearnerNode
-from .nodes.lifecycle import EXECUTORS, START_UP_ERRORS, make_executor, spin
-from .nodes.teleop_expert_node import TeleopExpertNode
-from .paths import params_file
+DISCOVERY = ('off', 'localhost', 'subnet')
+
+
+class StartUpRefused(Exception):
+    """A node refused the configuration (one line for the user, exit code 1)."""
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -36,15 +41,24 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument('--max-steps', type=int, help='overrides gym_env max_episode_steps')
     parser.add_argument('--budget', type=int, help='overrides learner advising_budget')
     parser.add_argument('--resume', action='store_true', help='continue from <output>/checkpoint.pt')
+    parser.add_argument('--overwrite', action='store_true', help='replace a run already in the output folder')
     parser.add_argument('--expert-node', choices=('expert', 'teleop', 'none'), default='expert',
                         help='which expert to start: the built-in/policy expert, the teleop expert '
                              '(a person advises, e.g. with keyboard_teleop), or none')
     parser.add_argument('--executor', choices=EXECUTORS, default=None,
-                        help='rclpy executor for the three nodes (default: $EQHRL_EXECUTOR, else events)')
-    return parser.parse_args(argv)
+                        help='rclpy executor for the three nodes (default: $EQHRL_EXECUTOR, else single)')
+    parser.add_argument('--discovery', choices=DISCOVERY, default=None,
+                        help='who can reach these nodes: off (this process only; the default with '
+                             '--expert-node expert), localhost (this machine; the default with teleop or none) '
+                             'or subnet (ROS_AUTOMATIC_DISCOVERY_RANGE)')
+    args = parser.parse_args(argv)
+    if args.discovery is None:
+        args.discovery = 'off' if args.expert_node == 'expert' else 'localhost'
+    return args
 
 
-def learner_overrides(args) -> list[Parameter]:
+def learner_overrides(args) -> list:
+    from rclpy.parameter import Parameter
     overrides = [Parameter('shutdown_when_done', value=True)]
     if args.output:
         overrides.append(Parameter('output_dir', value=str(args.output)))
@@ -58,49 +72,80 @@ def learner_overrides(args) -> list[Parameter]:
         overrides.append(Parameter('advising_budget', value=args.budget))
     if args.resume:
         overrides.append(Parameter('resume', value=True))
+    if args.overwrite:
+        overrides.append(Parameter('overwrite', value=True))
     return overrides
 
 
-def run(args) -> LearnerNode | None:
-    path = params_file(args.params)
-    rclpy.init(args=['--ros-args', '--params-file', str(path)])
+def run(args):
+    """Start, spin and stop the nodes; returns the learner node (None if it never started).
+
+    Raises a start-up error (one line for the user) or ExitError (the last save failed).
+    """
+    # Set before the ROS context exists: rcl reads the discovery range when it is created.
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery.upper()
+    from .nodes import lifecycle
+    from .nodes.expert_node import ExpertNode
+    from .nodes.gym_env_node import GymEnvNode
+    from .nodes.learner_node import LearnerNode, _save_and_close
+    from .nodes.teleop_expert_node import TeleopExpertNode
+    from .paths import params_file
+
+    from rclpy.parameter import Parameter
+
+    try:
+        path = params_file(args.params)
+    except FileNotFoundError as error:
+        raise StartUpRefused(str(error)) from error
+    stop = lifecycle.init(['--ros-args', '--params-file', str(path)], 'eqhrl-train')
     nodes = []
     learner = None
     try:
-        env_overrides = [Parameter('seed', value=args.seed)] if args.seed is not None else []
-        if args.max_steps is not None:
-            env_overrides.append(Parameter('max_episode_steps', value=args.max_steps))
-        nodes.append(GymEnvNode(parameter_overrides=env_overrides))
-        if args.expert_node == 'expert':
-            nodes.append(ExpertNode())
-        elif args.expert_node == 'teleop':
-            nodes.append(TeleopExpertNode())
-        learner = LearnerNode(parameter_overrides=learner_overrides(args))
-        nodes.append(learner)
-        executor = make_executor(args.executor)
+        try:
+            env_overrides = [Parameter('seed', value=args.seed)] if args.seed is not None else []
+            if args.max_steps is not None:
+                env_overrides.append(Parameter('max_episode_steps', value=args.max_steps))
+            nodes.append(GymEnvNode(parameter_overrides=env_overrides))
+            if args.expert_node == 'expert':
+                nodes.append(ExpertNode())
+            elif args.expert_node == 'teleop':
+                nodes.append(TeleopExpertNode())
+            learner = LearnerNode(parameter_overrides=learner_overrides(args))
+            nodes.append(learner)
+        except lifecycle.start_up_errors() as error:
+            raise StartUpRefused(str(error)) from error
+        executor = lifecycle.make_executor(args.executor)
         for node in nodes:
             executor.add_node(node)
+        learner.get_logger().info(f'discovery: {args.discovery}'
+                                  + (' (no node outside this process can reach this run; see --discovery)'
+                                     if args.discovery == 'off' else ''))
         start = time.monotonic()
-        spin(executor)   # returns at max_episodes (the learner shuts the context down) or on a signal
+        lifecycle.spin(executor, stop)   # returns at max_episodes (the learner shuts the context down) or on a signal
         if not learner.done:
             print('\ninterrupted: saving a checkpoint', file=sys.stderr)
         learner.wall_time_s = time.monotonic() - start
         return learner
     finally:
-        if learner is not None:
-            learner.save()
-            learner.close()
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            if learner is not None:
+                _save_and_close(learner)
+        finally:
+            for node in nodes:
+                node.destroy_node()
+            lifecycle.rclpy.try_shutdown()
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    from .nodes.lifecycle import ExitError
     try:
         learner = run(args)
-    except START_UP_ERRORS as error:
+    except ExitError as error:
         print(f'eqhrl-train: {error}', file=sys.stderr)
+        return 1
+    except StartUpRefused as error:
+        print(f'eqhrl-train: refused to start: {error}', file=sys.stderr)
         return 1
     print(f'done: {learner.learner.episode} episodes in {learner.wall_time_s:.0f} s, '
           f'results in {learner.output_dir}')

@@ -1,5 +1,6 @@
 """eqhrl-demo (make demo): EQSAC learns Pendulum-v1 through the three ROS nodes, with the
-heuristic expert, then prints a summary and saves a plot of return and advice per episode."""
+heuristic expert, then prints a summary and saves a plot of return and advice per episode.
+Each run replaces the previous demo in its output folder."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ def main(argv=None) -> int:
     parser.add_argument('--params', default='demo', help='params file (name or path)')
     args = parser.parse_args(argv)
 
-    status = bringup.main(['--params', args.params, '--output', args.output])
+    status = bringup.main(['--params', args.params, '--output', args.output, '--overwrite'])
     if status != 0:
         return status
     output = Path(args.output)

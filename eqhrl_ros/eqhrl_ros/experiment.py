@@ -109,7 +109,8 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
 def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress) -> None:
     command = [str(Path(sys.prefix) / 'bin' / 'eqhrl-train'), '--params', settings.params_path,
                '--output', str(directory), '--mode', algorithm, '--episodes', str(settings.episodes),
-               '--seed', str(seed), '--max-steps', str(settings.max_episode_steps)]
+               '--seed', str(seed), '--max-steps', str(settings.max_episode_steps),
+               '--overwrite']   # an unfinished run starts over
     if 'advising_budget' in settings.learner:
         command += ['--budget', str(settings.learner['advising_budget'])]
     if settings.expert_backend == 'none':

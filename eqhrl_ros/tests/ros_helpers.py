@@ -40,8 +40,9 @@ class Harness:
     """Nodes in one executor, destroyed at the end of the test."""
 
     def __init__(self, context, executor='single'):
+        """``executor``: a kind for make_executor; 'default' is what the nodes' main() spins."""
         self.context = context
-        self.executor = make_executor(executor, context=context)
+        self.executor = make_executor(None if executor == 'default' else executor, context=context)
         self.nodes = []
 
     def add(self, node):
@@ -75,10 +76,10 @@ class Probe:
 class StubExpert:
     """Serves Advise from its own executor thread, like a separate process would."""
 
-    def __init__(self, context, answer='advise', delay=0.0, name='stub_expert'):
+    def __init__(self, context, answer='advise', delay=0.0, name='stub_expert', expert_name='stub'):
         self.node = rclpy.create_node(name, context=context)
         self.requests = []
-        self.answer, self.delay = answer, delay
+        self.answer, self.delay, self.expert_name = answer, delay, expert_name
         self.node.create_service(Advise, 'advise', self._serve)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
@@ -89,7 +90,7 @@ class StubExpert:
         self.requests.append((request.episode, request.step, request.discrepancy, request.entropy))
         if self.delay:
             time.sleep(self.delay)
-        response.expert_name = 'stub'
+        response.expert_name = self.expert_name
         if isinstance(self.answer, list):          # a given (possibly bad) action
             response.advised, response.action = True, self.answer
         elif self.answer == 'advise':

@@ -5,9 +5,8 @@ from pathlib import Path
 import pytest
 
 from eqhrl_ros.nodes import messages
-from eqhrl_ros.nodes.keyboard_teleop import KEYBOARD_PARAMS
-from eqhrl_ros.nodes.params import (EXPERT_PARAMS, GYM_ENV_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS,
-                                    TELEOP_EXPERT_PARAMS)
+from eqhrl_ros.nodes.params import (EXPERT_PARAMS, GYM_ENV_PARAMS, KEYBOARD_PARAMS, LEARNER_CONFIG_PARAMS,
+                                    LEARNER_NODE_PARAMS, TELEOP_EXPERT_PARAMS)
 
 README = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
 

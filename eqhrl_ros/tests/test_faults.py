@@ -1,6 +1,7 @@
 """Faults injected one by one: the learner keeps training, counts what happened, loses nothing."""
 
 import csv
+import gc
 import signal
 import subprocess
 import sys
@@ -10,20 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from std_msgs.msg import Float32MultiArray
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Float32MultiArray, MultiArrayLayout
 
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
-from ros_helpers import PARAMS_DIR, Probe, StubExpert, params, run_learner, small_learner_params
-
-BIN = Path(sys.prefix) / 'bin'
-
-
-def episodes_in_csv(path):
-    with open(path, newline='') as f:
-        return [int(row['episode']) for row in csv.DictReader(f)]
-
+from process_helpers import BIN, episodes_in_csv, learner_args, start, stop, wait_for
+from ros_helpers import Probe, StubExpert, params, run_learner, small_learner_params
 
 @pytest.mark.parametrize('answer,kind', [([0.5, 0.5], 'wrong_size'), ([float('nan')], 'non_finite'),
                                          ([7.0], 'out_of_bounds')])
@@ -80,14 +75,18 @@ def test_env_that_dies_mid_episode_and_restarts(harness, ros_context, tmp_path):
     harness.nodes.remove(env)
     env.destroy_node()
     steps_at_death = learner.learner.total_steps
-    assert harness.spin_until(lambda: learner.stalled_episodes == 1, timeout=10)
-    assert learner.learner.episode == 1 and learner.learner.episode_step == 0
+    stepped = learner.learner.episode_step
+    assert harness.spin_until(lambda: learner.stalls == 1, timeout=10)
+    # A silence alone drops nothing: the env may only be paused.
+    assert learner.learner.episode == 1 and learner.learner.episode_step == stepped
     harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
     assert harness.spin_until(lambda: learner.done, timeout=60)
-    # No transition was invented across the gap: 4 full episodes plus the steps before the death.
+    # The restarted env began a new episode (step 0): episode 1's unfinished part was
+    # abandoned, its index reused; no transition was invented across the gap.
     assert learner.learner.total_steps == steps_at_death + 3 * 25
     assert episodes_in_csv(tmp_path / 'episodes.csv') == [0, 1, 2, 3]
     assert [s.length for s in learner.summaries] == [25] * 4
+    assert not any(s.interrupted for s in learner.summaries)
 
 
 def test_bad_observations_are_dropped_and_never_stored(harness, ros_context, tmp_path):
@@ -108,7 +107,7 @@ def test_bad_observations_are_dropped_and_never_stored(harness, ros_context, tmp
 
 def test_observation_error_names_topic_and_sizes():
     with pytest.raises(messages.MessageError, match=r"'observation': 7 values, expected 8"):
-        messages.parse_observation(messages.build([('x', [0.0] * 7)]), 3)
+        messages.parse_observation(Float32MultiArray(data=[0.0] * 7), 3)
 
 
 def test_serialized_reader_deserializes_once_per_layout(monkeypatch):
@@ -149,48 +148,6 @@ def test_outgoing_message_falls_back_to_the_message_if_bytes_are_not_as_expected
 
 
 # ------------------------------------------------------------------ processes
-
-def start(executable, *args, log_dir):
-    """A node as its own process; its output goes to a file (a full pipe would block it)."""
-    log = open(log_dir / f'{executable}-{time.monotonic_ns()}.log', 'w+')
-    process = subprocess.Popen([str(BIN / executable), *args], stdout=log, stderr=subprocess.STDOUT, text=True)
-    process.log = log
-    return process
-
-
-def output(process) -> str:
-    process.log.flush()
-    process.log.seek(0)
-    return process.log.read()
-
-
-def stop(process, sig=signal.SIGINT, timeout=30) -> str:
-    if process.poll() is None:
-        process.send_signal(sig)
-        try:
-            process.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-    text = output(process)
-    process.log.close()
-    return text
-
-
-def wait_for(condition, timeout):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.1)
-    return False
-
-
-def learner_args(out, extra=()):
-    return ['--ros-args', '--params-file', str(PARAMS_DIR / 'demo.yaml'),
-            '-p', f'output_dir:={out}', '-p', 'hidden_sizes:=[16,16]', '-p', 'learning_starts:=50',
-            '-p', 'batch_size:=16', '-p', 'checkpoint_every_episodes:=1', *extra]
-
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
 def test_learner_stopped_mid_episode_saves_and_resumes_without_gaps(tmp_path, sig):
@@ -242,3 +199,175 @@ def test_resume_from_a_corrupt_checkpoint_refuses_to_start(tmp_path):
                              '-p', 'resume:=true'], capture_output=True, text=True, timeout=60)
     assert result.returncode == 1 and 'not a readable eqhrl_ros.checkpoint' in result.stderr
     assert (tmp_path / 'checkpoint.pt').read_bytes().startswith(b'PK\x03\x04 this')   # left untouched
+
+
+# ------------------------------------------------------------------ issue 16: starved, flooded, relabelled
+
+def rows_of(path):
+    with open(path, newline='') as f:
+        return list(csv.DictReader(f))
+
+
+def test_a_paused_env_continues_its_episode_and_no_row_is_corrupted(tmp_path):
+    # SIGSTOP stands for an env that is paused or starved of CPU for longer than
+    # stall_timeout_s. Its episode must go on when it comes back, never end up as a
+    # fragment recorded as a whole episode.
+    out = tmp_path / 'run'
+    env = start('gym_env', '--ros-args', '-p', 'max_episode_steps:=40', log_dir=tmp_path)
+    learner = start('learner', *learner_args(out, ['-p', 'mode:=sac', '-p', 'stall_timeout_s:=0.3',
+                                                   '-p', 'checkpoint_every_episodes:=0']), log_dir=tmp_path)
+    csv_path = out / 'episodes.csv'
+    try:
+        assert wait_for(lambda: csv_path.exists() and len(rows_of(csv_path)) >= 1, 90), stop(learner)
+        time.sleep(0.15)                                   # inside the next episode
+        env.send_signal(signal.SIGSTOP)
+        time.sleep(1.5)                                    # five stall timeouts
+        env.send_signal(signal.SIGCONT)
+        assert wait_for(lambda: len(rows_of(csv_path)) >= 4, 90)
+    finally:
+        env.send_signal(signal.SIGCONT)
+        log = stop(learner)
+        stop(env)
+    assert 'no observation for' in log and 'observations are back after' in log, log[-3000:]
+    rows = rows_of(csv_path)
+    assert [int(r['episode']) for r in rows] == list(range(len(rows)))
+    assert all(int(r['length']) == 40 and r['interrupted'] == '0' for r in rows), rows
+    assert [int(r['total_steps']) for r in rows] == [40 * (i + 1) for i in range(len(rows))]
+
+
+def publish_steps(harness, publisher, learner, steps, obs_dim=3):
+    """Publish observations (episode 0, the given steps) one at a time, as a lock-step env would."""
+    for step in steps:
+        done = step == steps[-1]
+        before = learner.learner.total_steps + learner.learner.episode
+        publisher.publish(messages.observation_msg([0.1, 0.2, 0.3 + step], -1.0, False, done, 0, step))
+        harness.spin_until(lambda: learner.learner.total_steps + learner.learner.episode > before
+                           or learner._key == (0, step), timeout=5)
+
+
+def test_a_lost_observation_marks_the_episode_interrupted(harness, ros_context, tmp_path):
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
+        tmp_path, mode='sac')))
+    probe = Probe(harness)
+    publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
+    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
+    publish_steps(harness, publisher, learner, [0, 1, 2, 4, 5, 6])      # step 3 never arrives
+    assert harness.spin_until(lambda: len(learner.summaries) == 1)
+    summary = learner.summaries[0]
+    assert summary.interrupted and not summary.success
+    assert learner.observation_gaps == 1
+    assert learner.learner.total_steps == 4                             # no transition across the gap
+    assert rows_of(tmp_path / 'episodes.csv')[0]['interrupted'] == '1'
+
+
+def test_a_learner_that_joins_mid_episode_marks_it_interrupted(harness, ros_context, tmp_path):
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
+        tmp_path, mode='sac')))
+    probe = Probe(harness)
+    publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
+    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
+    publish_steps(harness, publisher, learner, [7, 8, 9])
+    assert harness.spin_until(lambda: len(learner.summaries) == 1)
+    assert learner.summaries[0].interrupted and learner.summaries[0].length == 2
+
+
+def test_advice_timeout_and_stall_warning_do_not_depend_on_ros_time(harness, ros_context, tmp_path):
+    # use_sim_time with no /clock: ROS time stands still. The advice timeout must still fire.
+    expert = StubExpert(ros_context, delay=1.0)
+    try:
+        harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
+        learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
+            tmp_path, mode='qasac', max_episodes=2, advice_timeout_s=0.2, use_sim_time=True)))
+        assert harness.spin_until(lambda: learner.done, timeout=60)
+    finally:
+        expert.close()
+    totals = learner.learner.advice_total
+    assert totals.asked > 0 and totals.failed['timeout'] == totals.asked and totals.given == 0
+
+
+def test_a_relabelled_message_is_refused_not_read_by_position(harness, ros_context, tmp_path):
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    probe = Probe(harness)
+    publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
+    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
+    # Right size, but 'step' and 'episode' swapped, and another with obs of the wrong size.
+    swapped = messages.build([('obs', [0.1, 0.2, 0.3]), ('reward', [0.0]), ('terminated', [0.0]),
+                              ('truncated', [0.0]), ('step', [0.0]), ('episode', [0.0])])
+    resized = messages.build([('obs', [0.1, 0.2]), ('reward', [0.0, 0.0]), ('terminated', [0.0]),
+                              ('truncated', [0.0]), ('episode', [0.0]), ('step', [0.0])])
+    publisher.publish(swapped)
+    publisher.publish(resized)
+    assert harness.spin_until(lambda: learner.dropped_messages == 2)
+    assert learner._key is None and learner.learner.total_steps == 0
+    publisher.publish(Float32MultiArray(data=[0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0]))   # unlabelled: by position
+    assert harness.spin_until(lambda: learner._key == (0, 0))
+
+
+def test_check_layout_accepts_ours_and_unlabelled_only():
+    ours = messages.observation_msg([0.1, 0.2, 0.3], 0.0, False, False, 0, 0)
+    messages.check_layout(ours.layout, messages.observation_layouts(3), 'observation')
+    messages.check_layout(Float32MultiArray().layout, messages.observation_layouts(3), 'observation')
+    with pytest.raises(messages.MessageError, match=r"layout \[action:1\] is not"):
+        messages.check_layout(messages.action_msg([0.5]).layout, messages.observation_layouts(3), 'observation')
+    offset = messages.action_msg([0.5], 1, 2)
+    offset.layout = MultiArrayLayout(dim=list(offset.layout.dim), data_offset=1)   # layouts are shared: copy
+    with pytest.raises(messages.MessageError, match='data_offset 1'):
+        messages.parse_action(offset, 1)
+
+
+def test_expert_names_are_capped_and_sanitised(harness, ros_context, tmp_path, capfd):
+    # An expert's name reaches the learner's log lines: it must not forge lines or flood them.
+    forged = 'evil\n[INFO] [learner]: forged line ' + 'x' * 100_000
+    expert = StubExpert(ros_context, expert_name=forged)
+    try:
+        learner, _ = run_learner(harness, ros_context, tmp_path, episodes=1, mode='qasac', advising_budget=5)
+    finally:
+        expert.close()
+    assert learner.learner.advice_total.given > 0
+    log = capfd.readouterr().err
+    assert 'answered by: evil?[INFO] [learner]: forged line xxx' in log
+    assert not any(line.startswith('[INFO] [learner]: forged') for line in log.splitlines())
+    assert max(len(line) for line in log.splitlines()) < 1000
+
+
+def rss_mb() -> float:
+    with open('/proc/self/status') as f:
+        return next(int(line.split()[1]) / 1024 for line in f if line.startswith('VmRSS:'))
+
+
+@pytest.mark.parametrize('harness', ['default'], indirect=True)
+def test_a_flood_leaves_no_backlog_with_the_default_executor(harness, ros_context, tmp_path):
+    # 100,000 invalid observations arrive while the learner is busy (not spinning). With a
+    # wait-set executor only the subscription's QoS depth (10) waits, and memory stays
+    # flat; an executor that queues one event per arriving message (the EventsExecutor,
+    # +14 MB here) grows without bound under a flood.
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    probe = Probe(harness)
+    publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
+    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
+    harness.spin_until(lambda: False, timeout=0.5)
+    bad = serialize_message(Float32MultiArray(data=[0.5] * 3))
+    gc.collect()
+    before = rss_mb()
+    for _ in range(100_000):
+        publisher.publish(bad)
+    time.sleep(0.5)                                   # let the middleware deliver
+    gc.collect()
+    grown = rss_mb() - before
+    harness.spin_until(lambda: False, timeout=1.0)    # drain whatever waits
+    assert grown < 5.0, f'{grown:.1f} MB held for 100,000 messages'
+    assert 0 < learner.dropped_messages <= 50
+    publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], 0.0, False, False, 0, 0))
+    assert harness.spin_until(lambda: learner._key == (0, 0), timeout=2.0)   # back at once
+
+
+def test_env_throttles_its_rejection_log(harness, ros_context, capfd):
+    env = harness.add(GymEnvNode(context=ros_context))
+    probe = Probe(harness)
+    assert harness.spin_until(lambda: probe.action_pub.get_subscription_count() > 0)
+    for _ in range(40):
+        probe.action_pub.publish(messages.action_msg([0.1, 0.2]))
+        harness.spin_until(lambda: False, timeout=0.01)
+    assert harness.spin_until(lambda: env.rejected_actions == 40)
+    logged = capfd.readouterr().err.count('rejected action')
+    assert 1 <= logged <= 2

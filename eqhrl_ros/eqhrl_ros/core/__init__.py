@@ -9,18 +9,27 @@
 - checkpoint.py  safe checkpoints and exported policies
 - envs.py        env construction, action scaling, success per env
 - training.py    the in-process training loop
+- summary.py     one episode's statistics (the record's fields)
+- records.py     a run's folder: episodes.csv and where saves go
 """
 
-from .advising import AdvisingGates, FifoQueue, GateDecision
-from .checkpoint import CheckpointError, PolicyExpert, export_policy, load_checkpoint, save_checkpoint
-from .envs import ActionScaler, make_env, success_criterion
-from .experts import Advice, AdviceRequest, heuristic_expert
-from .learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
-from .training import run_episode, train
+import importlib
 
-__all__ = [
-    'ActionScaler', 'Advice', 'AdviceRequest', 'AdvisingGates', 'CheckpointError', 'EQSACLearner',
-    'EpisodeSummary', 'FifoQueue', 'GateDecision', 'LearnerConfig', 'PolicyExpert', 'Proposal',
-    'export_policy', 'heuristic_expert', 'load_checkpoint', 'make_env', 'run_episode',
-    'save_checkpoint', 'success_criterion', 'train',
-]
+# Names and the module that holds each. Loaded on first use (PEP 562), so that a light
+# reader of core.summary or core.records does not pay for torch.
+_HOME = {
+    'AdvisingGates': 'advising', 'FifoQueue': 'advising', 'GateDecision': 'advising',
+    'CheckpointError': 'checkpoint', 'PolicyExpert': 'checkpoint', 'export_policy': 'checkpoint',
+    'load_checkpoint': 'checkpoint', 'save_checkpoint': 'checkpoint',
+    'ActionScaler': 'envs', 'make_env': 'envs', 'success_criterion': 'envs',
+    'Advice': 'experts', 'AdviceRequest': 'experts', 'heuristic_expert': 'experts',
+    'EQSACLearner': 'learner', 'LearnerConfig': 'learner', 'Proposal': 'learner',
+    'EpisodeSummary': 'summary', 'run_episode': 'training', 'train': 'training',
+}
+__all__ = sorted(_HOME)
+
+
+def __getattr__(name: str):
+    if name not in _HOME:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    return getattr(importlib.import_module(f'.{_HOME[name]}', __name__), name)

@@ -2,14 +2,24 @@
 
 Files are torch's zip format, read with ``torch.load(weights_only=True)``: only
 tensors and plain Python containers are ever unpickled, so a malicious file
-cannot run code. Writes go to a temporary file first and are renamed into place,
-so a crash mid-write never leaves a truncated checkpoint behind.
+cannot run code. Before that, the zip's directory is checked: torch never
+compresses, so a compressed entry (a deflate bomb) is refused, and a file larger
+than the learner's sizes can need is refused before it is read, so reading a
+file costs at most what the learner's own sizes need.
+
+Writes: the whole file is serialized in memory, written to a temporary file beside
+the target with plain ``os.write`` (so a full disk or a read-only folder is an
+``OSError`` that names itself), flushed to disk and renamed into place. A failed
+write leaves the previous file as it was. The checkpoint and the replay memories
+carry the same pairing token, so a resume never combines files of two saves.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import pickle
+import secrets
 import tempfile
 import zipfile
 from pathlib import Path
@@ -18,6 +28,7 @@ import numpy as np
 import torch
 
 from .envs import ActionScaler
+from .errors import CheckpointError, CheckpointWriteError
 from .experts import Advice, AdviceRequest
 from .networks import SquashedGaussianActor
 
@@ -27,27 +38,80 @@ POLICY_FORMAT = 'eqhrl_ros.policy'
 FORMAT_VERSION = 1
 
 
-class CheckpointError(RuntimeError):
-    """A checkpoint or policy file that cannot be used: unreadable, not ours, or mismatched."""
+def _write_file(data: bytes, tmp: str) -> None:
+    fd = os.open(tmp, os.O_WRONLY | os.O_TRUNC)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _write_temporary(obj: dict, path: Path) -> str:
+    """Serialize ``obj`` and write it to a temporary file beside ``path``; returns its name."""
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
+    except OSError as error:
+        raise CheckpointWriteError(error.errno, f'cannot write {path}: {error.strerror}') from error
+    os.close(fd)
+    try:
+        _write_file(buffer.getbuffer(), tmp)
+    except OSError as error:
+        Path(tmp).unlink(missing_ok=True)
+        raise CheckpointWriteError(error.errno, f'cannot write {path}: {error.strerror}') from error
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return tmp
+
+
+def _replace(tmp: str, path: Path) -> None:
+    try:
+        os.replace(tmp, path)
+        dir_fd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)      # the rename itself reaches the disk
+        finally:
+            os.close(dir_fd)
+    except OSError as error:
+        Path(tmp).unlink(missing_ok=True)
+        raise CheckpointWriteError(error.errno, f'cannot write {path}: {error.strerror}') from error
 
 
 def _atomic_save(obj: dict, path: Path) -> None:
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
-    os.close(fd)
+    _replace(_write_temporary(obj, path), path)
+
+
+def _check_zip(path: Path, expected_format: str, max_bytes: int | None) -> None:
+    """Refuse, before unpickling, what torch.save never writes or what is larger than needed."""
+    size = path.stat().st_size
+    if max_bytes is not None and size > max_bytes:
+        raise CheckpointError(f'{path}: {size:,} bytes, more than the {max_bytes:,} that this '
+                              "learner's sizes can need")
     try:
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        with zipfile.ZipFile(path) as archive:
+            entries = archive.infolist()
+    except (zipfile.BadZipFile, OSError, ValueError) as error:
+        raise CheckpointError(f'{path}: not a readable {expected_format} file ({error})') from error
+    for entry in entries:
+        if entry.compress_type != zipfile.ZIP_STORED:
+            raise CheckpointError(f'{path}: entry {entry.filename!r} is compressed; torch.save never '
+                                  'compresses, so the file is refused unread')
+        if entry.file_size > size:
+            raise CheckpointError(f'{path}: entry {entry.filename!r} claims {entry.file_size:,} bytes '
+                                  f'in a file of {size:,}')
 
 
-def _safe_load(path: Path, expected_format: str) -> dict:
+def _safe_load(path: Path, expected_format: str, max_bytes: int | None = None) -> dict:
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f'{path}: no such file')
+    _check_zip(path, expected_format, max_bytes)
     try:
         obj = torch.load(path, map_location='cpu', weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError,
@@ -62,29 +126,80 @@ def _safe_load(path: Path, expected_format: str) -> dict:
     return obj
 
 
+# Room for what a file holds besides its tensors (pickled structure, RNG states, queues, zip records).
+_OVERHEAD_BYTES = 4 << 20
+
+
+def _parameter_count(module: torch.nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())
+
+
+def checkpoint_size_limit(learner) -> int:
+    """The most bytes a checkpoint of this learner can hold: the actor with its two Adam
+    moments, the critics and their target copy with theirs, in float32, plus overhead."""
+    actor, critic = _parameter_count(learner.actor), _parameter_count(learner.critic)
+    return 4 * (3 * actor + 4 * critic) * 2 + _OVERHEAD_BYTES
+
+
+def replay_size_limit(learner) -> int:
+    """The most bytes saved replay memories can hold: both memories full, float32 rows."""
+    buffers = (learner.replay, learner.advice_replay)
+    return sum(4 * b.capacity * b.rows.shape[1] for b in buffers) * 2 + _OVERHEAD_BYTES
+
+
 def save_checkpoint(learner, path, replay_path=None) -> None:
-    """Save everything needed to resume; the replay memories optionally, to their own file."""
-    _atomic_save({'format': CHECKPOINT_FORMAT, 'version': FORMAT_VERSION, **learner.state_dict()}, path)
-    if replay_path is not None:
-        _atomic_save({'format': REPLAY_FORMAT, 'version': FORMAT_VERSION,
-                      'replay': learner.replay.state_dict(),
-                      'advice_replay': learner.advice_replay.state_dict()}, replay_path)
+    """Save everything needed to resume; the replay memories optionally, to their own file.
+
+    Both files are written in full before either is renamed into place, and both carry
+    one pairing token. Raises CheckpointWriteError (the previous files intact) when a
+    write fails.
+    """
+    path = Path(path)
+    pair = secrets.token_hex(8)
+    written = []
+    try:
+        if replay_path is not None:
+            replay_path = Path(replay_path)
+            written.append((_write_temporary({
+                'format': REPLAY_FORMAT, 'version': FORMAT_VERSION, 'pair': pair,
+                'replay': learner.replay.state_dict(),
+                'advice_replay': learner.advice_replay.state_dict()}, replay_path), replay_path))
+        written.append((_write_temporary({'format': CHECKPOINT_FORMAT, 'version': FORMAT_VERSION,
+                                          'pair': pair, **learner.state_dict()}, path), path))
+    except BaseException:
+        for tmp, _ in written:
+            Path(tmp).unlink(missing_ok=True)
+        raise
+    for tmp, target in written:
+        _replace(tmp, target)
 
 
 def load_checkpoint(learner, path, replay_path=None) -> None:
     """Restore a learner. Raises CheckpointError and leaves the learner unchanged on any problem."""
-    state = _safe_load(path, CHECKPOINT_FORMAT)
+    state = _safe_load(path, CHECKPOINT_FORMAT, checkpoint_size_limit(learner))
+    replay = None
+    if replay_path is not None and Path(replay_path).exists():
+        replay = _safe_load(replay_path, REPLAY_FORMAT, replay_size_limit(learner))
+        if replay.get('pair') != state.get('pair'):
+            raise CheckpointError(
+                f'{replay_path} and {path} come from different saves (one was interrupted between '
+                f'the two): remove {Path(replay_path).name} to resume without the replay memories')
+    # Load into copies first, so that a replay memory that does not fit changes nothing.
+    candidate_replay = candidate_advice = None
+    if replay is not None:
+        try:
+            candidate_replay, candidate_advice = (type(b)(b.capacity, b.obs_dim, b.action_dim)
+                                                  for b in (learner.replay, learner.advice_replay))
+            candidate_replay.load_state_dict(replay['replay'])
+            candidate_advice.load_state_dict(replay['advice_replay'])
+        except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as error:
+            raise CheckpointError(f'{replay_path}: does not fit this learner ({error})') from error
     try:
         learner.load_state_dict(state)
-    except (KeyError, ValueError, RuntimeError, TypeError) as error:
+    except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as error:
         raise CheckpointError(f'{path}: does not fit this learner ({error})') from error
-    if replay_path is not None and Path(replay_path).exists():
-        replay = _safe_load(replay_path, REPLAY_FORMAT)
-        try:
-            learner.replay.load_state_dict(replay['replay'])
-            learner.advice_replay.load_state_dict(replay['advice_replay'])
-        except (KeyError, ValueError, RuntimeError, TypeError) as error:
-            raise CheckpointError(f'{replay_path}: does not fit this learner ({error})') from error
+    if replay is not None:
+        learner.replay, learner.advice_replay = candidate_replay, candidate_advice
 
 
 def export_policy(learner, path) -> None:
@@ -107,8 +222,10 @@ class PolicyExpert:
             self.obs_dim = int(data['obs_dim'])
             self.actor = SquashedGaussianActor(self.obs_dim, self.scaler.dim, tuple(data['hidden']))
             self.actor.load_state_dict(data['actor'])
-        except (KeyError, ValueError, RuntimeError, TypeError) as error:
+        except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as error:
             raise CheckpointError(f'{path}: broken policy file ({error})') from error
+        if not all(torch.isfinite(p).all() for p in self.actor.parameters()):
+            raise CheckpointError(f'{path}: the policy holds non-finite weights (NaN or inf)')
         self.actor.eval()
         self.name = name
 

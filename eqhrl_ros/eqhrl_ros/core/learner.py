@@ -32,6 +32,7 @@ from .envs import ActionScaler, SuccessCriterion
 from .experts import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
 from .networks import SquashedGaussianActor, TwinCritic
 from .replay import Batch, ReplayBuffer
+from .summary import EpisodeSummary
 
 
 @dataclass
@@ -140,31 +141,6 @@ class AdviceCounts:
         return AdviceCounts(int(d['asked']), int(d['given']), int(d.get('human', 0)), int(d['declined']), failed)
 
 
-@dataclass(frozen=True)
-class EpisodeSummary:
-    """Per-episode statistics (what the learner node publishes and writes to CSV)."""
-
-    episode: int
-    episode_return: float
-    length: int
-    advice_asked: int
-    advice_given: int
-    advice_human: int
-    advice_declined: int
-    advice_failed: int
-    success: bool
-    total_steps: int
-    alpha: float
-
-    CSV_FIELDS = ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'advice_human',
-                  'advice_declined', 'advice_failed', 'success', 'total_steps', 'alpha')
-
-    def csv_row(self) -> list:
-        return [self.episode, f'{self.episode_return:.4f}', self.length, self.advice_asked,
-                self.advice_given, self.advice_human, self.advice_declined, self.advice_failed,
-                int(self.success), self.total_steps, f'{self.alpha:.6f}']
-
-
 def adam(params, lr: float, state: dict | None = None) -> torch.optim.Adam:
     """Adam with its fused kernel: one pass over all of a network's tensors per step.
 
@@ -178,6 +154,46 @@ def adam(params, lr: float, state: dict | None = None) -> torch.optim.Adam:
         for group in optimizer.param_groups:
             group.update(fused=True, foreach=None)
     return optimizer
+
+
+def _tensors(value):
+    """Every tensor inside nested dicts and lists (a state dict, an optimiser's state)."""
+    if isinstance(value, torch.Tensor):
+        yield value
+    elif isinstance(value, dict):
+        for item in value.values():
+            yield from _tensors(item)
+    elif isinstance(value, (list, tuple)):
+        for item in value:
+            yield from _tensors(item)
+
+
+def _check_state(state) -> None:
+    """Refuse a saved state whose structure or values no run of this learner can produce."""
+    if not isinstance(state, dict):
+        raise ValueError(f'a checkpoint is a dict, found {type(state).__name__}')
+    for key in ('config', 'counters', 'gates', 'rng'):
+        if not isinstance(state.get(key), dict):
+            raise ValueError(f"'{key}' must be a dict, found {type(state.get(key)).__name__}")
+    counters = state['counters']
+    for key in ('episode', 'total_steps', 'updates'):
+        value = counters.get(key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ValueError(f'counters.{key} must be an integer >= 0, found {value!r}')
+    if counters['episode'] > counters['total_steps']:
+        raise ValueError(f"counters.episode {counters['episode']} exceeds counters.total_steps "
+                         f"{counters['total_steps']} (an episode has at least one step)")
+    if not isinstance(counters.get('advice_total'), dict):
+        raise ValueError('counters.advice_total must be a dict')
+    for key in ('actor', 'critic', 'critic_target', 'log_alpha', 'actor_optimizer',
+                'critic_optimizer', 'alpha_optimizer'):
+        if any(t.is_floating_point() and not torch.isfinite(t).all() for t in _tensors(state.get(key))):
+            raise ValueError(f"'{key}' holds non-finite values (NaN or inf)")
+    for key in ('d_queue', 'e_queue'):
+        values = state['gates'].get(key)
+        if not isinstance(values, list) or not all(isinstance(v, (int, float)) and math.isfinite(v)
+                                                   for v in values):
+            raise ValueError(f'gates.{key} must be a list of finite numbers')
 
 
 class EQSACLearner:
@@ -436,6 +452,7 @@ class EQSACLearner:
 
     def _reset_episode(self) -> None:
         self.episode_step = 0
+        self.episode_interrupted = False
         self._episode_return = 0.0
         self._episode_advice = AdviceCounts()
         self.success.reset()
@@ -448,8 +465,8 @@ class EQSACLearner:
             advice_asked=counts.asked, advice_given=counts.given, advice_human=counts.human,
             advice_declined=counts.declined,
             advice_failed=counts.failed_total,
-            success=bool(self.success.success(self._episode_return)),
-            total_steps=self.total_steps, alpha=self.alpha)
+            success=bool(self.success.success(self._episode_return)) and not self.episode_interrupted,
+            total_steps=self.total_steps, alpha=self.alpha, interrupted=self.episode_interrupted)
         self.advice_total.add(counts)
         self.episode += 1
         self._reset_episode()
@@ -462,6 +479,11 @@ class EQSACLearner:
         per-episode record has neither a gap nor a bogus entry.
         """
         self._reset_episode()
+
+    def mark_interrupted(self) -> None:
+        """The caller did not see all of the current episode (a lost step, a mid-episode start):
+        its summary will say so, and never count it as a success."""
+        self.episode_interrupted = True
 
     @property
     def episode_advice(self) -> AdviceCounts:
@@ -492,6 +514,7 @@ class EQSACLearner:
 
     def load_state_dict(self, state: dict) -> None:
         """Restore from ``state_dict()``. Validates first: on any error the learner is unchanged."""
+        _check_state(state)
         if int(state['obs_dim']) != self.obs_dim or len(state['action_low']) != self.action_dim:
             raise ValueError(
                 f"checkpoint is for observations of {state['obs_dim']} and actions of "

@@ -97,16 +97,20 @@ class ReplayBuffer:
         }
 
     def load_state_dict(self, state: dict) -> None:
-        size = int(state['size'])
-        if size > self.capacity:
+        size, position = int(state['size']), int(state['position'])
+        if not 0 <= size <= self.capacity:
             raise ValueError(f'saved buffer holds {size} transitions, capacity is {self.capacity}')
+        if not 0 <= position < self.capacity:
+            raise ValueError(f'saved buffer position {position} is outside [0, {self.capacity})')
         for name in self.FIELDS:
             saved = state[name]
             target = getattr(self, name)
             if tuple(saved.shape[1:]) != tuple(target.shape[1:]) or saved.shape[0] != size:
                 raise ValueError(f'saved buffer field {name!r} has shape {tuple(saved.shape)}, '
                                  f'expected ({size}, ...{tuple(target.shape[1:])})')
+            if not torch.isfinite(saved).all():
+                raise ValueError(f'saved buffer field {name!r} holds non-finite values (NaN or inf)')
         for name in self.FIELDS:
             getattr(self, name)[:size] = state[name]
         self.size = size
-        self.position = int(state['position']) % self.capacity
+        self.position = position

@@ -18,7 +18,7 @@ from std_msgs.msg import Float32MultiArray
 
 from ..core.envs import make_env
 from . import messages
-from .lifecycle import run_node, seconds_since_process_start
+from .lifecycle import run_node, seconds_since_process_start, steady_clock
 from .params import GYM_ENV_PARAMS, choices_validator, declare, reject_unknown_overrides
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -51,16 +51,19 @@ class GymEnvNode(Node):
             Float32MultiArray, 'observation', QOS,
             event_callbacks=PublisherEventCallbacks(matched=self._on_subscriber_matched))
         # Actions arrive serialized (raw): see messages.SerializedReader.
-        self._action_reader = messages.SerializedReader()
+        self._action_reader = messages.SerializedReader(messages.action_layouts(self.action_dim), 'action')
         self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS, raw=True)
         self._reset(seed=p['seed'])
+        # The steady clock: the env's pace and its re-sends must not stop with ROS time
+        # (use_sim_time with no /clock). Frames are stamped with the node's clock.
+        steady = steady_clock()
         if p['realtime']:
-            self.create_timer(1.0 / p['rate_hz'], self._realtime_tick)
+            self.create_timer(1.0 / p['rate_hz'], self._realtime_tick, clock=steady)
         else:
-            self.create_timer(p['republish_period_s'], self._republish_if_idle)
+            self.create_timer(p['republish_period_s'], self._republish_if_idle, clock=steady)
         if p['publish_images']:
             self.image_pub = self.create_publisher(Image, '~/image', 2)
-            self.create_timer(1.0 / p['image_rate_hz'], self._publish_image)
+            self.create_timer(1.0 / p['image_rate_hz'], self._publish_image, clock=steady)
         self.get_logger().info(
             f"{p['env_id']}: obs {self.obs_dim}, action {self.action_dim} in "
             f"[{self.env.action_space.low.tolist()}, {self.env.action_space.high.tolist()}], "
@@ -94,7 +97,8 @@ class GymEnvNode(Node):
             action, tag = messages.parse_action(self._action_reader.values(data), self.action_dim)
         except messages.MessageError as error:
             self.rejected_actions += 1
-            self.get_logger().error(f'rejected action, not stepping: {error}')
+            self.get_logger().error(f'rejected action, not stepping: {error} '
+                                    f'({self.rejected_actions} rejected so far)', throttle_duration_sec=5.0)
             return
         if self.params['realtime']:
             self._held_action = action

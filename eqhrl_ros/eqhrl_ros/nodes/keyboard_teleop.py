@@ -17,21 +17,13 @@ import time
 import tty
 
 import numpy as np
-import rclpy
-import rclpy.exceptions
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32MultiArray
 
 from . import messages
-from .lifecycle import spin
-from .params import Param, declare, reject_unknown_overrides
-
-KEYBOARD_PARAMS = (
-    Param('dimensions', 1, 'Action dimensions to command (Pendulum 1, LunarLander 2)', (1, 2)),
-    Param('step', 0.25, 'Change per key press, in [-1, 1] units', (0.01, 1.0)),
-    Param('rate_hz', 10.0, 'Publishing rate of teleop_command', (0.5, 100.0)),
-)
+from .lifecycle import run_node
+from .params import KEYBOARD_PARAMS, declare, reject_unknown_overrides
 
 KEYS = {'a': (0, -1), 'd': (0, +1), 'w': (1, +1), 's': (1, -1)}
 CLEAR, HOME, REVERSE, RESET = '\x1b[2J', '\x1b[H', '\x1b[7m', '\x1b[0m'
@@ -119,23 +111,14 @@ def main(args=None):
         print('keyboard_teleop: needs a terminal (stdin is not a tty)', file=sys.stderr)
         raise SystemExit(1)
     saved = termios.tcgetattr(fd)
-    rclpy.init(args=args)
-    node = None
     try:
         tty.setcbreak(fd)        # keys without Enter, no echo; Ctrl-C still signals
         sys.stdout.write(HIDE_CURSOR)
-        node = KeyboardTeleop(fd, sys.stdout)
-        spin(node)
-    except (ValueError, rclpy.exceptions.ParameterException) as error:
-        print(f'keyboard_teleop: refused to start: {error}', file=sys.stderr)
-        raise SystemExit(1)
+        run_node(lambda: KeyboardTeleop(fd, sys.stdout), args, name='keyboard_teleop')
     finally:
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)   # the terminal as we found it
         sys.stdout.write(SHOW_CURSOR + '\n')
         sys.stdout.flush()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
 
 
 if __name__ == '__main__':

@@ -10,12 +10,10 @@ shutdown, under a single-threaded executor or a multi-threaded one. (A synchrono
 
 from __future__ import annotations
 
-import csv
 import threading
 import time
 from collections import Counter, deque
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Optional
 
 import gymnasium as gym
@@ -27,12 +25,13 @@ from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.srv import Advise
 
-from ..core.checkpoint import export_policy, load_checkpoint, save_checkpoint
+from ..core.checkpoint import CheckpointWriteError, export_policy, load_checkpoint, save_checkpoint
 from ..core.envs import success_criterion
 from ..core.experts import Advice
 from ..core.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
+from ..core.records import EpisodeRecord, RunFolder
 from . import messages
-from .lifecycle import run_node
+from .lifecycle import ExitError, run_node, steady_clock
 from .params import (LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, choices_validator, declare,
                      reject_unknown_overrides)
 
@@ -62,19 +61,17 @@ def env_spaces(env_id: str) -> tuple[int, np.ndarray, np.ndarray]:
         env.close()
 
 
-def rewrite_csv_before(path: Path, episode: int) -> None:
-    """Keep only rows of episodes < ``episode`` (those a resumed learner will not redo)."""
-    if not path.exists():
-        return
-    with path.open(newline='') as f:
-        rows = list(csv.reader(f))
-    if not rows:
-        return
-    header, body = rows[0], [r for r in rows[1:] if r and int(r[0]) < episode]
-    tmp = path.with_suffix('.csv.tmp')
-    with tmp.open('w', newline='') as f:
-        csv.writer(f).writerows([header, *body])
-    tmp.replace(path)
+# Expert names come from other nodes: cap them before they reach a log line or a count.
+EXPERT_NAME_MAX = 64
+EXPERT_NAMES_KEPT = 8
+
+
+def printable_name(name: str) -> str:
+    """``name`` as one safe log token: printable ASCII only, at most EXPERT_NAME_MAX characters."""
+    text = ''.join(c if c.isprintable() and c.isascii() else '?' for c in (name or '')[:EXPERT_NAME_MAX + 1])
+    if len(text) > EXPERT_NAME_MAX:
+        text = text[:EXPERT_NAME_MAX - 3] + '...'
+    return text or '(unnamed)'
 
 
 class LearnerNode(Node):
@@ -92,24 +89,23 @@ class LearnerNode(Node):
         self.config = LearnerConfig.from_params(values)
         obs_dim, low, high = env_spaces(p['env_id'])
         self.learner = EQSACLearner(obs_dim, low, high, self.config, success_criterion(p['env_id']))
-        self.output_dir = Path(p['output_dir'])
-        self.output_dir.mkdir(parents=True, exist_ok=True)
-        self.checkpoint_path = self.output_dir / 'checkpoint.pt'
-        self.replay_path = self.output_dir / 'replay.pt' if p['save_replay'] else None
-        self.csv_path = self.output_dir / 'episodes.csv'
+        # Refuses, with one line, a folder that is a file, cannot be written, or holds a run
+        # that neither resume nor overwrite was asked for.
+        self.run_folder = RunFolder(p['output_dir'], resume=p['resume'], overwrite=p['overwrite'])
+        self.output_dir = self.run_folder.path
+        self.checkpoint_path = self.run_folder.checkpoint
+        self.replay_path = self.run_folder.replay if p['save_replay'] else None
+        self.csv_path = self.run_folder.episodes
+        for tmp in self.run_folder.removed_temporaries:
+            self.get_logger().info(f'removed {tmp}, left by a save that was interrupted')
         if p['resume']:
             # A bad checkpoint stops start-up with CheckpointError: silently starting
             # from scratch would overwrite the run the person asked to continue.
             load_checkpoint(self.learner, self.checkpoint_path, self.replay_path)
             self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {self.learner.episode}')
-            rewrite_csv_before(self.csv_path, self.learner.episode)
-        elif self.csv_path.exists():
-            self.csv_path.unlink()   # a fresh run starts a fresh record
-        self._csv_file = self.csv_path.open('a', newline='')
-        self._csv = csv.writer(self._csv_file)
-        if self.csv_path.stat().st_size == 0:
-            self._csv.writerow(EpisodeSummary.CSV_FIELDS)
-            self._csv_file.flush()
+        self.record = EpisodeRecord(self.csv_path, EpisodeSummary.CSV_FIELDS,
+                                    keep_before=self.learner.episode if p['resume'] else None)
+        self.failed_saves = 0
 
         self.action_pub = self.create_publisher(Float32MultiArray, 'action', QOS)
         self._action_out = messages.action_out(self.learner.action_dim)   # rewritten per step
@@ -117,7 +113,7 @@ class LearnerNode(Node):
         self.gate_pub = self.create_publisher(Float32MultiArray, '~/gate_debug', QOS)
         self.request_pub = self.create_publisher(Float32MultiArray, '~/advice_request', LATCHED_QOS)
         # Observations arrive serialized (raw): see messages.SerializedReader.
-        self._observation_reader = messages.SerializedReader()
+        self._observation_reader = messages.SerializedReader(messages.observation_layouts(obs_dim), 'observation')
         self.create_subscription(Float32MultiArray, 'observation', self._on_observation, QOS, raw=True)
         self.advice_client = self.create_client(Advise, 'advise')
 
@@ -129,13 +125,19 @@ class LearnerNode(Node):
         self._pending: Optional[PendingAdvice] = None
         self._token = 0
         self.dropped_messages = 0
-        self.stalled_episodes = 0
+        self.stalls = 0                  # times no observation came for stall_timeout_s mid-episode
+        self._stalled_since: Optional[float] = None
         self.observation_gaps = 0        # an observation that skipped steps (a message was lost)
         self.repeated_observations = 0   # the env re-sent an observation (our action did not arrive in time)
         self.advice_latencies: deque = deque(maxlen=100_000)   # seconds, request to answer
         self.experts_heard: Counter = Counter()    # expert_name -> advice answers this episode
+        self._advise_servers = 1
+        self._servers_checked = 0.0
         self._last_observation_time = time.monotonic()
-        self.create_timer(0.25, self._check_stall)
+        # Timers on the steady clock: with use_sim_time and a /clock that stops (or never
+        # starts), ROS time stands still, and an advice timeout or a stall must still fire.
+        self._steady = steady_clock()
+        self.create_timer(0.25, self._check_stall, clock=self._steady)
         self.done = False
         self.summaries: list[EpisodeSummary] = []
         self.get_logger().info(
@@ -161,6 +163,10 @@ class LearnerNode(Node):
             if self.done:
                 return
             self._last_observation_time = time.monotonic()
+            if self._stalled_since is not None:
+                self.get_logger().info(f'observations are back after '
+                                       f'{time.monotonic() - self._stalled_since:.1f} s')
+                self._stalled_since = None
             try:
                 env_step = messages.parse_observation(self._observation_reader.values(data),
                                                       self.learner.obs_dim)
@@ -183,21 +189,41 @@ class LearnerNode(Node):
             if self._follows(key):
                 if self._store(env_step):
                     return   # the episode ended; the env's reset message starts the next
-            elif env_step.step > 0 and self._key is not None and self._state is not None:
-                self.observation_gaps += 1
-                self.get_logger().warn(f'observation {key} does not follow {self._key}; '
-                                       'starting from it without a transition', throttle_duration_sec=5.0)
-            elif env_step.step == 0 and self.learner.episode_step > 0:
-                # The env started a new episode in the middle of ours (it restarted).
-                self.get_logger().warn(f'env restarted; abandoning episode {self.learner.episode} '
-                                       f'after {self.learner.episode_step} steps')
-                self.learner.abandon_episode()
+            else:
+                self._start_from(env_step, key)
             if env_step.done:
                 # A final observation with no predecessor we acted on: nothing to store or act on.
                 self._key = key
                 self._state = None
                 return
             self._act(env_step.obs, key)
+
+    def _start_from(self, env_step: messages.EnvStep, key: tuple) -> None:
+        """An observation that does not continue the transition we acted on. What the
+        record gets: a new env episode (step 0) abandons an unfinished one of ours (no row,
+        its index reused: the env restarted); a later step of the same env episode marks
+        ours interrupted (a message was lost); any other step > 0 is a mid-episode start,
+        also marked interrupted. No transition is ever made across the gap."""
+        same_episode = self._key is not None and key[0] == self._key[0] and key[1] > self._key[1]
+        if env_step.step == 0:
+            if self.learner.episode_step > 0:
+                self.get_logger().warn(f'the env started a new episode: abandoning episode '
+                                       f'{self.learner.episode} after {self.learner.episode_step} steps '
+                                       '(no row is written; the index is reused)')
+            self.learner.abandon_episode()   # a fresh start, also of an interrupted mark
+            return
+        if same_episode and self.learner.episode_step > 0:
+            self.observation_gaps += 1
+            self.get_logger().warn(f'observation {key} does not follow {self._key}: episode '
+                                   f'{self.learner.episode} continues, marked interrupted', throttle_duration_sec=5.0)
+        else:
+            if self.learner.episode_step > 0:
+                self.get_logger().warn(f'observation {key} is from another env episode than {self._key}: '
+                                       f'abandoning episode {self.learner.episode}', throttle_duration_sec=5.0)
+                self.learner.abandon_episode()
+            self.get_logger().info(f'joining the env mid-episode at {key}: episode {self.learner.episode} '
+                                   'is marked interrupted', throttle_duration_sec=5.0)
+        self.learner.mark_interrupted()
 
     def _follows(self, key: tuple) -> bool:
         return (key[1] > 0 and self._state is not None and self._key is not None
@@ -253,7 +279,9 @@ class LearnerNode(Node):
         self._token += 1
         token = self._token
         request = self._request_msg(proposal)
-        timer = self.create_timer(self.params['advice_timeout_s'], lambda: self._on_advice_timeout(token))
+        timer = self.create_timer(self.params['advice_timeout_s'], lambda: self._on_advice_timeout(token),
+                                  clock=self._steady)
+        self._check_advise_servers()
         self._pending = PendingAdvice(token, proposal, key, timer, time.monotonic())
         self.request_pub.publish(messages.advice_request_msg('pending', proposal.request,
                                                              self.params['advice_timeout_s']))
@@ -268,6 +296,20 @@ class LearnerNode(Node):
             action_low=r.action_low.tolist(), action_high=r.action_high.tolist(),
             discrepancy=float(r.discrepancy), entropy=float(r.entropy),
             episode=int(r.episode), step=int(r.step))
+
+    def _check_advise_servers(self) -> None:
+        """Warn when several nodes serve 'advise': rclpy keeps the first answer to a request
+        and drops the others, so with accept_expert set, a request the other server answers
+        first counts as 'untrusted' even if the accepted expert answers it too."""
+        now = time.monotonic()
+        if now - self._servers_checked < 5.0:
+            return
+        self._servers_checked = now
+        servers = self.count_services(self.advice_client.srv_name)
+        if servers > 1 and servers != self._advise_servers:
+            self.get_logger().warn(f"{servers} nodes serve '{self.advice_client.srv_name}': the first answer "
+                                   'to each request is used, the others are dropped')
+        self._advise_servers = servers
 
     def _take_pending(self, token: int) -> Optional[PendingAdvice]:
         pending = self._pending
@@ -306,16 +348,20 @@ class LearnerNode(Node):
                 self.get_logger().warn(f'advice call failed: {error!r}', throttle_duration_sec=5.0)
                 self._resolve(pending, failure='error')
                 return
-            self.experts_heard[response.expert_name or '(unnamed)'] += 1
+            name = printable_name(response.expert_name)
+            if name in self.experts_heard or len(self.experts_heard) < EXPERT_NAMES_KEPT:
+                self.experts_heard[name] += 1
+            else:
+                self.experts_heard['(others)'] += 1
             accept = self.params['accept_expert']
             if accept and response.expert_name != accept:
-                self.get_logger().warn(f"ignored advice from '{response.expert_name}' "
+                self.get_logger().warn(f"ignored advice from '{name}' "
                                        f"(accept_expert is '{accept}')", throttle_duration_sec=5.0)
                 self._resolve(pending, failure='untrusted')
             else:
                 self._resolve(pending, Advice(
                     np.asarray(response.action, dtype=np.float32) if response.advised else None,
-                    response.reason, response.expert_name, bool(response.human)))
+                    response.reason, name, bool(response.human)))
 
     def _finish_step(self, action: np.ndarray, advised: bool) -> None:
         self._last_action = np.asarray(action, dtype=np.float32)
@@ -328,27 +374,32 @@ class LearnerNode(Node):
     # ------------------------------------------------------------------ a vanished env
 
     def _check_stall(self) -> None:
+        """Say, once per silence, that the env has gone quiet. Nothing is dropped here: a
+        paused or starved env (or this process itself starved) comes back with the next step
+        of the same episode, which then simply continues; an env that restarted comes back
+        with step 0, which abandons the unfinished episode (see _start_from)."""
         with self._lock:
-            if self.done or self._state is None or self._pending is not None:
+            if self.done or self._state is None or self._pending is not None or self._stalled_since is not None:
                 return
             silent = time.monotonic() - self._last_observation_time
             if silent < self.params['stall_timeout_s']:
                 return
-            self.stalled_episodes += 1
+            self.stalls += 1
+            self._stalled_since = self._last_observation_time
             self.get_logger().warn(
-                f'no observation for {silent:.1f} s: abandoning episode {self.learner.episode} after '
-                f'{self.learner.episode_step} steps; waiting for the env to start a new one')
-            self.learner.abandon_episode()
-            self._state = self._key = self._last_action = None
-            self.experts_heard.clear()
+                f'no observation for {silent:.1f} s in episode {self.learner.episode} (step '
+                f'{self.learner.episode_step}): waiting for the env; the episode continues if its next '
+                'step comes, and is abandoned if the env starts a new one')
 
     # ------------------------------------------------------------------ episodes
 
     def _on_episode_end(self, summary: EpisodeSummary) -> None:
         self.summaries.append(summary)
         self.stats_pub.publish(messages.stats_msg(summary))
-        self._csv.writerow(summary.csv_row())
-        self._csv_file.flush()
+        error = self.record.append(summary.csv_row())
+        if error is not None:
+            self.get_logger().error(f'{self.csv_path}: {error.strerror or error}; '
+                                    f'{self.record.unwritten_rows} row(s) kept, written with the next one')
         failed = self.learner.advice_total.failed
         failures = ', '.join(f'{k} {v}' for k, v in failed.items() if v)
         experts = ', '.join(f'{name} {n}' for name, n in self.experts_heard.items())
@@ -360,34 +411,58 @@ class LearnerNode(Node):
             f'{"  declined %d" % summary.advice_declined if summary.advice_declined else ""}'
             f'{"  failed %d (total: %s)" % (summary.advice_failed, failures) if summary.advice_failed else ""}'
             f'  success {int(summary.success)}  steps {summary.total_steps}  alpha {summary.alpha:.3f}'
+            f'{"  INTERRUPTED (not seen whole)" if summary.interrupted else ""}'
             f'{"  answered by: " + experts if experts else ""}')
         every = self.params['checkpoint_every_episodes']
-        if every and self.learner.episode % every == 0:
-            self.save()
         limit = self.params['max_episodes']
         if limit and self.learner.episode >= limit:
             self.done = True
-            self.save()
+            self.save_or_log()
             self.get_logger().info(f'reached max_episodes={limit}; learning stopped')
             if self.params['shutdown_when_done']:
                 self.context.try_shutdown()
+        elif every and self.learner.episode % every == 0:
+            self.save_or_log()
 
     def save(self) -> None:
-        """Checkpoint, exported policy and CSV, all flushed to disk."""
+        """Checkpoint (with the replay memories if asked) and exported policy, written whole
+        and renamed into place. Raises CheckpointWriteError; the previous files stay intact."""
         with self._lock:
             save_checkpoint(self.learner, self.checkpoint_path, self.replay_path)
-            export_policy(self.learner, self.output_dir / 'policy.pt')
-            if not self._csv_file.closed:
-                self._csv_file.flush()
+            export_policy(self.learner, self.run_folder.policy)
+            self.record.flush()
+
+    def save_or_log(self) -> bool:
+        """A periodic save: a failure (a full disk, a read-only folder) is one log line and
+        training goes on; the next period tries again."""
+        try:
+            self.save()
+        except CheckpointWriteError as error:
+            self.failed_saves += 1
+            self.get_logger().error(f'checkpoint not saved at episode {self.learner.episode}: {error} '
+                                    '(training goes on; the previous checkpoint is intact; '
+                                    'the next save tries again)')
+            return False
+        return True
 
     def close(self) -> None:
         with self._lock:
-            if not self._csv_file.closed:
-                self._csv_file.close()
+            error = self.record.close()
+            if error is not None:
+                raise ExitError(f'{self.csv_path}: {error.strerror or error}: the last '
+                                f'{self.record.unwritten_rows} row(s) could not be written')
 
 
 def _save_and_close(node: LearnerNode) -> None:
-    node.save()      # Ctrl-C and SIGTERM included: rclpy turns both into a clean exit
+    """At exit (the end, Ctrl-C or SIGTERM): a save that fails makes the exit code non-zero."""
+    try:
+        node.save()
+    except CheckpointWriteError as error:
+        try:
+            node.close()
+        except ExitError as close_error:
+            node.get_logger().error(str(close_error))
+        raise ExitError(f'checkpoint not saved at exit: {error}; the last saved checkpoint is intact') from error
     node.close()
 
 

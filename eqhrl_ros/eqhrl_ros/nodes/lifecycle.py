@@ -1,38 +1,61 @@
-"""Spinning and shutting down a node the same way in every executable."""
+"""Spinning and shutting down a node the same way in every executable.
+
+Signals: rclpy's own handlers are not installed. Its C handler shuts the context down
+at once, wherever the node is (a callback then fails to publish: "publisher's context
+is invalid"), and it chains to Python's default handler, which raises
+KeyboardInterrupt at an arbitrary line, e.g. half-way through a gradient update or
+inside destroy_node. Here SIGINT and SIGTERM only ask the spin loop to stop; the
+callback that is running finishes, then the node saves what it must and exits 0. A
+second signal during that is reported and does not interrupt it (SIGKILL still ends
+the process at once). ``ros2 launch`` sends SIGINT, then SIGTERM after a while:
+both are handled the same way.
+"""
 
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from typing import Callable, Optional
 
-import gymnasium
 import rclpy
 import rclpy.exceptions
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
-from ..core.checkpoint import CheckpointError
+from ..core.errors import CheckpointError
 
 # What a node raises when it cannot start as configured: bad parameters, an unknown
-# env id, an unusable checkpoint or policy file. One clear line, exit code 1.
-START_UP_ERRORS = (ValueError, FileNotFoundError, CheckpointError, gymnasium.error.Error,
-                   rclpy.exceptions.ParameterException)
+# env id, an unusable checkpoint, policy file or output folder. One clear line, exit code 1.
+def start_up_errors() -> tuple:
+    errors = (ValueError, OSError, CheckpointError, rclpy.exceptions.ParameterException)
+    gymnasium = sys.modules.get('gymnasium')    # loaded by the nodes that make envs
+    return errors + ((gymnasium.error.Error,) if gymnasium is not None else ())
 
 
-EXECUTORS = ('events', 'single', 'multi')
+class ExitError(RuntimeError):
+    """The node stopped but could not finish cleanly (e.g. its last save failed): one line, exit 1."""
+
+
+EXECUTORS = ('single', 'events', 'multi')
+DEFAULT_EXECUTOR = 'single'
 
 
 def make_executor(kind: Optional[str] = None, context=None):
-    """The executor that spins our nodes: ``kind`` or $EQHRL_EXECUTOR, else 'events'.
+    """The executor that spins our nodes: ``kind`` or $EQHRL_EXECUTOR, else 'single'.
 
-    'events' is rclpy's EventsExecutor (rclpy.experimental): a C++ event queue instead
-    of a wait set rebuilt in Python before every callback. Through the topics it
-    steps the env about 3x as fast as the SingleThreadedExecutor and halves the
-    advice round trip (benchmarks/bench_ros.py). Where an rclpy lacks it, 'single'
-    is used. 'multi' is the MultiThreadedExecutor; the nodes are safe under all three.
+    'single' (rclpy's SingleThreadedExecutor) takes messages through a wait set, so what
+    waits to be processed is bounded by each subscription's QoS depth: a flood of
+    messages cannot grow the process's memory. 'events' (rclpy.experimental's
+    EventsExecutor) steps the env about 3.5x as fast through the topics with updates off,
+    but queues one event per arriving message without a limit, so a flood grows memory
+    until it stops (benchmarks/flood.py); use it only on a closed graph. Where an rclpy
+    lacks it, 'single' is used. 'multi' is the MultiThreadedExecutor; the nodes are safe
+    under all three.
     """
-    kind = kind or os.environ.get('EQHRL_EXECUTOR') or 'events'
+    kind = kind or os.environ.get('EQHRL_EXECUTOR') or DEFAULT_EXECUTOR
     if kind not in EXECUTORS:
         raise ValueError(f'executor {kind!r} is not one of {EXECUTORS}')
     if kind == 'events':
@@ -47,6 +70,11 @@ def make_executor(kind: Optional[str] = None, context=None):
     return SingleThreadedExecutor(context=context)
 
 
+def steady_clock() -> Clock:
+    """A clock for timeouts that must fire whatever ROS time does (use_sim_time, a stopped /clock)."""
+    return Clock(clock_type=ClockType.STEADY_TIME)
+
+
 def seconds_since_process_start() -> float:
     """Wall time since this process was created (Linux /proc; NaN where unavailable)."""
     try:
@@ -59,13 +87,41 @@ def seconds_since_process_start() -> float:
         return float('nan')
 
 
-def spin(node_or_executor) -> None:
-    """Spin until Ctrl-C, SIGTERM or a shutdown from inside; return normally in all three cases.
+class StopSignals:
+    """SIGINT and SIGTERM as a request to stop, read by the spin loop between callbacks."""
 
-    rclpy turns SIGINT and SIGTERM into a context shutdown. Depending on when the
-    signal lands, spinning then ends with KeyboardInterrupt, ExternalShutdownException,
-    or an RCLError about an invalid context from building the next wait set. The last
-    is a normal exit only when the context really was shut down.
+    def __init__(self, name: str):
+        self.name = name
+        self.received: list[int] = []
+
+    @property
+    def requested(self) -> bool:
+        return bool(self.received)
+
+    def install(self) -> 'StopSignals':
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._on_signal)
+        return self
+
+    def _on_signal(self, signum, _frame) -> None:
+        self.received.append(signum)
+        if len(self.received) == 2:
+            # os.write, not print: the signal may have landed inside a write to stderr.
+            os.write(2, f'{self.name}: {signal.Signals(signum).name} again: already stopping, '
+                        'finishing the save (SIGKILL aborts it)\n'.encode())
+
+
+def init(args=None, name: str = 'node', context=None) -> StopSignals:
+    """rclpy.init without rclpy's signal handlers, and ours installed (see the module doc)."""
+    rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    return StopSignals(name).install()
+
+
+def spin(node_or_executor, stop: Optional[StopSignals] = None) -> None:
+    """Spin until ``stop`` is requested or the context is shut down from inside; return normally.
+
+    One callback at a time through spin_once, so a stop request is seen within 0.1 s and
+    never interrupts a callback.
     """
     context = node_or_executor.context
     try:
@@ -73,11 +129,11 @@ def spin(node_or_executor) -> None:
             executor = make_executor(context=context)
             executor.add_node(node_or_executor)
             try:
-                _spin_executor(executor, context)
+                _spin_executor(executor, context, stop)
             finally:
                 executor.remove_node(node_or_executor)
         else:
-            _spin_executor(node_or_executor, context)
+            _spin_executor(node_or_executor, context, stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
@@ -85,35 +141,42 @@ def spin(node_or_executor) -> None:
             raise
 
 
-def _spin_executor(executor, context) -> None:
-    if isinstance(executor, (SingleThreadedExecutor, MultiThreadedExecutor)):
-        executor.spin()
-        return
-    # The EventsExecutor of rclpy 7.1 (Jazzy) never runs timers inside spin(), only
-    # inside spin_once(): so spin_once until the context is shut down.
-    while context.ok():
+def _spin_executor(executor, context, stop: Optional[StopSignals]) -> None:
+    # spin_once in a loop for every executor kind: the EventsExecutor of rclpy 7.1 (Jazzy)
+    # never runs timers inside spin(), and the loop is where a stop request is read.
+    while context.ok() and not (stop and stop.requested):
         executor.spin_once(timeout_sec=0.1)
 
 
 def run_node(node_class: Callable[[], Node], args=None,
-             on_exit: Optional[Callable[[Node], None]] = None) -> None:
+             on_exit: Optional[Callable[[Node], None]] = None, name: Optional[str] = None) -> None:
     """The main() of every node: init, spin until Ctrl-C/SIGTERM, clean up, always.
 
     ``on_exit`` runs before the node is destroyed, also after a signal (the learner
-    saves its checkpoint there). A start-up refusal prints one line and exits with 1.
+    saves its checkpoint there); an ExitError from it is one line and exit code 1. A
+    start-up refusal prints one line and exits with 1.
     """
-    rclpy.init(args=args)
+    name = name or getattr(node_class, '__name__', 'node')
+    stop = init(args, name)
     node = None
     try:
         node = node_class()
-        spin(node)
-    except START_UP_ERRORS as error:
-        name = getattr(node_class, '__name__', 'node')
+        spin(node, stop)
+    except start_up_errors() as error:
+        if node is not None:
+            raise
         print(f'{name}: refused to start: {error}', file=sys.stderr)
         raise SystemExit(1)
     finally:
+        status = 0
         if node is not None:
             if on_exit is not None:
-                on_exit(node)
+                try:
+                    on_exit(node)
+                except ExitError as error:
+                    print(f'{name}: {error}', file=sys.stderr)
+                    status = 1
             node.destroy_node()
         rclpy.try_shutdown()
+        if status:
+            raise SystemExit(status)

@@ -27,10 +27,12 @@ import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension, MultiArrayLayout
 
+from ..core.summary import EpisodeSummary
+
 OBS_TAIL = ('reward', 'terminated', 'truncated', 'episode', 'step')
 ACTION_TAIL = ('episode', 'step')
-STATS_FIELDS = ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'advice_human',
-                'advice_declined', 'advice_failed', 'success', 'total_steps', 'alpha')
+# The per-episode record's fields, in the CSV's order (one home: EpisodeSummary).
+STATS_FIELDS = EpisodeSummary.CSV_FIELDS
 # learner/advice_request: what the learner is asking a person right now.
 ADVICE_OUTCOMES = {'pending': 0, 'given': 1, 'declined': 2, 'failed': 3}
 ADVICE_REQUEST_TAIL = ('outcome', 'episode', 'step', 'discrepancy', 'entropy', 'timeout_s')
@@ -104,6 +106,36 @@ class OutgoingMessage:
         return bytes(self._cdr) if self.serialized else self.msg
 
 
+Layout = tuple  # ((label, size), ...)
+
+
+def observation_layouts(obs_dim: int) -> tuple[Layout, ...]:
+    """The labelled layout an observation message may have (a bare array is read by position)."""
+    return ((('obs', obs_dim), *((label, 1) for label in OBS_TAIL)),)
+
+
+def action_layouts(action_dim: int) -> tuple[Layout, ...]:
+    """Labelled layouts of an action message: tagged with (episode, step), or the action alone."""
+    return ((('action', action_dim), *((label, 1) for label in ACTION_TAIL)), (('action', action_dim),))
+
+
+def check_layout(layout: MultiArrayLayout, allowed: Sequence[Layout], topic: str) -> None:
+    """A labelled message must be labelled as ours; one without labels is read by position.
+
+    Raises MessageError for any other labelling (labels in another order, other sizes, a
+    data offset): reading it by position would take one field for another.
+    """
+    if not layout.dim and layout.data_offset == 0:
+        return
+    found = tuple((d.label, int(d.size)) for d in layout.dim)
+    if layout.data_offset == 0 and found in allowed:
+        return
+    expected = ' or '.join(', '.join(f'{label}:{size}' for label, size in a) for a in allowed)
+    raise MessageError(f"'{topic}': layout [{', '.join(f'{label}:{size}' for label, size in found)}]"
+                       f"{f' with data_offset {layout.data_offset}' if layout.data_offset else ''} "
+                       f'is not [{expected}] (nor unlabelled)')
+
+
 class SerializedReader:
     """The values of serialized Float32MultiArray messages, from a raw subscription.
 
@@ -117,19 +149,26 @@ class SerializedReader:
     bytes are kept in turn.
     """
 
-    def __init__(self):
+    def __init__(self, allowed_layouts: Sequence[Layout] = (), topic: str = ''):
+        """``allowed_layouts``: the labelled layouts accepted (see check_layout); empty: any."""
+        self._allowed = tuple(allowed_layouts)
+        self._topic = topic
         self._head: Optional[bytes] = None   # leading bytes of the layout last seen
         self._count = 0                      # and its number of values
 
     def values(self, data: bytes) -> np.ndarray:
-        """The message's data values (read-only). Raises MessageError on bytes that do not decode."""
+        """The message's data values (read-only). Raises MessageError on bytes that do not decode
+        or a labelling other than the allowed ones."""
         head = self._head
         if head is not None and len(data) == len(head) + 4 * self._count and data.startswith(head):
             return np.frombuffer(data, dtype=np.float32, offset=len(head))
         try:
-            values = np.asarray(deserialize_message(data, Float32MultiArray).data, dtype=np.float32)
+            msg = deserialize_message(data, Float32MultiArray)
         except Exception as error:   # rclpy raises RMWError; any failure here is a bad message
             raise MessageError(f'not a Float32MultiArray ({len(data)} bytes): {error}') from error
+        if self._allowed:
+            check_layout(msg.layout, self._allowed, self._topic)
+        values = np.asarray(msg.data, dtype=np.float32)
         start = len(data) - 4 * len(values)
         # Keep the leading bytes only if the tail really is the values (CDR as expected).
         if start >= 0 and data[start:] == values.tobytes():
@@ -168,6 +207,8 @@ def _values(msg) -> np.ndarray:
 
 def parse_observation(msg, obs_dim: int, topic: str = 'observation') -> EnvStep:
     """An observation message (or its values, from a SerializedReader) as an EnvStep."""
+    if not isinstance(msg, np.ndarray):
+        check_layout(msg.layout, observation_layouts(obs_dim), topic)
     data = _values(msg)
     expected = obs_dim + len(OBS_TAIL)
     if data.shape[0] != expected:
@@ -195,7 +236,9 @@ def action_out(action_dim: int) -> OutgoingMessage:
 
 def parse_action(msg, action_dim: int, topic: str = 'action'):
     """An action message (or its values) as (action, (episode, step) or None).
-    Raises MessageError on size or NaN."""
+    Raises MessageError on size, NaN or a labelling other than ours."""
+    if not isinstance(msg, np.ndarray):
+        check_layout(msg.layout, action_layouts(action_dim), topic)
     data = _values(msg)
     if data.shape[0] not in (action_dim, action_dim + len(ACTION_TAIL)):
         raise MessageError(f"'{topic}': {data.shape[0]} values, expected {action_dim} "
@@ -211,7 +254,7 @@ def parse_action(msg, action_dim: int, topic: str = 'action'):
 def stats_msg(summary) -> Float32MultiArray:
     values = [summary.episode, summary.episode_return, summary.length, summary.advice_asked,
               summary.advice_given, summary.advice_human, summary.advice_declined, summary.advice_failed,
-              float(summary.success), summary.total_steps, summary.alpha]
+              float(summary.success), summary.total_steps, summary.alpha, float(summary.interrupted)]
     return build(list(zip(STATS_FIELDS, ([v] for v in values))))
 
 

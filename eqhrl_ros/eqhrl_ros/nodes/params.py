@@ -83,10 +83,12 @@ LEARNER_NODE_PARAMS = (
           (0, INT_MAX)),
     Param('save_replay', False, 'Also save the replay memories with each checkpoint (large)'),
     Param('resume', False, 'Resume from output_dir/checkpoint.pt at start-up'),
+    Param('overwrite', False, 'Replace a run already in output_dir (episodes.csv, checkpoint, replay, policy); '
+          'without it (or resume) such a folder is refused'),
     Param('max_episodes', 0, 'Stop learning after this many episodes (0: never)', (0, INT_MAX)),
     Param('shutdown_when_done', False, 'Shut the process down once max_episodes is reached'),
-    Param('stall_timeout_s', 5.0, 'Abandon the current episode when no observation came for this long '
-          '(the env died); its partial statistics are dropped, no transition is invented', (0.1, 86400.0),
+    Param('stall_timeout_s', 5.0, 'Warn when no observation came for this long mid-episode (the env paused, '
+          'died or is starved); the episode continues if its next step comes', (0.1, 86400.0),
           dynamic=True),
     Param('publish_gate_debug', False, 'Publish every gate decision on ~/gate_debug', dynamic=True),
     Param('torch_threads', 0, 'torch intra-op threads (0: torch default)', (0, 256)),
@@ -115,6 +117,23 @@ EXPERT_PARAMS = (
           (0.0, 600.0), dynamic=True),
     Param('enabled', True, 'Answer with advice; when false, decline every request', dynamic=True),
 )
+
+
+def describe(*tables: tuple[Param, ...]) -> str:
+    """The parameters of a node as help text: name, default, range or choices, description."""
+    lines = []
+    for param in (p for table in tables for p in table):
+        bounds = ''
+        if param.range is not None:
+            bounds = f' [{param.range[0]:g}, {param.range[1]:g}]' if isinstance(param.default, float) else \
+                f' [{param.range[0]}, {param.range[1]}]'
+        elif param.choices:
+            bounds = f" ({'|'.join(param.choices)})"
+        default = repr(param.default) if isinstance(param.default, str) else str(param.default).lower() \
+            if isinstance(param.default, bool) else str(param.default)
+        lines.append(f"  {param.name}{' *' if param.dynamic else ''} = {default}{bounds}")
+        lines.append(f'      {param.description}')
+    return '\n'.join(lines)
 
 
 def declare(node: Node, params: tuple[Param, ...]) -> dict:
@@ -168,4 +187,10 @@ TELEOP_EXPERT_PARAMS = (
     Param('enable_button', 0, 'joy: index of the enable (deadman) button', (0, 128), dynamic=True),
     Param('stale_after_s', 0.5, 'Decline when the latest command is older than this', (0.01, 3600.0),
           dynamic=True),
+)
+
+KEYBOARD_PARAMS = (
+    Param('dimensions', 1, 'Action dimensions to command (Pendulum 1, LunarLander 2)', (1, 2)),
+    Param('step', 0.25, 'Change per key press, in [-1, 1] units', (0.01, 1.0)),
+    Param('rate_hz', 10.0, 'Publishing rate of teleop_command', (0.5, 100.0)),
 )

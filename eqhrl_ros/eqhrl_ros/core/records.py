@@ -1,0 +1,146 @@
+"""A run's folder: the per-episode record (episodes.csv) and the files a learner saves.
+
+No ROS here. One learner writes one folder. The rules:
+
+- A fresh run never replaces a folder that holds a run (an episodes.csv or a
+  checkpoint) unless told to overwrite it; ``resume`` continues it.
+- A folder that cannot be made or written is refused at start-up with one line.
+- Temporary files of saves that were killed half-way are removed at start-up.
+- On resume, rows of episodes the checkpoint has not finished are dropped, so the
+  record has neither duplicates nor gaps.
+- episodes.csv is appended with plain ``os.write``; a row that cannot be written
+  (full disk) is kept and written with the next one, so no row is lost or torn.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import tempfile
+from pathlib import Path
+from typing import Optional, Sequence
+
+from .errors import RunFolderError
+
+RUN_FILES = ('episodes.csv', 'checkpoint.pt', 'replay.pt', 'policy.pt')
+# Saves write '.<name>.<random>.tmp' beside their target, then rename it (core/checkpoint.py).
+TEMPORARY_GLOB = '.*.pt.*.tmp'
+
+
+def remove_stale_temporaries(folder) -> list[Path]:
+    """Delete temporary files that saves killed half-way left in ``folder``; returns them."""
+    removed = []
+    for tmp in Path(folder).glob(TEMPORARY_GLOB):
+        try:
+            tmp.unlink()
+            removed.append(tmp)
+        except OSError:
+            pass
+    return removed
+
+
+class RunFolder:
+    """``output_dir`` checked and prepared for a fresh, resumed or overwriting run."""
+
+    def __init__(self, path, resume: bool = False, overwrite: bool = False):
+        self.path = Path(path)
+        self.checkpoint = self.path / 'checkpoint.pt'
+        self.replay = self.path / 'replay.pt'
+        self.policy = self.path / 'policy.pt'
+        self.episodes = self.path / 'episodes.csv'
+        if self.path.exists() and not self.path.is_dir():
+            raise RunFolderError(f"output folder '{self.path}' is a file")
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+            fd, probe = tempfile.mkstemp(dir=self.path, prefix='.write-test.')
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as error:
+            raise RunFolderError(f"output folder '{self.path}' cannot be written: "
+                                 f'{error.strerror or error}') from error
+        existing = [name for name in ('episodes.csv', 'checkpoint.pt') if (self.path / name).exists()]
+        if existing and not (resume or overwrite):
+            raise RunFolderError(
+                f"output folder '{self.path}' holds a run ({', '.join(existing)}): resume it "
+                '(resume:=true, eqhrl-train --resume) or replace it (overwrite:=true, --overwrite)')
+        if resume and not self.checkpoint.exists():
+            raise RunFolderError(f"nothing to resume: '{self.checkpoint}' does not exist")
+        self.removed_temporaries = remove_stale_temporaries(self.path)
+        if overwrite and not resume:
+            for name in RUN_FILES:
+                (self.path / name).unlink(missing_ok=True)
+
+
+class EpisodeRecord:
+    """episodes.csv: a header, then one row per episode, each written whole."""
+
+    def __init__(self, path, fields: Sequence[str], keep_before: Optional[int] = None):
+        """Open ``path`` for appending. ``keep_before``: resuming at that episode, so rows of
+        later episodes (to be run again) are dropped first; None: a fresh record."""
+        self.path = Path(path)
+        self.fields = tuple(fields)
+        if keep_before is not None:
+            _truncate_to(self.path, keep_before, self.fields)
+        elif self.path.exists():
+            self.path.unlink()
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        self._pending = b''
+        self.unwritten_rows = 0
+        if os.fstat(self._fd).st_size == 0:
+            self._pending = _encode(self.fields)
+
+    def append(self, row: Sequence) -> Optional[OSError]:
+        """Add a row; returns the OSError if it (or an earlier one) could not be written yet."""
+        self._pending += _encode(row)
+        self.unwritten_rows += 1
+        return self.flush()
+
+    def flush(self) -> Optional[OSError]:
+        try:
+            while self._pending:
+                written = os.write(self._fd, self._pending)
+                self._pending = self._pending[written:]
+        except OSError as error:
+            return error
+        self.unwritten_rows = 0
+        return None
+
+    def close(self) -> Optional[OSError]:
+        if self._fd < 0:
+            return None
+        error = self.flush()
+        os.close(self._fd)
+        self._fd = -1
+        return error
+
+    @property
+    def closed(self) -> bool:
+        return self._fd < 0
+
+
+def _encode(row: Sequence) -> bytes:
+    text = io.StringIO()
+    csv.writer(text).writerow(row)
+    return text.getvalue().encode()
+
+
+def _truncate_to(path: Path, episode: int, fields: Sequence[str]) -> None:
+    """Keep only whole rows of episodes < ``episode`` (a resumed learner redoes the others)."""
+    if not path.exists():
+        return
+    with path.open(newline='') as f:
+        rows = list(csv.reader(f))
+    if not rows:
+        return
+    width = len(rows[0])
+    body = [r for r in rows[1:] if len(r) == width and r[0].lstrip('-').isdigit() and int(r[0]) < episode]
+    header = rows[0]
+    if tuple(header) != tuple(fields):
+        # An older record (fewer columns): keep its rows, padded with empty new columns.
+        body = [r + [''] * (len(fields) - len(r)) for r in body] if len(header) < len(fields) else body
+        header = list(fields)
+    tmp = path.with_suffix('.csv.tmp')
+    with tmp.open('w', newline='') as f:
+        csv.writer(f).writerows([header, *body])
+    os.replace(tmp, path)

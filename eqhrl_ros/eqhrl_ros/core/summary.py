@@ -1,0 +1,36 @@
+"""One episode's statistics: what the learner node publishes and what episodes.csv holds.
+
+No torch here, so that light readers (a teleop, a report) can name the fields.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class EpisodeSummary:
+    """Per-episode statistics (what the learner node publishes and writes to CSV)."""
+
+    episode: int
+    episode_return: float
+    length: int
+    advice_asked: int
+    advice_given: int
+    advice_human: int
+    advice_declined: int
+    advice_failed: int
+    success: bool
+    total_steps: int
+    alpha: float
+    # The learner did not see the whole episode (an observation was lost, or it joined
+    # mid-episode): return and length cover only what it saw. Never a normal episode.
+    interrupted: bool = False
+
+    CSV_FIELDS = ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'advice_human',
+                  'advice_declined', 'advice_failed', 'success', 'total_steps', 'alpha', 'interrupted')
+
+    def csv_row(self) -> list:
+        return [self.episode, f'{self.episode_return:.4f}', self.length, self.advice_asked,
+                self.advice_given, self.advice_human, self.advice_declined, self.advice_failed,
+                int(self.success), self.total_steps, f'{self.alpha:.6f}', int(self.interrupted)]

@@ -1,0 +1,67 @@
+"""Nodes as their own processes, as a user starts them: start, watch, signal, read the log."""
+
+import csv
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from ros_helpers import PARAMS_DIR
+
+BIN = Path(sys.prefix) / 'bin'
+
+
+def episodes_in_csv(path):
+    with open(path, newline='') as f:
+        return [int(row['episode']) for row in csv.DictReader(f)]
+
+
+def read_rows(path):
+    with open(path, newline='') as f:
+        return list(csv.DictReader(f))
+
+
+def start(executable, *args, log_dir, **popen):
+    """A node as its own process; its output goes to a file (a full pipe would block it)."""
+    log = open(log_dir / f'{executable}-{time.monotonic_ns()}.log', 'w+')
+    process = subprocess.Popen([str(BIN / executable), *args], stdout=log, stderr=subprocess.STDOUT, text=True,
+                               **popen)
+    process.log = log
+    return process
+
+
+def output(process) -> str:
+    process.log.flush()
+    process.log.seek(0)
+    return process.log.read()
+
+
+def stop(process, sig=signal.SIGINT, timeout=30) -> str:
+    if process.poll() is None:
+        process.send_signal(sig)
+        try:
+            process.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+    text = output(process)
+    process.log.close()
+    return text
+
+
+def wait_for(condition, timeout):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def learner_args(out, extra=()):
+    return ['--ros-args', '--params-file', str(PARAMS_DIR / 'demo.yaml'),
+            '-p', f'output_dir:={out}', '-p', 'hidden_sizes:=[16,16]', '-p', 'learning_starts:=50',
+            '-p', 'batch_size:=16', '-p', 'checkpoint_every_episodes:=1', *extra]
+
+
