@@ -134,6 +134,7 @@ def run(args):
             for node in nodes:
                 node.destroy_node()
             lifecycle.rclpy.try_shutdown()
+            stop.finished()
 
 
 def main(argv=None) -> int:

@@ -67,7 +67,7 @@ class ExpertNode(Node):
 
 
 def main(args=None):
-    run_node(ExpertNode, args)
+    run_node(ExpertNode, args, name='expert')
 
 if __name__ == '__main__':
     main()

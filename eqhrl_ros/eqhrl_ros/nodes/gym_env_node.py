@@ -144,7 +144,7 @@ class GymEnvNode(Node):
 
 
 def main(args=None):
-    run_node(GymEnvNode, args)
+    run_node(GymEnvNode, args, name='gym_env')
 
 if __name__ == '__main__':
     main()

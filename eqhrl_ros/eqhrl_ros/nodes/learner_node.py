@@ -467,7 +467,7 @@ def _save_and_close(node: LearnerNode) -> None:
 
 
 def main(args=None):
-    run_node(LearnerNode, args, on_exit=_save_and_close)
+    run_node(LearnerNode, args, on_exit=_save_and_close, name='learner')
 
 if __name__ == '__main__':
     main()

@@ -103,6 +103,13 @@ class StopSignals:
             signal.signal(sig, self._on_signal)
         return self
 
+    def finished(self) -> None:
+        """The node is cleaned up: ignore further signals while the interpreter exits. (At exit
+        Python resets its own handlers to the default, which would end the process with the
+        signal, exit code -2, if a second Ctrl-C landed then; an ignored signal stays ignored.)"""
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
+
     def _on_signal(self, signum, _frame) -> None:
         self.received.append(signum)
         if len(self.received) == 2:
@@ -178,5 +185,6 @@ def run_node(node_class: Callable[[], Node], args=None,
                     status = 1
             node.destroy_node()
         rclpy.try_shutdown()
+        stop.finished()
         if status:
             raise SystemExit(status)

@@ -100,7 +100,7 @@ class TeleopExpertNode(Node):
 
 
 def main(args=None):
-    run_node(TeleopExpertNode, args)
+    run_node(TeleopExpertNode, args, name='teleop_expert')
 
 if __name__ == '__main__':
     main()
