@@ -108,7 +108,7 @@ def main() -> int:
         rss_before = rss_mb(target.pid)
         log_before = os.path.getsize(target_log.name)
 
-        bad = serialize_message(Float32MultiArray(data=[0.5] * 3))   # the wrong size for both topics
+        bad = serialize_message(Float32MultiArray(data=[0.5] * 2))   # the wrong size on both topics
         sent, start = 0, time.monotonic()
         while time.monotonic() - start < args.seconds:
             for _ in range(200):

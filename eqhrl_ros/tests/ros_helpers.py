@@ -73,6 +73,14 @@ class Probe:
         self.action_pub = self.node.create_publisher(Float32MultiArray, 'action', 10)
 
 
+def observation_publisher(harness):
+    """A publisher on 'observation' that a learner already in ``harness`` has matched."""
+    probe = Probe(harness)
+    publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
+    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
+    return publisher
+
+
 class StubExpert:
     """Serves Advise from its own executor thread, like a separate process would."""
 

@@ -18,7 +18,7 @@ from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
 from process_helpers import BIN, episodes_in_csv, learner_args, start, stop, wait_for
-from ros_helpers import Probe, StubExpert, params, run_learner, small_learner_params
+from ros_helpers import Probe, StubExpert, observation_publisher, params, run_learner, small_learner_params
 
 @pytest.mark.parametrize('answer,kind', [([0.5, 0.5], 'wrong_size'), ([float('nan')], 'non_finite'),
                                          ([7.0], 'out_of_bounds')])
@@ -91,9 +91,7 @@ def test_env_that_dies_mid_episode_and_restarts(harness, ros_context, tmp_path):
 
 def test_bad_observations_are_dropped_and_never_stored(harness, ros_context, tmp_path):
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
-    probe = Probe(harness)
-    publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
-    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
+    publisher = observation_publisher(harness)
     publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], 0.0, False, False, 0, 0))  # good
     publisher.publish(messages.build([('obs', [0.1, 0.2]), ('tail', [0, 0, 0, 0, 1])]))     # too short
     publisher.publish(messages.observation_msg([0.1, np.nan, 0.3], -1.0, False, False, 0, 1))
@@ -248,9 +246,7 @@ def publish_steps(harness, publisher, learner, steps, obs_dim=3):
 def test_a_lost_observation_marks_the_episode_interrupted(harness, ros_context, tmp_path):
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
         tmp_path, mode='sac')))
-    probe = Probe(harness)
-    publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
-    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
+    publisher = observation_publisher(harness)
     publish_steps(harness, publisher, learner, [0, 1, 2, 4, 5, 6])      # step 3 never arrives
     assert harness.spin_until(lambda: len(learner.summaries) == 1)
     summary = learner.summaries[0]
@@ -263,9 +259,7 @@ def test_a_lost_observation_marks_the_episode_interrupted(harness, ros_context, 
 def test_a_learner_that_joins_mid_episode_marks_it_interrupted(harness, ros_context, tmp_path):
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
         tmp_path, mode='sac')))
-    probe = Probe(harness)
-    publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
-    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
+    publisher = observation_publisher(harness)
     publish_steps(harness, publisher, learner, [7, 8, 9])
     assert harness.spin_until(lambda: len(learner.summaries) == 1)
     assert learner.summaries[0].interrupted and learner.summaries[0].length == 2
@@ -287,9 +281,7 @@ def test_advice_timeout_and_stall_warning_do_not_depend_on_ros_time(harness, ros
 
 def test_a_relabelled_message_is_refused_not_read_by_position(harness, ros_context, tmp_path):
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
-    probe = Probe(harness)
-    publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
-    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
+    publisher = observation_publisher(harness)
     # Right size, but 'step' and 'episode' swapped, and another with obs of the wrong size.
     swapped = messages.build([('obs', [0.1, 0.2, 0.3]), ('reward', [0.0]), ('terminated', [0.0]),
                               ('truncated', [0.0]), ('step', [0.0]), ('episode', [0.0])])
@@ -342,9 +334,7 @@ def test_a_flood_leaves_no_backlog_with_the_default_executor(harness, ros_contex
     # flat; an executor that queues one event per arriving message (the EventsExecutor,
     # +14 MB here) grows without bound under a flood.
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
-    probe = Probe(harness)
-    publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
-    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
+    publisher = observation_publisher(harness)
     harness.spin_until(lambda: False, timeout=0.5)
     bad = serialize_message(Float32MultiArray(data=[0.5] * 3))
     gc.collect()
