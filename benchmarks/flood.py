@@ -13,8 +13,8 @@ input topic for --seconds, and meanwhile watches:
   the flood;
 - training: actions per second on `action` (learner target) or observations per
   second on `observation` (env target), before, during and after;
-- recovery: seconds from the end of the flood to the first 0.5 s window that runs at
-  half the rate measured before it;
+- recovery: seconds from the end of the flood until training stays at half the rate
+  measured before it (every later 0.5 s window at least that fast);
 - log lines the target wrote during the flood (rejections must be throttled).
 
 Exits non-zero when the target's memory grew by more than --max-growth-mb (issue 16:
@@ -123,13 +123,15 @@ def main() -> int:
 
         time.sleep(args.after)
         rss_after = rss_mb(target.pid)
-        recovery = float('inf')
-        t = flood_end
-        while t + 0.5 <= flood_end + args.after:
-            if rate(t, t + 0.5) >= before / 2:
-                recovery = t - flood_end
-                break
+        # Recovery: from the end of the flood until the rate stays at half the rate before
+        # (the end of the last 0.5 s window below it); infinite if still below at the end.
+        recovery, t = 0.0, flood_end
+        while t + 0.5 <= flood_end + args.after + 1e-9:
+            if rate(t, t + 0.5) < before / 2:
+                recovery = t + 0.5 - flood_end
             t += 0.1
+        if recovery >= args.after - 0.5:
+            recovery = float('inf')
         after = rate(flood_end + args.after / 2, flood_end + args.after)
         growth = max(rss_end, rss_after) - rss_before
         print(f'target {args.target} (executor {os.environ.get("EQHRL_EXECUTOR", "default")}): '

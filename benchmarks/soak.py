@@ -76,6 +76,7 @@ def main() -> int:
         Parameter('batch_size', value=128), Parameter('learning_starts', value=1000),
         Parameter('replay_capacity', value=args.replay), Parameter('advising_budget', value=10**9),
         Parameter('advice_timeout_s', value=0.5), Parameter('output_dir', value=str(output)),
+        Parameter('overwrite', value=True),
         Parameter('checkpoint_every_episodes', value=0), Parameter('torch_threads', value=1)])
     executor = SingleThreadedExecutor()
     executor.add_node(learner)

@@ -63,3 +63,13 @@ def test_install_space_provides_the_advise_type(colcon_install):
     srv_line, core_line = result.stdout.strip().splitlines()[-2:]
     assert str(colcon_install / 'eqhrl_interfaces') in srv_line
     assert str(colcon_install / 'eqhrl_ros') in core_line
+
+
+def test_installed_executables_answer_help(colcon_install):
+    # What `ros2 run eqhrl_ros learner --help` runs: the install space's script, its package.
+    lib = colcon_install / 'eqhrl_ros' / 'lib' / 'eqhrl_ros'
+    script = f'. {colcon_install}/setup.sh && {lib / "learner"} --help'
+    env = dict(os.environ, AMENT_PREFIX_PATH=str(VENV))
+    result = subprocess.run(['bash', '-c', script], env=env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.startswith('usage: learner') and 'advising_budget' in result.stdout
