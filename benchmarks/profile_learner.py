@@ -18,12 +18,13 @@ import torch
 from torch.profiler import ProfilerActivity, profile
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
+from eqhrl_ros.core.config import MODES
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--env', default='Pendulum-v1')
-    parser.add_argument('--mode', default='eqsac', choices=('sac', 'qasac', 'eqsac'))
+    parser.add_argument('--mode', default='eqsac', choices=MODES)
     parser.add_argument('--warmup', type=int, default=1000)
     parser.add_argument('--steps', type=int, default=200)
     parser.add_argument('--threads', type=int, default=2)

@@ -20,6 +20,7 @@ import os
 import sys
 import time
 
+from .core.config import MODES
 from .nodes.lifecycle import EXECUTORS
 
 DISCOVERY = ('off', 'localhost', 'subnet')
@@ -35,7 +36,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument('--params', default='pendulum',
                         help='params file: a path, or a name from share/eqhrl_ros/params')
     parser.add_argument('--output', default=None, help='output folder (overrides learner output_dir)')
-    parser.add_argument('--mode', choices=('sac', 'qasac', 'eqsac'), help='overrides learner mode')
+    parser.add_argument('--mode', choices=MODES, help='overrides learner mode')
     parser.add_argument('--episodes', type=int, help='overrides learner max_episodes')
     parser.add_argument('--seed', type=int, help='overrides the env and learner seeds')
     parser.add_argument('--max-steps', type=int, help='overrides gym_env max_episode_steps')

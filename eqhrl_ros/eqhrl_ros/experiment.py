@@ -30,10 +30,10 @@ from pathlib import Path
 
 import yaml
 
+from .core.config import MODES as ALGORITHMS
 from .paths import params_file
 
 COLUMNS = ('algorithm', 'seed', 'episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')
-ALGORITHMS = ('sac', 'qasac', 'eqsac')
 
 
 @dataclass
@@ -48,11 +48,16 @@ class Settings:
 
 
 def load_settings(args) -> Settings:
+    """The params file's sections, refused as the nodes would refuse them (a typo included)."""
+    from .nodes.params import EXPERT_PARAMS, GYM_ENV_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
     path = params_file(args.params)
     data = yaml.safe_load(path.read_text())
     learner = dict(data.get('learner', {}).get('ros__parameters', {}))
     env = data.get('gym_env', {}).get('ros__parameters', {})
     expert = data.get('expert', {}).get('ros__parameters', {})
+    check_section('learner', learner, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS)
+    check_section('gym_env', env, GYM_ENV_PARAMS)
+    check_section('expert', expert, EXPERT_PARAMS)
     if args.budget is not None:
         learner['advising_budget'] = args.budget
     settings = Settings(
@@ -68,7 +73,9 @@ def load_settings(args) -> Settings:
 
 def learner_config(settings: Settings, algorithm: str, seed: int):
     from .core import LearnerConfig
-    return LearnerConfig.from_params(settings.learner, mode=algorithm, seed=seed)
+    from .nodes.params import LEARNER_NODE_PARAMS
+    return LearnerConfig.from_params(settings.learner, node_keys=[p.name for p in LEARNER_NODE_PARAMS],
+                                     mode=algorithm, seed=seed)
 
 
 def make_expert(settings: Settings):
@@ -188,7 +195,11 @@ def parse_args(argv=None):
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    settings = load_settings(args)
+    try:
+        settings = load_settings(args)
+    except (ValueError, FileNotFoundError) as error:
+        print(f'eqhrl-experiment: {error}', file=sys.stderr)
+        return 2
     output = Path(args.output)
     output.mkdir(parents=True, exist_ok=True)
     (output / 'settings.yaml').write_text(yaml.safe_dump({

@@ -27,9 +27,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .core.config import MODES
 from .plots import smooth
 
-ORDER = ('sac', 'qasac', 'eqsac')
+ORDER = MODES   # the algorithms in the order tables and figures show them
 LABELS = {'sac': 'SAC', 'qasac': 'QASAC', 'eqsac': 'EQSAC'}
 COLORS = {'sac': 'tab:gray', 'qasac': 'tab:blue', 'eqsac': 'tab:red'}
 # Return thresholds for "episodes to reach": LunarLander's solved line; for Pendulum

@@ -114,3 +114,17 @@ def test_in_process_and_through_ros_give_the_same_numbers(tmp_path):
                (b['episode'], b['length'], b['advice_asked'], b['advice_given'])
         assert float(a['return']) == pytest.approx(float(b['return']), rel=1e-3)
     assert sum(int(r['advice_given']) for r in core) > 0
+
+
+# ------------------------------------------------------------------ one reading path for params files
+
+@pytest.mark.parametrize('line,message', [('    gama: 0.9', "unknown parameter(s) for node 'learner': gama"),
+                                          ('    tau: 2.0', "'tau' of node 'learner' is 2.0"),
+                                          ('    batch_size: 64.0', "'batch_size' of node 'learner' is 64.0")])
+def test_the_experiment_refuses_a_params_file_as_the_learner_node_does(tmp_path, capsys, line, message):
+    params = tmp_path / 'bad.yaml'
+    params.write_text(f'learner:\n  ros__parameters:\n    env_id: Pendulum-v1\n{line}\n')
+    assert experiment.main(['--params', str(params), '--output', str(tmp_path / 'out'), '--seeds', '0',
+                            '--episodes', '1']) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / 'out').exists()

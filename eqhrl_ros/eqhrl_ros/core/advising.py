@@ -7,9 +7,7 @@ from dataclasses import dataclass
 from typing import Iterable
 
 from . import equations as eq
-
-MODES = ('sac', 'qasac', 'eqsac')
-THRESHOLD_KINDS = ('dynamic', 'fixed')
+from .config import MODES, THRESHOLD_KINDS, check_value  # noqa: F401  (MODES: re-exported)
 
 
 class FifoQueue:
@@ -69,14 +67,10 @@ class AdvisingGates:
     def __init__(self, mode: str, advising_budget: int, queue_length: int = 15,
                  threshold_kind: str = 'dynamic', fixed_d_threshold: float = 1.0,
                  fixed_e_threshold: float = 0.0):
-        if mode not in MODES:
-            raise ValueError(f'mode must be one of {MODES}, got {mode!r}')
-        if threshold_kind not in THRESHOLD_KINDS:
-            raise ValueError(f'threshold_kind must be one of {THRESHOLD_KINDS}, got {threshold_kind!r}')
-        if advising_budget < 0:
-            raise ValueError(f'advising_budget must be >= 0, got {advising_budget}')
-        self.mode = mode
-        self.advising_budget = int(advising_budget)
+        # The rules of each value live with LearnerConfig's fields (core/config.py).
+        self.mode = check_value('mode', mode)
+        check_value('threshold_kind', threshold_kind)
+        self.advising_budget = check_value('advising_budget', advising_budget)
         self.threshold_kind = threshold_kind
         self.fixed_d_threshold = float(fixed_d_threshold)
         self.fixed_e_threshold = float(fixed_e_threshold)

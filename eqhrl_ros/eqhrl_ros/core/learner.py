@@ -18,7 +18,6 @@ knows who answers advice. Every equation it uses lives in core/equations.py.
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Optional
@@ -27,78 +26,13 @@ import numpy as np
 import torch
 
 from . import equations as eq
-from .advising import MODES, THRESHOLD_KINDS, AdvisingGates, GateDecision
+from .advising import AdvisingGates, GateDecision
+from .config import LearnerConfig
 from .envs import ActionScaler, SuccessCriterion
 from .experts import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
 from .networks import SquashedGaussianActor, TwinCritic
 from .replay import Batch, ReplayBuffer
 from .summary import EpisodeSummary
-
-
-@dataclass
-class LearnerConfig:
-    """Hyperparameters. Defaults are the paper's Table 1 unless a comment says otherwise."""
-
-    mode: str = 'eqsac'                  # 'sac' | 'qasac' | 'eqsac'
-    hidden: tuple[int, ...] = (256, 256)
-    actor_lr: float = 1e-4
-    critic_lr: float = 1e-3
-    alpha_lr: float = 1e-4
-    initial_alpha: float = 1.0           # not in the paper; SB3's and CleanRL's start
-    gamma: float = 0.99
-    tau: float = 0.005
-    batch_size: int = 256                # not in the paper; SB3's default
-    replay_capacity: int = 500_000
-    learning_starts: int = 5_000         # Table 1's "minimal buffer size"
-    updates_per_step: int = 1
-    random_warmup_steps: int = 0         # uniform-random actions first; off, as in Algorithm 1
-    seed: int = 42
-    # Advising (Section 3)
-    advising_budget: int = 30            # episodes (Eq. 7); Pendulum 30, LunarLander 300
-    queue_length: int = 15               # D/E queue sequence length (Table 1)
-    threshold_kind: str = 'dynamic'      # 'dynamic' (Eq. 10) | 'fixed'
-    fixed_d_threshold: float = 1.0       # used when threshold_kind == 'fixed'
-    fixed_e_threshold: float = 0.0
-    entropy_samples: int = 32            # K, Monte Carlo samples of E(s) (Eq. 9)
-    actor_on_advice: bool = False        # also train the actor on the advice batch
-
-    def __post_init__(self):
-        self.hidden = tuple(int(h) for h in self.hidden)
-        checks = [
-            ('mode', self.mode in MODES, f'one of {MODES}'),
-            ('threshold_kind', self.threshold_kind in THRESHOLD_KINDS, f'one of {THRESHOLD_KINDS}'),
-            ('hidden', len(self.hidden) >= 1 and all(h >= 1 for h in self.hidden), 'positive layer sizes'),
-            ('actor_lr', self.actor_lr > 0, '> 0'), ('critic_lr', self.critic_lr > 0, '> 0'),
-            ('alpha_lr', self.alpha_lr > 0, '> 0'), ('initial_alpha', self.initial_alpha > 0, '> 0'),
-            ('gamma', 0.0 <= self.gamma <= 1.0, 'in [0, 1]'), ('tau', 0.0 < self.tau <= 1.0, 'in (0, 1]'),
-            ('batch_size', self.batch_size >= 1, '>= 1'),
-            ('replay_capacity', self.replay_capacity >= 1, '>= 1'),
-            ('learning_starts', self.learning_starts >= 1, '>= 1 (a batch needs a transition)'),
-            ('updates_per_step', self.updates_per_step >= 0, '>= 0'),
-            ('random_warmup_steps', self.random_warmup_steps >= 0, '>= 0'),
-            ('advising_budget', self.advising_budget >= 0, '>= 0'),
-            ('queue_length', self.queue_length >= 1, '>= 1'),
-            ('entropy_samples', self.entropy_samples >= 1, '>= 1'),
-        ]
-        for name, ok, expected in checks:
-            if not ok:
-                raise ValueError(f'LearnerConfig.{name} must be {expected}, got {getattr(self, name)!r}')
-
-    @classmethod
-    def from_params(cls, params: dict, **overrides) -> 'LearnerConfig':
-        """From a learner's ROS parameters (a params-file dict): config fields are taken,
-        ``hidden_sizes`` becomes ``hidden``, node-only keys are ignored."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        values = {k: v for k, v in params.items() if k in names}
-        if 'hidden_sizes' in params:
-            values['hidden'] = tuple(params['hidden_sizes'])
-        values.update(overrides)
-        return cls(**values)
-
-    def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d['hidden'] = list(self.hidden)
-        return d
 
 
 @dataclass(frozen=True)

@@ -7,12 +7,15 @@ value out of range or of the wrong type with a message naming the parameter.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, Optional
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.node import Node
+
+from ..core.config import INT_MAX, LearnerConfig, ros_name
 
 
 @dataclass(frozen=True)
@@ -39,37 +42,12 @@ class Param:
         return descriptor
 
 
-INT_MAX = 2**31 - 1
-
-# Parameters of the learner that map one-to-one onto core.LearnerConfig fields.
-LEARNER_CONFIG_PARAMS = (
-    Param('mode', 'eqsac', 'Learning mode: plain SAC, QASAC (ask gate only) or EQSAC (ask and respond gates)',
-          choices=('sac', 'qasac', 'eqsac')),
-    Param('hidden_sizes', [256, 256], 'Hidden layer sizes of actor and critics (Table 1: 256x256)'),
-    Param('actor_lr', 1e-4, 'Actor learning rate (Table 1)', (1e-8, 1.0)),
-    Param('critic_lr', 1e-3, 'Critic learning rate (Table 1)', (1e-8, 1.0)),
-    Param('alpha_lr', 1e-4, 'Temperature learning rate (Table 1)', (1e-8, 1.0)),
-    Param('initial_alpha', 1.0, 'Initial entropy temperature alpha', (1e-6, 100.0)),
-    Param('gamma', 0.99, 'Discount factor (Table 1)', (0.0, 1.0)),
-    Param('tau', 0.005, 'Soft target update rate (Table 1)', (1e-6, 1.0)),
-    Param('batch_size', 256, 'Minibatch size (not in the paper; SB3 default)', (1, 65536)),
-    Param('replay_capacity', 500_000, 'Replay buffer size (Table 1)', (1, 50_000_000)),
-    Param('learning_starts', 5_000, 'Transitions stored before updates start (Table 1 "minimal buffer size")',
-          (1, INT_MAX)),
-    Param('updates_per_step', 1, 'Gradient updates per env step', (0, 100)),
-    Param('random_warmup_steps', 0, 'Uniform-random actions for the first N steps (off in the paper)',
-          (0, INT_MAX)),
-    Param('seed', 42, 'Random seed (Table 1)', (0, INT_MAX)),
-    Param('advising_budget', 30, 'Early-advising budget: advice only in episodes below it (Eq. 7)',
-          (0, INT_MAX), dynamic=True),
-    Param('queue_length', 15, 'Length of the D and E FIFO queues (Table 1)', (1, 100_000)),
-    Param('threshold_kind', 'dynamic', 'Dynamic queue thresholds (Eq. 10) or fixed ones',
-          choices=('dynamic', 'fixed')),
-    Param('fixed_d_threshold', 1.0, 'Ask when D(s) exceeds this (threshold_kind fixed)', (0.0, 1e9)),
-    Param('fixed_e_threshold', 0.0, 'Respond when E(s) is below this (threshold_kind fixed)', (-1e9, 1e9)),
-    Param('entropy_samples', 32, 'Monte Carlo samples K of the entropy estimate E(s) (Eq. 9)', (1, 100_000)),
-    Param('actor_on_advice', False, 'Also train the actor on the advice batch'),
-)
+# Parameters of the learner that map one-to-one onto core.LearnerConfig fields: derived
+# from the fields' declarations (core/config.py), never written here.
+LEARNER_CONFIG_PARAMS = tuple(
+    Param(ros_name(f), list(f.default) if isinstance(f.default, tuple) else f.default, f.metadata['description'],
+          f.metadata['range'], f.metadata['choices'], f.metadata['dynamic'])
+    for f in dataclasses.fields(LearnerConfig))
 
 LEARNER_NODE_PARAMS = (
     Param('env_id', 'Pendulum-v1', 'Gymnasium env id: sizes, action bounds and the success criterion'),
@@ -161,12 +139,43 @@ def choices_validator(params: tuple[Param, ...]):
     return validate
 
 
+# Parameters every rclpy node declares itself.
+BUILT_IN = ('use_sim_time', 'start_type_description_service')
+
+
+def check_section(node_name: str, values: dict, *tables: tuple[Param, ...]) -> None:
+    """Refuse a params-file section as the node would at start-up: an unknown name, a value
+    of another type than the default's, out of range or outside the choices. For readers of
+    a params file that start no node (eqhrl-experiment's in-process runs)."""
+    by_name = {p.name: p for table in tables for p in table}
+    unknown = sorted(set(values) - set(by_name) - set(BUILT_IN))
+    if unknown:
+        raise ValueError(f"unknown parameter(s) for node '{node_name}': {', '.join(unknown)}; "
+                         f"known: {', '.join(sorted(by_name))}")
+    for name, value in values.items():
+        param = by_name.get(name)
+        if param is None:
+            continue
+        kind = type(param.default)
+        same = (isinstance(value, kind) and not (kind is int and isinstance(value, bool))
+                if kind is not list else isinstance(value, list))
+        if not same:
+            raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected a "
+                             f'{kind.__name__} like {param.default!r}')
+        if param.range is not None and not param.range[0] <= value <= param.range[1]:
+            raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected "
+                             f'[{param.range[0]}, {param.range[1]}]')
+        if param.choices and value not in param.choices:
+            raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected one of "
+                             f'{param.choices}')
+
+
 def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
     """Refuse parameters given for this node that it does not declare (a typo in a params file).
 
     rclpy would otherwise ignore them silently and the run would use a default.
     """
-    known = {p.name for table in tables for p in table} | {'use_sim_time', 'start_type_description_service'}
+    known = {p.name for table in tables for p in table} | set(BUILT_IN)
     # rclpy keeps the overrides from params files and -p arguments here; there is no public accessor.
     unknown = sorted(set(getattr(node, '_parameter_overrides', {})) - known)
     if unknown:

@@ -1,0 +1,125 @@
+"""The learner's hyperparameters, each declared once: default, range or choices, description.
+
+Everything else is derived from these fields: LearnerConfig's validation (here), the
+learner node's ROS parameters and their descriptors (nodes/params.py), the package
+README's parameter table (tools/update_param_tables.py) and the check of the params
+files (tests). Defaults are the paper's Table 1 unless the description says otherwise.
+No torch here: a node's --help reads these without loading it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+MODES = ('sac', 'qasac', 'eqsac')
+THRESHOLD_KINDS = ('dynamic', 'fixed')
+INT_MAX = 2**31 - 1
+
+
+def hyper(default: Any, description: str, *, range: Optional[tuple] = None, choices: Optional[tuple] = None,
+          dynamic: bool = False, ros_name: Optional[str] = None):
+    """A LearnerConfig field: ``range`` is inclusive; ``dynamic``: may change while a learner
+    runs (a ROS parameter set at run time); ``ros_name``: the parameter's name when it differs."""
+    return field(default=default, metadata={'description': description, 'range': range, 'choices': choices,
+                                            'dynamic': dynamic, 'ros_name': ros_name})
+
+
+@dataclass
+class LearnerConfig:
+    """Hyperparameters of SAC, QASAC and EQSAC (see each field's description)."""
+
+    mode: str = hyper('eqsac', 'Learning mode: plain SAC, QASAC (ask gate only) or EQSAC (ask and respond gates)',
+                      choices=MODES)
+    hidden: tuple[int, ...] = hyper((256, 256), 'Hidden layer sizes of actor and critics (Table 1: 256x256)',
+                                    ros_name='hidden_sizes')
+    actor_lr: float = hyper(1e-4, 'Actor learning rate (Table 1)', range=(1e-8, 1.0))
+    critic_lr: float = hyper(1e-3, 'Critic learning rate (Table 1)', range=(1e-8, 1.0))
+    alpha_lr: float = hyper(1e-4, 'Temperature learning rate (Table 1)', range=(1e-8, 1.0))
+    initial_alpha: float = hyper(1.0, "Initial entropy temperature alpha (not in the paper; SB3's and "
+                                      "CleanRL's start)", range=(1e-6, 100.0))
+    gamma: float = hyper(0.99, 'Discount factor (Table 1)', range=(0.0, 1.0))
+    tau: float = hyper(0.005, 'Soft target update rate (Table 1)', range=(1e-6, 1.0))
+    batch_size: int = hyper(256, 'Minibatch size (not in the paper; SB3 default)', range=(1, 65536))
+    replay_capacity: int = hyper(500_000, 'Replay buffer size (Table 1)', range=(1, 50_000_000))
+    learning_starts: int = hyper(5_000, 'Transitions stored before updates start (Table 1 "minimal buffer '
+                                        'size")', range=(1, INT_MAX))
+    updates_per_step: int = hyper(1, 'Gradient updates per env step', range=(0, 100))
+    random_warmup_steps: int = hyper(0, 'Uniform-random actions for the first N steps (off in the paper)',
+                                     range=(0, INT_MAX))
+    seed: int = hyper(42, 'Random seed (Table 1)', range=(0, INT_MAX))
+    # Advising (Section 3)
+    advising_budget: int = hyper(30, 'Early-advising budget: advice only in episodes below it (Eq. 7)',
+                                 range=(0, INT_MAX), dynamic=True)
+    queue_length: int = hyper(15, 'Length of the D and E FIFO queues (Table 1)', range=(1, 100_000))
+    threshold_kind: str = hyper('dynamic', 'Dynamic queue thresholds (Eq. 10) or fixed ones',
+                                choices=THRESHOLD_KINDS)
+    fixed_d_threshold: float = hyper(1.0, 'Ask when D(s) exceeds this (threshold_kind fixed)', range=(0.0, 1e9))
+    fixed_e_threshold: float = hyper(0.0, 'Respond when E(s) is below this (threshold_kind fixed)',
+                                     range=(-1e9, 1e9))
+    entropy_samples: int = hyper(32, 'Monte Carlo samples K of the entropy estimate E(s) (Eq. 9)',
+                                 range=(1, 100_000))
+    actor_on_advice: bool = hyper(False, 'Also train the actor on the advice batch')
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            setattr(self, f.name, check_value(f.name, getattr(self, f.name)))
+
+    @classmethod
+    def from_params(cls, params: dict, node_keys=(), **overrides) -> 'LearnerConfig':
+        """From a learner's ROS parameters (a params-file section): config fields under their
+        parameter names; ``node_keys`` are the node's own parameters, skipped here. Any other
+        key is refused, as the learner node refuses it."""
+        names = {ros_name(f): f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(params) - set(names) - set(node_keys))
+        if unknown:
+            raise ValueError(f"unknown learner parameter(s): {', '.join(unknown)}; "
+                             f"known: {', '.join(sorted([*names, *node_keys]))}")
+        values = {names[k]: v for k, v in params.items() if k in names}
+        values.update(overrides)
+        return cls(**values)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d['hidden'] = list(self.hidden)
+        return d
+
+
+FIELDS = {f.name: f for f in dataclasses.fields(LearnerConfig)}
+
+
+def ros_name(f: dataclasses.Field) -> str:
+    return f.metadata['ros_name'] or f.name
+
+
+def check_value(name: str, value: Any) -> Any:
+    """``value`` for field ``name`` if it is allowed (ints for floats become floats), else ValueError."""
+    f = FIELDS[name]
+    kind, meta = type(f.default), f.metadata
+
+    def refuse(expected: str):
+        raise ValueError(f'LearnerConfig.{name} must be {expected}, got {value!r}')
+    if kind is tuple:
+        try:
+            value = tuple(int(h) for h in value)
+        except (TypeError, ValueError):
+            refuse('a list of layer sizes')
+        if not value or any(h < 1 for h in value):
+            refuse('positive layer sizes')
+        return value
+    if kind is bool:
+        if not isinstance(value, bool):
+            refuse('true or false')
+        return value
+    if kind is str:
+        if value not in meta['choices']:
+            refuse(f"one of {meta['choices']}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and not isinstance(value, int)):
+        refuse('an integer' if kind is int else 'a number')
+    value = kind(value)
+    low, high = meta['range']
+    if not low <= value <= high:
+        refuse(f'in [{low:g}, {high:g}]')
+    return value

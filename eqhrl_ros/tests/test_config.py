@@ -1,0 +1,53 @@
+"""LearnerConfig's fields are the one declaration of the learner's hyperparameters."""
+
+import dataclasses
+
+import pytest
+import yaml
+
+from eqhrl_ros.core.config import FIELDS, LearnerConfig, check_value, ros_name
+from eqhrl_ros.nodes.params import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
+from ros_helpers import PARAMS_DIR
+
+
+def test_the_ros_parameters_are_the_config_fields():
+    assert [p.name for p in LEARNER_CONFIG_PARAMS] == [ros_name(f) for f in dataclasses.fields(LearnerConfig)]
+    for param in LEARNER_CONFIG_PARAMS:
+        f = next(f for f in dataclasses.fields(LearnerConfig) if ros_name(f) == param.name)
+        assert param.description == f.metadata['description'] and param.range == f.metadata['range']
+        default = LearnerConfig().to_dict()[f.name]
+        assert param.default == default
+
+
+@pytest.mark.parametrize('name', [n for n, f in FIELDS.items() if f.metadata['range']])
+def test_a_value_outside_the_declared_range_is_refused_by_the_config(name):
+    low, high = FIELDS[name].metadata['range']
+    kind = type(FIELDS[name].default)
+    check_value(name, kind(low))
+    check_value(name, kind(high))
+    above = high * 2 if high > 0 else 1
+    with pytest.raises(ValueError, match=f'LearnerConfig.{name} must be in'):
+        LearnerConfig(**{name: kind(above)})
+
+
+def test_types_follow_the_defaults():
+    assert LearnerConfig(actor_lr=1).actor_lr == 1.0 and isinstance(LearnerConfig(actor_lr=1).actor_lr, float)
+    with pytest.raises(ValueError, match='must be an integer'):
+        LearnerConfig(batch_size=64.0)
+    with pytest.raises(ValueError, match='true or false'):
+        LearnerConfig(actor_on_advice=1)
+    with pytest.raises(ValueError, match='one of'):
+        LearnerConfig(threshold_kind='adaptive')
+
+
+@pytest.mark.parametrize('path', sorted(PARAMS_DIR.glob('*.yaml')), ids=lambda p: p.stem)
+def test_each_params_file_fits_the_declarations(path):
+    learner = yaml.safe_load(path.read_text())['learner']['ros__parameters']
+    check_section('learner', learner, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS)
+    LearnerConfig.from_params(learner, node_keys=[p.name for p in LEARNER_NODE_PARAMS])
+
+
+def test_from_params_refuses_unknown_keys():
+    with pytest.raises(ValueError, match='unknown learner parameter.*gama'):
+        LearnerConfig.from_params({'gama': 0.9})
+    assert LearnerConfig.from_params({'hidden_sizes': [8, 8], 'env_id': 'X'}, node_keys=['env_id']).hidden == (8, 8)
