@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: setup test demo bench bench-learner bench-ros bench-flood bench-variants profile clean lock
+.PHONY: setup lint test test-fast demo bench bench-learner bench-ros bench-flood bench-variants profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -51,8 +51,17 @@ $(VENV)/.stamp-eqhrl_ros: $(VENV)/.stamp-interfaces $(PACKAGE_SRC)
 	rm -rf eqhrl_ros/build eqhrl_ros/*.egg-info
 	touch $@
 
-test: setup
+# ruff: lint and format check of the whole tree (rules in ruff.toml).
+lint: $(VENV)/.stamp-deps
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+test: setup lint
 	$(VENV)/bin/pytest eqhrl_ros/tests
+
+# Feedback for a developer in under a minute: everything but the tests marked slow.
+test-fast: setup
+	$(VENV)/bin/pytest eqhrl_ros/tests -m "not slow" -x -q
 
 demo: setup
 	$(VENV)/bin/eqhrl-demo

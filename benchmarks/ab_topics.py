@@ -23,7 +23,7 @@ from pathlib import Path
 
 THIS_TREE = Path(__file__).resolve().parents[1]
 
-MEASURE = r'''
+MEASURE = r"""
 import json, sys, tempfile
 from pathlib import Path
 tree = sys.argv[1]
@@ -33,14 +33,19 @@ import eqhrl_ros.nodes.messages
 assert eqhrl_ros.nodes.messages.__file__.startswith(tree), 'imported the wrong tree'
 print('WINDOWS', json.dumps(bench_ros.topics_without_updates(Path(tempfile.mkdtemp()),
                                                              int(sys.argv[2]), int(sys.argv[3]))))
-'''
+"""
 
 
 def windows(tree: Path, steps: int, count: int) -> list[float]:
     env = {**os.environ, 'PYTHONPATH': str(tree / 'eqhrl_ros')}
-    env.pop('ROS_DOMAIN_ID', None)          # bench_ros picks a private one per process
-    done = subprocess.run([sys.executable, '-c', MEASURE, str(tree), str(steps), str(count)],
-                          capture_output=True, text=True, env=env, timeout=600)
+    env.pop('ROS_DOMAIN_ID', None)  # bench_ros picks a private one per process
+    done = subprocess.run(
+        [sys.executable, '-c', MEASURE, str(tree), str(steps), str(count)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     lines = [line for line in done.stdout.splitlines() if line.startswith('WINDOWS ')]
     if done.returncode != 0 or not lines:
         raise RuntimeError(f'measurement on {tree} failed:\n{done.stderr[-3000:]}')
@@ -66,8 +71,10 @@ def main() -> int:
         ratios.append(medians['after'] / medians['before'])
         print(f'pair {pair} ratio {ratios[-1]:.2f}', flush=True)
     geometric = math.exp(statistics.fmean(math.log(r) for r in ratios))
-    print(f'after / before: median {statistics.median(ratios):.2f}, geometric mean {geometric:.2f}, '
-          f'range {min(ratios):.2f}-{max(ratios):.2f} over {len(ratios)} pairs')
+    print(
+        f'after / before: median {statistics.median(ratios):.2f}, geometric mean {geometric:.2f}, '
+        f'range {min(ratios):.2f}-{max(ratios):.2f} over {len(ratios)} pairs'
+    )
     return 0
 
 

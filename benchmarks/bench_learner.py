@@ -45,10 +45,13 @@ class OursLoop:
 
     def __init__(self, env_id: str, mode: str, warmup: int, batch_size: int = 256):
         self.env = make_env(env_id)
-        config = LearnerConfig(mode=mode, learning_starts=warmup, advising_budget=10**6, seed=0,
-                               batch_size=batch_size)
-        self.learner = EQSACLearner(int(np.prod(self.env.observation_space.shape)),
-                                    self.env.action_space.low, self.env.action_space.high, config)
+        config = LearnerConfig(mode=mode, learning_starts=warmup, advising_budget=10**6, seed=0, batch_size=batch_size)
+        self.learner = EQSACLearner(
+            int(np.prod(self.env.observation_space.shape)),
+            self.env.action_space.low,
+            self.env.action_space.high,
+            config,
+        )
         self.expert = heuristic_expert(env_id)
         self.obs, _ = self.env.reset(seed=0)
         self.run(warmup)
@@ -58,7 +61,7 @@ class OursLoop:
         for _ in range(steps):
             proposal = learner.propose(self.obs)
             if proposal.decision.fire:
-                action, advised = learner.resolve_advice(proposal, self.expert(proposal.request))
+                action, advised = learner.resolve_advice(proposal, self.expert(proposal.request)).take()
             else:
                 action, advised = proposal.action, False
             next_obs, reward, terminated, truncated, _ = env.step(action)
@@ -71,10 +74,22 @@ class SB3Loop:
 
     def __init__(self, env_id: str, warmup: int):
         from stable_baselines3 import SAC
+
         self.env = make_env(env_id)
-        self.model = SAC('MlpPolicy', self.env, learning_rate=3e-4, buffer_size=500_000,
-                         learning_starts=warmup, batch_size=256, train_freq=1, gradient_steps=1,
-                         policy_kwargs={'net_arch': [256, 256]}, seed=0, device='cpu', verbose=0)
+        self.model = SAC(
+            'MlpPolicy',
+            self.env,
+            learning_rate=3e-4,
+            buffer_size=500_000,
+            learning_starts=warmup,
+            batch_size=256,
+            train_freq=1,
+            gradient_steps=1,
+            policy_kwargs={'net_arch': [256, 256]},
+            seed=0,
+            device='cpu',
+            verbose=0,
+        )
         self.model.learn(total_timesteps=warmup)
 
     def run(self, steps: int) -> None:
@@ -119,9 +134,11 @@ def main() -> int:
     parser.add_argument('--envs', nargs='+', default=list(ENVS))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    print(f'torch {torch.__version__}, {args.threads} threads; per env and contender '
-          f'{args.rounds} x {args.round_steps} timed steps, interleaved, after {args.warmup} without updates')
-    print(f"{'env':26s} {'learner':10s} {'steps/s':>8s} {'vs SB3':>7s} {'target':>7s}")
+    print(
+        f'torch {torch.__version__}, {args.threads} threads; per env and contender '
+        f'{args.rounds} x {args.round_steps} timed steps, interleaved, after {args.warmup} without updates'
+    )
+    print(f'{"env":26s} {"learner":10s} {"steps/s":>8s} {"vs SB3":>7s} {"target":>7s}')
     missed = []
     for env_id in args.envs:
         rates = compare(env_id, args)
@@ -130,7 +147,7 @@ def main() -> int:
             mode = name.split()[-1]
             target = TARGETS.get(mode) if name.startswith('ours') else None
             if name.endswith('b=1'):
-                continue   # printed below, with the split of a step
+                continue  # printed below, with the split of a step
             ratio = rate / reference
             verdict = '' if target is None else (f'>={target:.1f}' + ('' if ratio >= target else ' MISSED'))
             if target is not None and ratio < target:
@@ -141,13 +158,19 @@ def main() -> int:
         mm = matmul_ms()
         for mode, products in PRODUCTS.items():
             ceiling = 1e3 / (products * mm)
-            print(f'{"":26s} floor {mode}: {products} products x {mm:.3f} ms = {products * mm:.2f} ms per update; '
-                  f'nothing else costing, at most {ceiling:.0f} steps/s = {ceiling / reference:.2f}x SB3', flush=True)
+            print(
+                f'{"":26s} floor {mode}: {products} products x {mm:.3f} ms = {products * mm:.2f} ms per update; '
+                f'nothing else costing, at most {ceiling:.0f} steps/s = {ceiling / reference:.2f}x SB3',
+                flush=True,
+            )
         for mode, target in TARGETS.items():
             step_ms, fixed_ms = 1e3 / rates[f'ours {mode}'], 1e3 / rates[f'{mode} b=1']
-            print(f'{"":26s} step {mode}: {step_ms:.2f} ms at batch 256 = {fixed_ms:.2f} ms at batch 1 '
-                  f'+ {step_ms - fixed_ms:.2f} ms growing with the batch; {target}x SB3 allows '
-                  f'{1e3 / (target * reference):.2f} ms', flush=True)
+            print(
+                f'{"":26s} step {mode}: {step_ms:.2f} ms at batch 256 = {fixed_ms:.2f} ms at batch 1 '
+                f'+ {step_ms - fixed_ms:.2f} ms growing with the batch; {target}x SB3 allows '
+                f'{1e3 / (target * reference):.2f} ms',
+                flush=True,
+            )
     if missed:
         print('targets missed: ' + '; '.join(missed))
         return 1

@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_learner import OursLoop  # noqa: E402
 
 BIN = Path(sys.prefix) / 'bin'
-EXECUTOR = None   # --executor: None is make_executor's default (single)
+EXECUTOR = None  # --executor: None is make_executor's default (single)
 ENV_ID = 'Pendulum-v1'
 
 
@@ -59,18 +59,30 @@ class Wiring:
         rclpy.init(context=self.context)
         self.children = []
         if expert == 'process':
-            self.children.append(subprocess.Popen([str(BIN / 'expert')], stdout=subprocess.DEVNULL,
-                                                  stderr=subprocess.DEVNULL))
-        env = GymEnvNode(context=self.context, parameter_overrides=[
-            Parameter('env_id', value=ENV_ID), Parameter('max_episode_steps', value=200),
-            Parameter('seed', value=0)])
+            self.children.append(
+                subprocess.Popen([str(BIN / 'expert')], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            )
+        env = GymEnvNode(
+            context=self.context,
+            parameter_overrides=[
+                Parameter('env_id', value=ENV_ID),
+                Parameter('max_episode_steps', value=200),
+                Parameter('seed', value=0),
+            ],
+        )
         nodes = [env]
         if expert == 'inprocess':
             nodes.append(ExpertNode(context=self.context))
-        params = {'env_id': ENV_ID, 'output_dir': str(output), 'checkpoint_every_episodes': 0,
-                  'seed': 0, **learner_params}
-        self.learner = LearnerNode(context=self.context, parameter_overrides=[
-            Parameter(k, value=v) for k, v in params.items()])
+        params = {
+            'env_id': ENV_ID,
+            'output_dir': str(output),
+            'checkpoint_every_episodes': 0,
+            'seed': 0,
+            **learner_params,
+        }
+        self.learner = LearnerNode(
+            context=self.context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
+        )
         nodes.append(self.learner)
         self.nodes = nodes
         self.executor = make_executor(EXECUTOR, context=self.context)
@@ -113,7 +125,7 @@ def topics_without_updates(output: Path, steps: int, windows: int) -> list[float
     """Steps/s in each of ``windows`` consecutive windows of ``steps`` steps."""
     wiring = Wiring(output, {'mode': 'sac', 'updates_per_step': 0}, expert='inprocess')
     try:
-        wiring.run(200)                      # discovery and first episode, not timed
+        wiring.run(200)  # discovery and first episode, not timed
         return [steps / wiring.run(steps) for _ in range(windows)]
     finally:
         wiring.close()
@@ -124,7 +136,7 @@ def with_updates(output: Path, rounds: int, round_steps: int, warmup: int) -> tu
     wiring = Wiring(output, {'mode': 'sac', 'learning_starts': warmup}, expert='none')
     loop = OursLoop(ENV_ID, 'sac', warmup)
     try:
-        wiring.run(warmup + round_steps)     # fill the replay memory; first updates, not timed
+        wiring.run(warmup + round_steps)  # fill the replay memory; first updates, not timed
         ros_s = loop_s = 0.0
         for i in range(rounds):
             # Alternate who goes first, so that a machine slowing down within a round
@@ -144,9 +156,19 @@ def with_updates(output: Path, rounds: int, round_steps: int, warmup: int) -> tu
 
 def advice_round_trips(output: Path, steps: int, expert: str) -> tuple[float, float, int]:
     # Fixed thresholds that every state passes: the gates fire at every step.
-    wiring = Wiring(output, {'mode': 'eqsac', 'updates_per_step': 0, 'advising_budget': 10**9,
-                             'threshold_kind': 'fixed', 'fixed_d_threshold': 0.0,
-                             'fixed_e_threshold': 1e9, 'advice_timeout_s': 2.0}, expert=expert)
+    wiring = Wiring(
+        output,
+        {
+            'mode': 'eqsac',
+            'updates_per_step': 0,
+            'advising_budget': 10**9,
+            'threshold_kind': 'fixed',
+            'fixed_d_threshold': 0.0,
+            'fixed_e_threshold': 1e9,
+            'advice_timeout_s': 2.0,
+        },
+        expert=expert,
+    )
     try:
         wiring.run(200)
         wiring.learner.advice_latencies.clear()
@@ -162,9 +184,21 @@ def start_up(output: Path, runs: int) -> list[float]:
     times = []
     for i in range(runs):
         result = subprocess.run(
-            [str(BIN / 'eqhrl-train'), '--params', 'demo', '--episodes', '1', '--max-steps', '5',
-             '--output', str(output / f'start_{i}')],
-            capture_output=True, text=True, timeout=120)
+            [
+                str(BIN / 'eqhrl-train'),
+                '--params',
+                'demo',
+                '--episodes',
+                '1',
+                '--max-steps',
+                '5',
+                '--output',
+                str(output / f'start_{i}'),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         found = re.search(r'first env step ([0-9.]+) s after the process started', result.stderr + result.stdout)
         if result.returncode != 0 or not found:
             raise RuntimeError(f'eqhrl-train failed (exit {result.returncode}):\n{result.stderr[-2000:]}')
@@ -182,13 +216,17 @@ def main() -> int:
     parser.add_argument('--warmup', type=int, default=500)
     parser.add_argument('--start-runs', type=int, default=3)
     parser.add_argument('--threads', type=int, default=2)
-    parser.add_argument('--executor', choices=('events', 'single', 'multi'), default=None,
-                        help='executor of the in-process wiring (start-up always uses the default)')
+    parser.add_argument(
+        '--executor',
+        choices=('events', 'single', 'multi'),
+        default=None,
+        help='executor of the in-process wiring (start-up always uses the default)',
+    )
     args = parser.parse_args()
     global EXECUTOR
     EXECUTOR = args.executor
     torch.set_num_threads(args.threads)
-    results = []   # (what, figure, target text, met)
+    results = []  # (what, figure, target text, met)
 
     def report(what: str, figure: str, target: str, met: bool) -> None:
         results.append(met)
@@ -196,28 +234,46 @@ def main() -> int:
 
     with tempfile.TemporaryDirectory(prefix='bench_ros_') as tmp:
         out = Path(tmp)
-        print(f'{ENV_ID}, torch {args.threads} threads, ROS_DOMAIN_ID {os.environ["ROS_DOMAIN_ID"]}, '
-              f'{os.environ.get("RMW_IMPLEMENTATION", "default RMW")}')
+        print(
+            f'{ENV_ID}, torch {args.threads} threads, ROS_DOMAIN_ID {os.environ["ROS_DOMAIN_ID"]}, '
+            f'{os.environ.get("RMW_IMPLEMENTATION", "default RMW")}'
+        )
         # The median of several windows: a burst of load from the machine's other tenants
         # falls into one window instead of the whole figure; the range is printed too.
         rates = topics_without_updates(out / 'topics', args.steps, args.windows)
         rate = float(np.median(rates))
-        report(f'through ROS, updates off (steps/s, median of {len(rates)} windows)',
-               f'{rate:.0f} ({min(rates):.0f}-{max(rates):.0f})', '>= 2000', rate >= 2000)
+        report(
+            f'through ROS, updates off (steps/s, median of {len(rates)} windows)',
+            f'{rate:.0f} ({min(rates):.0f}-{max(rates):.0f})',
+            '>= 2000',
+            rate >= 2000,
+        )
 
         ros, loop = with_updates(out / 'updates', args.rounds, args.round_steps, args.warmup)
-        report('through ROS, SAC updating (steps/s, vs in-process)', f'{ros:.1f} vs {loop:.1f} = {ros / loop:.2f}x',
-               '>= 0.9x', ros / loop >= 0.9)
+        report(
+            'through ROS, SAC updating (steps/s, vs in-process)',
+            f'{ros:.1f} vs {loop:.1f} = {ros / loop:.2f}x',
+            '>= 0.9x',
+            ros / loop >= 0.9,
+        )
 
         for where in ('inprocess', 'process'):
             p50, p99, n = advice_round_trips(out / f'advice_{where}', args.advice_steps, where)
             label = 'same process' if where == 'inprocess' else 'expert in its own process'
-            report(f'advice round trip, {label} (ms, n={n})', f'p50 {p50:.2f}  p99 {p99:.2f}',
-                   '<1 / <5', p50 < 1.0 and p99 < 5.0)
+            report(
+                f'advice round trip, {label} (ms, n={n})',
+                f'p50 {p50:.2f}  p99 {p99:.2f}',
+                '<1 / <5',
+                p50 < 1.0 and p99 < 5.0,
+            )
 
         times = start_up(out, args.start_runs)
-        report(f'start-up to first env step (s, {len(times)} runs)',
-               'median %.2f  max %.2f' % (float(np.median(times)), max(times)), '< 3', max(times) < 3.0)
+        report(
+            f'start-up to first env step (s, {len(times)} runs)',
+            'median %.2f  max %.2f' % (float(np.median(times)), max(times)),
+            '< 3',
+            max(times) < 3.0,
+        )
 
     missed = results.count(False)
     print('all targets met' if not missed else f'{missed} target(s) missed')

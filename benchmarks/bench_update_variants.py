@@ -44,20 +44,26 @@ VARIANTS = {  # name: (compiled, bfloat16)
 
 def in_bfloat16(fn):
     """fn under CPU autocast to bfloat16, its tensor results returned as float32."""
+
     def wrapped(*args):
         with torch.autocast('cpu', dtype=torch.bfloat16):
             result = fn(*args)
         if isinstance(result, tuple):
             return tuple(r.float() for r in result)
         return result.float()
+
     return wrapped
 
 
 def filled_learner(env_id: str, mode: str, transitions: int) -> EQSACLearner:
     """A learner whose D holds ``transitions`` random-action transitions, and D_advising every 10th."""
     env = make_env(env_id)
-    learner = EQSACLearner(int(np.prod(env.observation_space.shape)), env.action_space.low,
-                           env.action_space.high, LearnerConfig(mode=mode, learning_starts=10**9, seed=0))
+    learner = EQSACLearner(
+        int(np.prod(env.observation_space.shape)),
+        env.action_space.low,
+        env.action_space.high,
+        LearnerConfig(mode=mode, learning_starts=10**9, seed=0),
+    )
     env.action_space.seed(0)
     obs, _ = env.reset(seed=0)
     for i in range(transitions):
@@ -86,7 +92,7 @@ def compare(env_id: str, mode: str, args) -> dict:
     for name, (compiled, bfloat16) in VARIANTS.items():
         learners[name] = make_variant(base, compiled, bfloat16)
         start = time.perf_counter()
-        first[name] = learners[name].update()       # compiles, if compiled
+        first[name] = learners[name].update()  # compiles, if compiled
         warmup_s[name] = time.perf_counter() - start
         for _ in range(4):
             learners[name].update()
@@ -105,8 +111,10 @@ def compare(env_id: str, mode: str, args) -> dict:
     for name in VARIANTS:
         speedups[name] = statistics.median(a / b for a, b in zip(ms[shipped], ms[name]))
         drift = abs(first[name]['critic_loss'] / first[shipped]['critic_loss'] - 1.0)
-        print(f'  {name:26s} {statistics.median(ms[name]):7.2f} {speedups[name]:8.2f}x '
-              f'{warmup_s[name]:11.1f} s {drift:22.1e}')
+        print(
+            f'  {name:26s} {statistics.median(ms[name]):7.2f} {speedups[name]:8.2f}x '
+            f'{warmup_s[name]:11.1f} s {drift:22.1e}'
+        )
     return speedups
 
 
@@ -120,15 +128,20 @@ def main() -> int:
     parser.add_argument('--modes', nargs='+', default=['sac', 'eqsac'])
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    print(f'torch {torch.__version__}, {args.threads} threads, CPU capability '
-          f'{torch.backends.cpu.get_cpu_capability()}')
+    print(
+        f'torch {torch.__version__}, {args.threads} threads, CPU capability {torch.backends.cpu.get_cpu_capability()}'
+    )
     for env_id in args.envs:
         for mode in args.modes:
             compare(env_id, mode, args)
-    print('\nfirst update: torch.compile compiles once per process; later compiled variants of the '
-          'same functions reuse that work, so only the first shows the compile time.')
-    print('A speed-up s of the update alone moves a step of u ms update and o ms other work by '
-          'a factor (u + o) / (u / s + o); see the README for what that means for target 1.')
+    print(
+        '\nfirst update: torch.compile compiles once per process; later compiled variants of the '
+        'same functions reuse that work, so only the first shows the compile time.'
+    )
+    print(
+        'A speed-up s of the update alone moves a step of u ms update and o ms other work by '
+        'a factor (u + o) / (u / s + o); see the README for what that means for target 1.'
+    )
     return 0
 
 

@@ -60,16 +60,29 @@ def main() -> int:
 
     bin_dir = Path(sys.prefix) / 'bin'
     out = Path(tempfile.mkdtemp(prefix='eqhrl_flood_'))
-    learner_args = ['--ros-args', '-p', 'hidden_sizes:=[64,64]', '-p', 'batch_size:=64',
-                    '-p', 'learning_starts:=200', '-p', 'advising_budget:=1000000',
-                    '-p', f'output_dir:={out / "run"}', '-p', 'checkpoint_every_episodes:=0',
-                    '-p', 'torch_threads:=1']
+    learner_args = [
+        '--ros-args',
+        '-p',
+        'hidden_sizes:=[64,64]',
+        '-p',
+        'batch_size:=64',
+        '-p',
+        'learning_starts:=200',
+        '-p',
+        'advising_budget:=1000000',
+        '-p',
+        f'output_dir:={out / "run"}',
+        '-p',
+        'checkpoint_every_episodes:=0',
+        '-p',
+        'torch_threads:=1',
+    ]
     logs = {name: (out / f'{name}.log').open('w+') for name in ('gym_env', 'expert', 'learner')}
-    commands = {'gym_env': ['--ros-args', '-p', 'max_episode_steps:=200'], 'expert': [],
-                'learner': learner_args}
-    children = {name: subprocess.Popen([str(bin_dir / name), *argv], stdout=logs[name],
-                                       stderr=subprocess.STDOUT)
-                for name, argv in commands.items()}
+    commands = {'gym_env': ['--ros-args', '-p', 'max_episode_steps:=200'], 'expert': [], 'learner': learner_args}
+    children = {
+        name: subprocess.Popen([str(bin_dir / name), *argv], stdout=logs[name], stderr=subprocess.STDOUT)
+        for name, argv in commands.items()
+    }
     target = children['learner' if args.target == 'learner' else 'gym_env']
     target_log = logs['learner' if args.target == 'learner' else 'gym_env']
 
@@ -77,8 +90,9 @@ def main() -> int:
     node = rclpy.create_node('flood')
     flood_topic, watch_topic = ('observation', 'action') if args.target == 'learner' else ('action', 'observation')
     arrivals: list[float] = []
-    node.create_subscription(Float32MultiArray, watch_topic, lambda _msg: arrivals.append(time.monotonic()),
-                             100, raw=True)
+    node.create_subscription(
+        Float32MultiArray, watch_topic, lambda _msg: arrivals.append(time.monotonic()), 100, raw=True
+    )
     publisher = node.create_publisher(Float32MultiArray, flood_topic, 10)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
@@ -88,6 +102,7 @@ def main() -> int:
     def spin():
         while spinning.is_set():
             executor.spin_once(timeout_sec=0.05)
+
     thread = threading.Thread(target=spin, daemon=True)
     thread.start()
 
@@ -108,7 +123,7 @@ def main() -> int:
         rss_before = rss_mb(target.pid)
         log_before = os.path.getsize(target_log.name)
 
-        bad = serialize_message(Float32MultiArray(data=[0.5] * 2))   # the wrong size on both topics
+        bad = serialize_message(Float32MultiArray(data=[0.5] * 2))  # the wrong size on both topics
         sent, start = 0, time.monotonic()
         while time.monotonic() - start < args.seconds:
             for _ in range(200):
@@ -134,11 +149,15 @@ def main() -> int:
             recovery = float('inf')
         after = rate(flood_end + args.after / 2, flood_end + args.after)
         growth = max(rss_end, rss_after) - rss_before
-        print(f'target {args.target} (executor {os.environ.get("EQHRL_EXECUTOR", "default")}): '
-              f'{sent:,} invalid messages in {flood_end - start:.1f} s ({sent / (flood_end - start):,.0f}/s)')
+        print(
+            f'target {args.target} (executor {os.environ.get("EQHRL_EXECUTOR", "default")}): '
+            f'{sent:,} invalid messages in {flood_end - start:.1f} s ({sent / (flood_end - start):,.0f}/s)'
+        )
         print(f'  {watch_topic} per s: before {before:.1f}, during {during:.1f}, after {after:.1f}')
-        print(f'  RSS MB: before {rss_before:.1f}, end of flood {rss_end:.1f}, '
-              f'{args.after:g} s after {rss_after:.1f} (growth {growth:+.1f}, limit {args.max_growth_mb:g})')
+        print(
+            f'  RSS MB: before {rss_before:.1f}, end of flood {rss_end:.1f}, '
+            f'{args.after:g} s after {rss_after:.1f} (growth {growth:+.1f}, limit {args.max_growth_mb:g})'
+        )
         print(f'  recovery: {recovery:.1f} s after the flood (limit {args.max_recovery_s:g})')
         print(f'  log lines written during the flood: {log_lines}')
         if growth > args.max_growth_mb or recovery > args.max_recovery_s:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-RUN = '''
+RUN = """
 import sys, numpy as np, torch
 torch.set_num_threads(1)
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, make_env, success_criterion, train, heuristic_expert
@@ -31,13 +31,14 @@ config = LearnerConfig(mode=mode, hidden=(64, 64), batch_size=128, learning_star
 learner = EQSACLearner(3, env.action_space.low, env.action_space.high, config, success_criterion('Pendulum-v1'))
 returns = [s.episode_return for s in train(env, learner, 60, heuristic_expert('Pendulum-v1'), seed=seed)]
 print(' '.join(f'{r:.3f}' for r in returns))
-'''
+"""
 
 
 def run(code: str, mode: str, seed: int) -> np.ndarray:
     env = dict(os.environ, PYTHONPATH=code)
-    out = subprocess.run([sys.executable, '-c', RUN, mode, str(seed)], env=env, check=True,
-                         capture_output=True, text=True).stdout
+    out = subprocess.run(
+        [sys.executable, '-c', RUN, mode, str(seed)], env=env, check=True, capture_output=True, text=True
+    ).stdout
     return np.array([float(x) for x in out.split()])
 
 
@@ -48,11 +49,12 @@ def main() -> None:
     parser.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2])
     parser.add_argument('--modes', nargs='+', default=['sac', 'eqsac'])
     args = parser.parse_args()
-    jobs = [(code, mode, seed) for mode in args.modes for seed in args.seeds
-            for code in ('before', 'after')]
+    jobs = [(code, mode, seed) for mode in args.modes for seed in args.seeds for code in ('before', 'after')]
     with ThreadPoolExecutor(2) as pool:
         results = dict(zip(jobs, pool.map(lambda j: run(getattr(args, j[0]), j[1], j[2]), jobs)))
-    print(f"{'mode':6s} {'code':7s} " + ' '.join(f'seed {s:<13d}' for s in args.seeds) + '  last 10, mean ± sd over seeds')
+    print(
+        f'{"mode":6s} {"code":7s} ' + ' '.join(f'seed {s:<13d}' for s in args.seeds) + '  last 10, mean ± sd over seeds'
+    )
     for mode in args.modes:
         for code in ('before', 'after'):
             runs = [results[(code, mode, s)] for s in args.seeds]

@@ -33,22 +33,27 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     env = make_env(args.env, max_episode_steps=args.steps + 1)
-    learner = EQSACLearner(int(np.prod(env.observation_space.shape)), env.action_space.low,
-                           env.action_space.high,
-                           LearnerConfig(mode=args.mode, learning_starts=args.warmup,
-                                         advising_budget=10**6, seed=0))
+    learner = EQSACLearner(
+        int(np.prod(env.observation_space.shape)),
+        env.action_space.low,
+        env.action_space.high,
+        LearnerConfig(mode=args.mode, learning_starts=args.warmup, advising_budget=10**6, seed=0),
+    )
     expert = heuristic_expert(args.env)
     while learner.total_steps < args.warmup:
         run_episode(env, learner, expert, seed=0)
-    run_episode(env, learner, expert)      # one episode of updates before measuring
+    run_episode(env, learner, expert)  # one episode of updates before measuring
 
     def timed_steps() -> float:
         obs, _ = env.reset(seed=1)
         start = time.perf_counter()
         for _ in range(args.steps):
             proposal = learner.propose(obs)
-            action, advised = (learner.resolve_advice(proposal, expert(proposal.request))
-                               if proposal.decision.fire else (proposal.action, False))
+            action, advised = (
+                learner.resolve_advice(proposal, expert(proposal.request)).take()
+                if proposal.decision.fire
+                else (proposal.action, False)
+            )
             next_obs, reward, terminated, truncated, _ = env.step(action)
             learner.step(obs, action, reward, next_obs, terminated, truncated, advised)
             obs = next_obs if not (terminated or truncated) else env.reset()[0]
@@ -57,10 +62,11 @@ def main() -> None:
     plain = timed_steps()
     with profile(activities=[ProfilerActivity.CPU]) as prof:
         profiled = timed_steps()
-    print(f'{args.env} {args.mode}, {args.threads} threads: {plain * 1e3:.2f} ms per step '
-          f'({profiled * 1e3:.2f} ms under the profiler), {args.steps} steps')
-    print(prof.key_averages().table(sort_by='self_cpu_time_total', row_limit=args.rows,
-                                    max_name_column_width=40))
+    print(
+        f'{args.env} {args.mode}, {args.threads} threads: {plain * 1e3:.2f} ms per step '
+        f'({profiled * 1e3:.2f} ms under the profiler), {args.steps} steps'
+    )
+    print(prof.key_averages().table(sort_by='self_cpu_time_total', row_limit=args.rows, max_name_column_width=40))
 
 
 if __name__ == '__main__':

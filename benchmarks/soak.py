@@ -66,24 +66,40 @@ def main() -> int:
     bin_dir = Path(sys.prefix) / 'bin'
     output = Path(args.output)
     output.mkdir(parents=True, exist_ok=True)
-    children = [subprocess.Popen([str(bin_dir / 'gym_env'), '--ros-args', '-p', 'max_episode_steps:=200'],
-                                 stdout=(output / 'gym_env.log').open('w'), stderr=subprocess.STDOUT),
-                subprocess.Popen([str(bin_dir / 'expert')],
-                                 stdout=(output / 'expert.log').open('w'), stderr=subprocess.STDOUT)]
+    children = [
+        subprocess.Popen(
+            [str(bin_dir / 'gym_env'), '--ros-args', '-p', 'max_episode_steps:=200'],
+            stdout=(output / 'gym_env.log').open('w'),
+            stderr=subprocess.STDOUT,
+        ),
+        subprocess.Popen([str(bin_dir / 'expert')], stdout=(output / 'expert.log').open('w'), stderr=subprocess.STDOUT),
+    ]
     rclpy.init()
-    learner = LearnerNode(parameter_overrides=[
-        Parameter('mode', value='eqsac'), Parameter('hidden_sizes', value=[args.hidden, args.hidden]),
-        Parameter('batch_size', value=128), Parameter('learning_starts', value=1000),
-        Parameter('replay_capacity', value=args.replay), Parameter('advising_budget', value=10**9),
-        Parameter('advice_timeout_s', value=0.5), Parameter('output_dir', value=str(output)),
-        Parameter('overwrite', value=True),
-        Parameter('checkpoint_every_episodes', value=0), Parameter('torch_threads', value=1)])
+    learner = LearnerNode(
+        parameter_overrides=[
+            Parameter('mode', value='eqsac'),
+            Parameter('hidden_sizes', value=[args.hidden, args.hidden]),
+            Parameter('batch_size', value=128),
+            Parameter('learning_starts', value=1000),
+            Parameter('replay_capacity', value=args.replay),
+            Parameter('advising_budget', value=10**9),
+            Parameter('advice_timeout_s', value=0.5),
+            Parameter('output_dir', value=str(output)),
+            Parameter('overwrite', value=True),
+            Parameter('checkpoint_every_episodes', value=0),
+            Parameter('torch_threads', value=1),
+        ]
+    )
     executor = SingleThreadedExecutor()
     executor.add_node(learner)
-    print(f'soak: {args.steps} steps of Pendulum-v1 through ROS, EQSAC {args.hidden}x{args.hidden}, '
-          f'replay {args.replay}; env and expert in their own processes', flush=True)
-    print(f"{'time s':>7s} {'steps':>8s} {'steps/s':>8s} {'RSS MB':>7s} {'lost':>5s} {'repeat':>6s}  advice",
-          flush=True)
+    print(
+        f'soak: {args.steps} steps of Pendulum-v1 through ROS, EQSAC {args.hidden}x{args.hidden}, '
+        f'replay {args.replay}; env and expert in their own processes',
+        flush=True,
+    )
+    print(
+        f'{"time s":>7s} {"steps":>8s} {"steps/s":>8s} {"RSS MB":>7s} {"lost":>5s} {"repeat":>6s}  advice', flush=True
+    )
     start = last_time = time.monotonic()
     last_steps, rss_full = 0, None
     rss_series = []
@@ -97,9 +113,12 @@ def main() -> int:
                 rss_series.append(rss)
                 if rss_full is None and len(learner.learner.replay) >= args.replay:
                     rss_full = rss
-                print(f'{now - start:7.0f} {steps:8d} {(steps - last_steps) / (now - last_time):8.1f} '
-                      f'{rss:7.1f} {learner.observation_gaps:5d} {learner.repeated_observations:6d}  '
-                      f'{percentiles(list(learner.advice_latencies))}', flush=True)
+                print(
+                    f'{now - start:7.0f} {steps:8d} {(steps - last_steps) / (now - last_time):8.1f} '
+                    f'{rss:7.1f} {learner.observation_gaps:5d} {learner.repeated_observations:6d}  '
+                    f'{percentiles(list(learner.advice_latencies))}',
+                    flush=True,
+                )
                 last_time, last_steps = now, steps
     finally:
         elapsed = time.monotonic() - start
@@ -120,13 +139,19 @@ def main() -> int:
                 child.kill()
 
     growth = rss_end - rss_full if rss_full is not None else float('nan')
-    print(f'\nsummary: {steps} steps in {elapsed:.0f} s ({steps / elapsed:.1f} steps/s); '
-          f'{learner.learner.episode} episodes')
-    print(f'  RSS: end {rss_end:.1f} MB; when the replay memory filled {rss_full or float("nan"):.1f} MB; '
-          f'growth after that {growth:+.1f} MB')
+    print(
+        f'\nsummary: {steps} steps in {elapsed:.0f} s ({steps / elapsed:.1f} steps/s); '
+        f'{learner.learner.episode} episodes'
+    )
+    print(
+        f'  RSS: end {rss_end:.1f} MB; when the replay memory filled {rss_full or float("nan"):.1f} MB; '
+        f'growth after that {growth:+.1f} MB'
+    )
     print(f'  observations lost {gaps}, re-sent by the env {repeats}')
-    print(f'  advice asked {totals.asked}, given {totals.given}, failed {totals.failed_total} '
-          f'({", ".join(f"{k} {v}" for k, v in totals.failed.items() if v) or "none"})')
+    print(
+        f'  advice asked {totals.asked}, given {totals.given}, failed {totals.failed_total} '
+        f'({", ".join(f"{k} {v}" for k, v in totals.failed.items() if v) or "none"})'
+    )
     print(f'  {percentiles(latencies)}')
     failed = gaps > 0 or (rss_full is not None and growth > args.max_growth_mb)
     print('RESULT:', 'FAIL' if failed else 'ok')

@@ -7,8 +7,14 @@ tests/test_docs.py fails when a declared parameter is missing from the README.
 
 from pathlib import Path
 
-from eqhrl_ros.nodes.params import (EXPERT_PARAMS, GYM_ENV_PARAMS, KEYBOARD_PARAMS, LEARNER_CONFIG_PARAMS,
-                                    LEARNER_NODE_PARAMS, TELEOP_EXPERT_PARAMS)
+from eqhrl_ros.nodes.params import (
+    EXPERT_PARAMS,
+    GYM_ENV_PARAMS,
+    KEYBOARD_PARAMS,
+    LEARNER_CONFIG_PARAMS,
+    LEARNER_NODE_PARAMS,
+    TELEOP_EXPERT_PARAMS,
+)
 
 README = Path(__file__).resolve().parents[1] / 'eqhrl_ros' / 'README.md'
 
@@ -18,24 +24,34 @@ def number(value) -> str:
 
 
 def table(title, params) -> str:
-    lines = [f'#### {title}', '', '| parameter | default | range / choices | run-time | description |',
-             '|---|---|---|---|---|']
+    lines = [
+        f'#### {title}',
+        '',
+        '| parameter | default | range / choices | run-time | description |',
+        '|---|---|---|---|---|',
+    ]
     for p in params:
-        allowed = ', '.join(p.choices) if p.choices else (
-            f'{number(p.range[0])} … {number(p.range[1])}' if p.range else '')
+        allowed = (
+            ', '.join(p.choices) if p.choices else (f'{number(p.range[0])} … {number(p.range[1])}' if p.range else '')
+        )
         default = f'`{p.default}`' if p.default != '' else '`""`'
-        lines.append(f"| `{p.name}` | {default} | {allowed} | {'yes' if p.dynamic else ''} | {p.description} |")
+        lines.append(f'| `{p.name}` | {default} | {allowed} | {"yes" if p.dynamic else ""} | {p.description} |')
     return '\n'.join(lines)
 
 
 def main():
     text = README.read_text()
     start, end = text.index('#### gym_env'), text.index('## Benchmarks')
-    tables = '\n\n'.join([table('gym_env', GYM_ENV_PARAMS), table('expert', EXPERT_PARAMS),
-                          table('learner: algorithm (core.LearnerConfig)', LEARNER_CONFIG_PARAMS),
-                          table('learner: node', LEARNER_NODE_PARAMS),
-                          table('teleop_expert', TELEOP_EXPERT_PARAMS),
-                          table('keyboard_teleop', KEYBOARD_PARAMS)])
+    tables = '\n\n'.join(
+        [
+            table('gym_env', GYM_ENV_PARAMS),
+            table('expert', EXPERT_PARAMS),
+            table('learner: algorithm (core.LearnerConfig)', LEARNER_CONFIG_PARAMS),
+            table('learner: node', LEARNER_NODE_PARAMS),
+            table('teleop_expert', TELEOP_EXPERT_PARAMS),
+            table('keyboard_teleop', KEYBOARD_PARAMS),
+        ]
+    )
     README.write_text(text[:start] + tables + '\n\n' + text[end:])
 
 

@@ -31,10 +31,12 @@ class StartUpRefused(Exception):
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog='eqhrl-train', description=__doc__.split('\n')[0],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument('--params', default='pendulum',
-                        help='params file: a path, or a name from share/eqhrl_ros/params')
+    parser = argparse.ArgumentParser(
+        prog='eqhrl-train', description=__doc__.split('\n')[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
+    parser.add_argument(
+        '--params', default='pendulum', help='params file: a path, or a name from share/eqhrl_ros/params'
+    )
     parser.add_argument('--output', default=None, help='output folder (overrides learner output_dir)')
     parser.add_argument('--mode', choices=MODES, help='overrides learner mode')
     parser.add_argument('--episodes', type=int, help='overrides learner max_episodes')
@@ -43,15 +45,27 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument('--budget', type=int, help='overrides learner advising_budget')
     parser.add_argument('--resume', action='store_true', help='continue from <output>/checkpoint.pt')
     parser.add_argument('--overwrite', action='store_true', help='replace a run already in the output folder')
-    parser.add_argument('--expert-node', choices=('expert', 'teleop', 'none'), default='expert',
-                        help='which expert to start: the built-in/policy expert, the teleop expert '
-                             '(a person advises, e.g. with keyboard_teleop), or none')
-    parser.add_argument('--executor', choices=EXECUTORS, default=None,
-                        help='rclpy executor for the three nodes (default: $EQHRL_EXECUTOR, else single)')
-    parser.add_argument('--discovery', choices=DISCOVERY, default=None,
-                        help='who can reach these nodes: off (this process only; the default with '
-                             '--expert-node expert), localhost (this machine; the default with teleop or none) '
-                             'or subnet (ROS_AUTOMATIC_DISCOVERY_RANGE)')
+    parser.add_argument(
+        '--expert-node',
+        choices=('expert', 'teleop', 'none'),
+        default='expert',
+        help='which expert to start: the built-in/policy expert, the teleop expert '
+        '(a person advises, e.g. with keyboard_teleop), or none',
+    )
+    parser.add_argument(
+        '--executor',
+        choices=EXECUTORS,
+        default=None,
+        help='rclpy executor for the three nodes (default: $EQHRL_EXECUTOR, else single)',
+    )
+    parser.add_argument(
+        '--discovery',
+        choices=DISCOVERY,
+        default=None,
+        help='who can reach these nodes: off (this process only; the default with '
+        '--expert-node expert), localhost (this machine; the default with teleop or none) '
+        'or subnet (ROS_AUTOMATIC_DISCOVERY_RANGE)',
+    )
     args = parser.parse_args(argv)
     if args.discovery is None:
         args.discovery = 'off' if args.expert_node == 'expert' else 'localhost'
@@ -60,6 +74,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def learner_overrides(args) -> list:
     from rclpy.parameter import Parameter
+
     overrides = [Parameter('shutdown_when_done', value=True)]
     if args.output:
         overrides.append(Parameter('output_dir', value=str(args.output)))
@@ -85,14 +100,14 @@ def run(args):
     """
     # Set before the ROS context exists: rcl reads the discovery range when it is created.
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery.upper()
+    from rclpy.parameter import Parameter
+
     from .nodes import lifecycle
     from .nodes.expert_node import ExpertNode
     from .nodes.gym_env_node import GymEnvNode
     from .nodes.learner_node import LearnerNode, _save_and_close
     from .nodes.teleop_expert_node import TeleopExpertNode
     from .paths import params_file
-
-    from rclpy.parameter import Parameter
 
     try:
         path = params_file(args.params)
@@ -118,11 +133,12 @@ def run(args):
         executor = lifecycle.make_executor(args.executor)
         for node in nodes:
             executor.add_node(node)
-        learner.get_logger().info(f'discovery: {args.discovery}'
-                                  + (' (no node outside this process can reach this run; see --discovery)'
-                                     if args.discovery == 'off' else ''))
+        learner.get_logger().info(
+            f'discovery: {args.discovery}'
+            + (' (no node outside this process can reach this run; see --discovery)' if args.discovery == 'off' else '')
+        )
         start = time.monotonic()
-        lifecycle.spin(executor, stop)   # returns at max_episodes (the learner shuts the context down) or on a signal
+        lifecycle.spin(executor, stop)  # returns at max_episodes (the learner shuts the context down) or on a signal
         if not learner.done:
             print('\ninterrupted: saving a checkpoint', file=sys.stderr)
         learner.wall_time_s = time.monotonic() - start
@@ -141,6 +157,7 @@ def run(args):
 def main(argv=None) -> int:
     args = parse_args(argv)
     from .nodes.lifecycle import ExitError
+
     try:
         learner = run(args)
     except ExitError as error:
@@ -149,8 +166,7 @@ def main(argv=None) -> int:
     except StartUpRefused as error:
         print(f'eqhrl-train: refused to start: {error}', file=sys.stderr)
         return 1
-    print(f'done: {learner.learner.episode} episodes in {learner.wall_time_s:.0f} s, '
-          f'results in {learner.output_dir}')
+    print(f'done: {learner.learner.episode} episodes in {learner.wall_time_s:.0f} s, results in {learner.output_dir}')
     return 0
 
 

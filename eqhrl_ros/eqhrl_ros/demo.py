@@ -27,16 +27,19 @@ def main(argv=None) -> int:
     data = read_episodes(output / 'episodes.csv')
     returns = data['return']
     k = max(1, len(returns) // 10)
-    png = plot_training(output / 'episodes.csv', output / 'demo.png',
-                        title='EQSAC on Pendulum-v1 through ROS 2 (heuristic expert)')
+    png = plot_training(
+        output / 'episodes.csv', output / 'demo.png', title='EQSAC on Pendulum-v1 through ROS 2 (heuristic expert)'
+    )
     print()
     print('=' * 64)
     print(f'EQSAC on Pendulum-v1: {len(returns)} episodes, {int(data["total_steps"][-1])} steps')
     print(f'  mean return, first {k} episodes: {np.mean(returns[:k]):8.1f}')
     print(f'  mean return, last  {k} episodes: {np.mean(returns[-k:]):8.1f}')
     print(f'  success rate, last {k} episodes: {np.mean(data["success"][-k:]):8.0%}')
-    print(f'  advice asked {int(data["advice_asked"].sum())}, given {int(data["advice_given"].sum())} '
-          f'(in {int((data["advice_asked"] > 0).sum())} episodes)')
+    print(
+        f'  advice asked {int(data["advice_asked"].sum())}, given {int(data["advice_given"].sum())} '
+        f'(in {int((data["advice_asked"] > 0).sum())} episodes)'
+    )
     print(f'  plot: {png}')
     print(f'  csv:  {output / "episodes.csv"}; checkpoint and policy in {output}')
     print('=' * 64)

@@ -39,7 +39,7 @@ COLUMNS = ('algorithm', 'seed', 'episode', 'return', 'length', 'advice_asked', '
 @dataclass
 class Settings:
     env_id: str
-    learner: dict                     # learner node parameters from the params file
+    learner: dict  # learner node parameters from the params file
     max_episode_steps: int
     episodes: int
     expert_backend: str = 'heuristic'
@@ -50,6 +50,7 @@ class Settings:
 def load_settings(args) -> Settings:
     """The params file's sections, refused as the nodes would refuse them (a typo included)."""
     from .nodes.params import EXPERT_PARAMS, GYM_ENV_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
+
     path = params_file(args.params)
     data = yaml.safe_load(path.read_text())
     learner = dict(data.get('learner', {}).get('ros__parameters', {}))
@@ -67,19 +68,23 @@ def load_settings(args) -> Settings:
         episodes=args.episodes or int(learner.get('max_episodes', 0)) or 200,
         expert_backend=args.expert or expert.get('backend', 'heuristic'),
         policy_path=args.policy_path or expert.get('policy_path', ''),
-        params_path=str(path))
+        params_path=str(path),
+    )
     return settings
 
 
 def learner_config(settings: Settings, algorithm: str, seed: int):
     from .core import LearnerConfig
     from .nodes.params import LEARNER_NODE_PARAMS
-    return LearnerConfig.from_params(settings.learner, node_keys=[p.name for p in LEARNER_NODE_PARAMS],
-                                     mode=algorithm, seed=seed)
+
+    return LearnerConfig.from_params(
+        settings.learner, node_keys=[p.name for p in LEARNER_NODE_PARAMS], mode=algorithm, seed=seed
+    )
 
 
 def make_expert(settings: Settings):
     from .core import PolicyExpert, heuristic_expert
+
     if settings.expert_backend == 'none':
         return None
     if settings.expert_backend == 'policy':
@@ -94,12 +99,17 @@ def run_dir(output: Path, algorithm: str, seed: int) -> Path:
 def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Path, progress) -> None:
     import torch
 
-    from .core import EQSACLearner, EpisodeSummary, make_env, success_criterion, train
+    from .core import EpisodeSummary, EQSACLearner, make_env, success_criterion, train
 
-    torch.set_num_threads(1)   # one process per core
+    torch.set_num_threads(1)  # one process per core
     env = make_env(settings.env_id, settings.max_episode_steps)
-    learner = EQSACLearner(int(env.observation_space.shape[0]), env.action_space.low, env.action_space.high,
-                           learner_config(settings, algorithm, seed), success_criterion(settings.env_id))
+    learner = EQSACLearner(
+        int(env.observation_space.shape[0]),
+        env.action_space.low,
+        env.action_space.high,
+        learner_config(settings, algorithm, seed),
+        success_criterion(settings.env_id),
+    )
     with (directory / 'episodes.csv').open('w', newline='') as f:
         writer = csv.writer(f)
         writer.writerow(EpisodeSummary.CSV_FIELDS)
@@ -114,10 +124,22 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
 
 
 def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress) -> None:
-    command = [str(Path(sys.prefix) / 'bin' / 'eqhrl-train'), '--params', settings.params_path,
-               '--output', str(directory), '--mode', algorithm, '--episodes', str(settings.episodes),
-               '--seed', str(seed), '--max-steps', str(settings.max_episode_steps),
-               '--overwrite']   # an unfinished run starts over
+    command = [
+        str(Path(sys.prefix) / 'bin' / 'eqhrl-train'),
+        '--params',
+        settings.params_path,
+        '--output',
+        str(directory),
+        '--mode',
+        algorithm,
+        '--episodes',
+        str(settings.episodes),
+        '--seed',
+        str(seed),
+        '--max-steps',
+        str(settings.max_episode_steps),
+        '--overwrite',
+    ]  # an unfinished run starts over
     if 'advising_budget' in settings.learner:
         command += ['--budget', str(settings.learner['advising_budget'])]
     if settings.expert_backend == 'none':
@@ -170,14 +192,28 @@ def gather(output: Path, algorithms, seeds) -> Path:
                     continue
                 with (directory / 'episodes.csv').open(newline='') as run_csv:
                     for row in csv.DictReader(run_csv):
-                        writer.writerow([algorithm, seed, row['episode'], row['return'], row['length'],
-                                         row['advice_asked'], row['advice_given'], row['success']])
+                        writer.writerow(
+                            [
+                                algorithm,
+                                seed,
+                                row['episode'],
+                                row['return'],
+                                row['length'],
+                                row['advice_asked'],
+                                row['advice_given'],
+                                row['success'],
+                            ]
+                        )
     return path
 
 
 def parse_args(argv=None):
-    parser = argparse.ArgumentParser(prog='eqhrl-experiment', description=__doc__.split('\n')[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    parser = argparse.ArgumentParser(
+        prog='eqhrl-experiment',
+        description=__doc__.split('\n')[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__,
+    )
     parser.add_argument('--params', default='pendulum', help='params file (name or path) with the defaults')
     parser.add_argument('--env', help='gymnasium env id (default: from the params file)')
     parser.add_argument('--algorithms', nargs='+', choices=ALGORITHMS, default=list(ALGORITHMS))
@@ -202,17 +238,30 @@ def main(argv=None) -> int:
         return 2
     output = Path(args.output)
     output.mkdir(parents=True, exist_ok=True)
-    (output / 'settings.yaml').write_text(yaml.safe_dump({
-        'env_id': settings.env_id, 'episodes': settings.episodes, 'max_episode_steps': settings.max_episode_steps,
-        'algorithms': args.algorithms, 'seeds': args.seeds, 'expert': settings.expert_backend,
-        'through_ros': args.through_ros, 'params_file': settings.params_path, 'learner': settings.learner}))
+    (output / 'settings.yaml').write_text(
+        yaml.safe_dump(
+            {
+                'env_id': settings.env_id,
+                'episodes': settings.episodes,
+                'max_episode_steps': settings.max_episode_steps,
+                'algorithms': args.algorithms,
+                'seeds': args.seeds,
+                'expert': settings.expert_backend,
+                'through_ros': args.through_ros,
+                'params_file': settings.params_path,
+                'learner': settings.learner,
+            }
+        )
+    )
 
-    todo = [(a, s) for a in args.algorithms for s in args.seeds
-            if not (run_dir(output, a, s) / 'DONE').exists()]
+    todo = [(a, s) for a in args.algorithms for s in args.seeds if not (run_dir(output, a, s) / 'DONE').exists()]
     skipped = len(args.algorithms) * len(args.seeds) - len(todo)
-    print(f'{settings.env_id}: {len(todo)} runs to do ({skipped} finished already), '
-          f'{settings.episodes} episodes x {settings.max_episode_steps} steps, {args.jobs} in parallel, '
-          f'{"through ROS" if args.through_ros else "in-process"}', flush=True)
+    print(
+        f'{settings.env_id}: {len(todo)} runs to do ({skipped} finished already), '
+        f'{settings.episodes} episodes x {settings.max_episode_steps} steps, {args.jobs} in parallel, '
+        f'{"through ROS" if args.through_ros else "in-process"}',
+        flush=True,
+    )
     total = len(todo) * settings.episodes
     done_episodes, finished, start = 0, 0, time.monotonic()
     last_print = 0.0
@@ -221,8 +270,10 @@ def main(argv=None) -> int:
     context = mp.get_context('spawn')
     try:
         with context.Pool(max(1, min(args.jobs, len(todo) or 1))) as pool:
-            results = [pool.apply_async(_worker, (settings, a, s, run_dir(output, a, s), args.through_ros, progress))
-                       for a, s in todo]
+            results = [
+                pool.apply_async(_worker, (settings, a, s, run_dir(output, a, s), args.through_ros, progress))
+                for a, s in todo
+            ]
             while finished < len(results):
                 try:
                     algorithm, seed, episode, ret = progress.get(timeout=0.5)
@@ -232,15 +283,18 @@ def main(argv=None) -> int:
                 newly = sum(r.ready() for r in results) - finished
                 for r in results:
                     if r.ready() and not r.successful():
-                        r.get()   # re-raise a worker's error here
+                        r.get()  # re-raise a worker's error here
                 finished += newly
                 now = time.monotonic()
                 if now - last_print > 15.0 or newly:
                     last_print = now
                     rate = done_episodes / max(now - start, 1e-9)
                     eta = (total - done_episodes) / rate if rate > 0 else float('nan')
-                    print(f'[{done_episodes}/{total} episodes, {finished}/{len(results)} runs] '
-                          f'{100 * done_episodes / max(total, 1):5.1f}%  eta {eta / 60:5.1f} min', flush=True)
+                    print(
+                        f'[{done_episodes}/{total} episodes, {finished}/{len(results)} runs] '
+                        f'{100 * done_episodes / max(total, 1):5.1f}%  eta {eta / 60:5.1f} min',
+                        flush=True,
+                    )
     except KeyboardInterrupt:
         print('\ninterrupted: finished runs are kept; run the same command to continue', file=sys.stderr)
         gather(output, args.algorithms, args.seeds)

@@ -10,8 +10,9 @@ def share_dir() -> Path:
     """share/eqhrl_ros of the install (ament index first; the venv prefix as a fallback)."""
     try:
         from ament_index_python.packages import get_package_share_directory
+
         return Path(get_package_share_directory('eqhrl_ros'))
-    except Exception:   # no ament index on the path (e.g. AMENT_PREFIX_PATH unset in a venv)
+    except Exception:  # no ament index on the path (e.g. AMENT_PREFIX_PATH unset in a venv)
         return Path(sys.prefix) / 'share' / 'eqhrl_ros'
 
 

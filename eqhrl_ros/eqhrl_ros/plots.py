@@ -19,7 +19,8 @@ def read_episodes(csv_path) -> dict[str, np.ndarray]:
 def smooth(values: np.ndarray, window: int = 11) -> np.ndarray:
     """Savitzky-Golay smoothing (Table 1's filter); short series are returned as they are."""
     from scipy.signal import savgol_filter
-    window = min(window, len(values) - (1 - len(values) % 2))   # odd and <= len
+
+    window = min(window, len(values) - (1 - len(values) % 2))  # odd and <= len
     if window < 5:
         return values
     return savgol_filter(values, window, polyorder=2)
@@ -27,13 +28,13 @@ def smooth(values: np.ndarray, window: int = 11) -> np.ndarray:
 
 def plot_training(csv_path, png_path, title: str = '') -> Path:
     import matplotlib
+
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
     data = read_episodes(csv_path)
     episodes = data['episode']
-    fig, (ax_return, ax_advice) = plt.subplots(2, 1, figsize=(8, 6), sharex=True,
-                                               gridspec_kw={'height_ratios': [2, 1]})
+    fig, (ax_return, ax_advice) = plt.subplots(2, 1, figsize=(8, 6), sharex=True, gridspec_kw={'height_ratios': [2, 1]})
     ax_return.plot(episodes, data['return'], color='tab:blue', alpha=0.3, label='return')
     ax_return.plot(episodes, smooth(data['return']), color='tab:blue', label='return (Savitzky-Golay)')
     ax_return.set_ylabel('episode return')

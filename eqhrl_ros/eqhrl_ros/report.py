@@ -30,7 +30,7 @@ import yaml
 from .core.config import MODES
 from .plots import smooth
 
-ORDER = MODES   # the algorithms in the order tables and figures show them
+ORDER = MODES  # the algorithms in the order tables and figures show them
 LABELS = {'sac': 'SAC', 'qasac': 'QASAC', 'eqsac': 'EQSAC'}
 COLORS = {'sac': 'tab:gray', 'qasac': 'tab:blue', 'eqsac': 'tab:red'}
 # Return thresholds for "episodes to reach": LunarLander's solved line; for Pendulum
@@ -51,8 +51,10 @@ def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
     runs = {}
     for key, items in rows.items():
         items.sort(key=lambda r: int(r['episode']))
-        runs[key] = {column: np.array([float(r[column]) for r in items])
-                     for column in ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')}
+        runs[key] = {
+            column: np.array([float(r[column]) for r in items])
+            for column in ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')
+        }
     return runs
 
 
@@ -83,18 +85,20 @@ def summarize(runs, threshold: float) -> list[dict]:
         tail = [max(1, len(r['return']) // 10) for r in per_run]
         reach = [episodes_to_reach(r['return'], threshold) for r in per_run]
         reached = [x for x in reach if not math.isnan(x)]
-        table.append({
-            'algorithm': algorithm,
-            'runs': len(per_run),
-            'episodes': int(np.mean([len(r['return']) for r in per_run])),
-            'advice_given': stat([r['advice_given'].sum() for r in per_run]),
-            'advice_asked': stat([r['advice_asked'].sum() for r in per_run]),
-            'final_return': stat([r['return'][-k:].mean() for r, k in zip(per_run, tail)]),
-            'final_success': stat([r['success'][-k:].mean() for r, k in zip(per_run, tail)]),
-            'success': stat([r['success'].mean() for r in per_run]),
-            'episodes_to_threshold': stat(reached) if reached else (math.nan, math.nan),
-            'reached': len(reached),
-        })
+        table.append(
+            {
+                'algorithm': algorithm,
+                'runs': len(per_run),
+                'episodes': int(np.mean([len(r['return']) for r in per_run])),
+                'advice_given': stat([r['advice_given'].sum() for r in per_run]),
+                'advice_asked': stat([r['advice_asked'].sum() for r in per_run]),
+                'final_return': stat([r['return'][-k:].mean() for r, k in zip(per_run, tail)]),
+                'final_success': stat([r['success'][-k:].mean() for r, k in zip(per_run, tail)]),
+                'success': stat([r['success'].mean() for r in per_run]),
+                'episodes_to_threshold': stat(reached) if reached else (math.nan, math.nan),
+                'reached': len(reached),
+            }
+        )
     return table
 
 
@@ -117,9 +121,10 @@ def format_table(table: list[dict], threshold: float) -> str:
         if row['reached'] < row['runs']:
             reach += f' ({row["reached"]} of {row["runs"]} runs reached it)'
         lines.append(
-            f"| {LABELS.get(row['algorithm'], row['algorithm'])} | {row['runs']} | {row['episodes']} | "
-            f"{pm(row['advice_given'], 0)} | {pm(row['advice_asked'], 0)} | {pm(row['final_return'])} | "
-            f"{pm(row['final_success'], 0, True)} | {pm(row['success'], 0, True)} | {reach} |")
+            f'| {LABELS.get(row["algorithm"], row["algorithm"])} | {row["runs"]} | {row["episodes"]} | '
+            f'{pm(row["advice_given"], 0)} | {pm(row["advice_asked"], 0)} | {pm(row["final_return"])} | '
+            f'{pm(row["final_success"], 0, True)} | {pm(row["success"], 0, True)} | {reach} |'
+        )
     return '\n'.join(lines)
 
 
@@ -136,6 +141,7 @@ def _by_algorithm(runs, column):
 
 def figures(runs, output: Path, env_id: str) -> list[Path]:
     import matplotlib
+
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
@@ -148,15 +154,19 @@ def figures(runs, output: Path, env_id: str) -> list[Path]:
         plt.close(fig)
         made.append(path)
 
-    for column, name, ylabel, smoothed in (('return', 'returns.png', 'episode return', True),
-                                           ('advice_given', 'advice.png', 'advice given per episode', False),
-                                           ('success', 'success.png', 'success rate', True)):
+    for column, name, ylabel, smoothed in (
+        ('return', 'returns.png', 'episode return', True),
+        ('advice_given', 'advice.png', 'advice given per episode', False),
+        ('success', 'success.png', 'success rate', True),
+    ):
         fig, ax = plt.subplots(figsize=(8, 4.5))
         for algorithm, data in _by_algorithm(runs, column).items():
             series = np.stack([smooth(row) for row in data]) if smoothed else data
             mean, std = series.mean(0), series.std(0)
             x = np.arange(len(mean))
-            ax.plot(x, mean, color=COLORS.get(algorithm), label=f'{LABELS.get(algorithm, algorithm)} ({len(data)} seeds)')
+            ax.plot(
+                x, mean, color=COLORS.get(algorithm), label=f'{LABELS.get(algorithm, algorithm)} ({len(data)} seeds)'
+            )
             ax.fill_between(x, mean - std, mean + std, color=COLORS.get(algorithm), alpha=0.15)
         ax.set_xlabel('episode')
         ax.set_ylabel(ylabel + (' (Savitzky-Golay, mean ± std over seeds)' if smoothed else ' (mean ± std)'))
@@ -169,8 +179,14 @@ def figures(runs, output: Path, env_id: str) -> list[Path]:
     if advising:
         keys = sorted(advising, key=lambda k: (ORDER.index(k[0]) if k[0] in ORDER else 99, k[1]))
         n = min(len(advising[k]['advice_given']) for k in keys)
-        used = max((int(np.nonzero(advising[k]['advice_asked'][:n])[0].max()) + 1
-                    for k in keys if advising[k]['advice_asked'][:n].any()), default=n)
+        used = max(
+            (
+                int(np.nonzero(advising[k]['advice_asked'][:n])[0].max()) + 1
+                for k in keys
+                if advising[k]['advice_asked'][:n].any()
+            ),
+            default=n,
+        )
         matrix = np.stack([advising[k]['advice_given'][:used] for k in keys])
         fig, ax = plt.subplots(figsize=(9, 0.35 * len(keys) + 1.5))
         image = ax.imshow(matrix, aspect='auto', cmap='viridis', interpolation='nearest')
@@ -183,8 +199,12 @@ def figures(runs, output: Path, env_id: str) -> list[Path]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog='eqhrl-report', description=__doc__.split('\n')[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    parser = argparse.ArgumentParser(
+        prog='eqhrl-report',
+        description=__doc__.split('\n')[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__,
+    )
     parser.add_argument('folders', nargs='+', help='eqhrl-experiment output folders')
     parser.add_argument('--output', required=True, help='folder for table.md and the PNGs')
     parser.add_argument('--threshold', type=float, help='return threshold (default: per env)')

@@ -7,10 +7,10 @@ run beside a real robot) never hear each other. Child processes inherit both.
 
 import os
 
-os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)   # 1..100, valid on every platform
+os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)  # 1..100, valid on every platform
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
-os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')   # pygame renders rgb_array frames without a display
+os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')  # pygame renders rgb_array frames without a display
 
 import pytest  # noqa: E402
 import torch  # noqa: E402
@@ -23,6 +23,7 @@ torch.set_num_threads(1)
 def ros_context():
     """A private rclpy context, shut down after the test whatever happens."""
     import rclpy
+
     context = rclpy.Context()
     rclpy.init(context=context)
     try:
@@ -38,6 +39,7 @@ def harness(ros_context, request):
     The executor is rclpy's SingleThreadedExecutor unless a test parametrizes
     ``harness`` indirectly with another kind ('events', 'multi')."""
     from ros_helpers import Harness
+
     h = Harness(ros_context, getattr(request, 'param', 'single'))
     try:
         yield h

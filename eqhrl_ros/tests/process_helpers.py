@@ -25,8 +25,7 @@ def read_rows(path):
 def start(executable, *args, log_dir, **popen):
     """A node as its own process; its output goes to a file (a full pipe would block it)."""
     log = open(log_dir / f'{executable}-{time.monotonic_ns()}.log', 'w+')
-    process = subprocess.Popen([str(BIN / executable), *args], stdout=log, stderr=subprocess.STDOUT, text=True,
-                               **popen)
+    process = subprocess.Popen([str(BIN / executable), *args], stdout=log, stderr=subprocess.STDOUT, text=True, **popen)
     process.log = log
     return process
 
@@ -60,8 +59,19 @@ def wait_for(condition, timeout):
 
 
 def learner_args(out, extra=()):
-    return ['--ros-args', '--params-file', str(PARAMS_DIR / 'demo.yaml'),
-            '-p', f'output_dir:={out}', '-p', 'hidden_sizes:=[16,16]', '-p', 'learning_starts:=50',
-            '-p', 'batch_size:=16', '-p', 'checkpoint_every_episodes:=1', *extra]
-
-
+    return [
+        '--ros-args',
+        '--params-file',
+        str(PARAMS_DIR / 'demo.yaml'),
+        '-p',
+        f'output_dir:={out}',
+        '-p',
+        'hidden_sizes:=[16,16]',
+        '-p',
+        'learning_starts:=50',
+        '-p',
+        'batch_size:=16',
+        '-p',
+        'checkpoint_every_episodes:=1',
+        *extra,
+    ]

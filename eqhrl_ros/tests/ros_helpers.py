@@ -29,9 +29,19 @@ def params(**values):
 
 
 def small_learner_params(tmp_path, **extra):
-    values = dict(env_id='Pendulum-v1', mode='eqsac', hidden_sizes=[16, 16], batch_size=16,
-                  learning_starts=40, queue_length=3, advising_budget=2, advice_timeout_s=0.3,
-                  output_dir=str(tmp_path), publish_gate_debug=True, checkpoint_every_episodes=1)
+    values = dict(
+        env_id='Pendulum-v1',
+        mode='eqsac',
+        hidden_sizes=[16, 16],
+        batch_size=16,
+        learning_starts=40,
+        queue_length=3,
+        advising_budget=2,
+        advice_timeout_s=0.3,
+        output_dir=str(tmp_path),
+        publish_gate_debug=True,
+        checkpoint_every_episodes=1,
+    )
     values.update(extra)
     return params(**values)
 
@@ -99,7 +109,7 @@ class StubExpert:
         if self.delay:
             time.sleep(self.delay)
         response.expert_name = self.expert_name
-        if isinstance(self.answer, list):          # a given (possibly bad) action
+        if isinstance(self.answer, list):  # a given (possibly bad) action
             response.advised, response.action = True, self.answer
         elif self.answer == 'advise':
             response.advised, response.action = True, [1.0]
@@ -116,7 +126,10 @@ class StubExpert:
 def run_learner(harness, ros_context, tmp_path, episodes=3, **extra):
     probe = Probe(harness)
     harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-        tmp_path, max_episodes=episodes, **extra)))
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context, parameter_overrides=small_learner_params(tmp_path, max_episodes=episodes, **extra)
+        )
+    )
     assert harness.spin_until(lambda: learner.done, timeout=60)
     return learner, probe

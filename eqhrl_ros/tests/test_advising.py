@@ -24,14 +24,14 @@ def test_fifo_keeps_the_last_length_values_in_order():
 
 def test_eqsac_fires_only_when_both_gates_open():
     assert full_gates().decide(0, discrepancy=3.5, entropy=0.4).fire
-    assert not full_gates().decide(0, discrepancy=3.5, entropy=0.55).fire   # not sure enough
-    assert not full_gates().decide(0, discrepancy=2.5, entropy=0.4).fire    # critics agree
+    assert not full_gates().decide(0, discrepancy=3.5, entropy=0.55).fire  # not sure enough
+    assert not full_gates().decide(0, discrepancy=2.5, entropy=0.4).fire  # critics agree
 
 
 def test_comparisons_are_strict():
-    decision = full_gates().decide(0, discrepancy=3.0, entropy=0.4)   # D equal to max
+    decision = full_gates().decide(0, discrepancy=3.0, entropy=0.4)  # D equal to max
     assert not decision.ask and not decision.fire
-    decision = full_gates().decide(0, discrepancy=3.5, entropy=0.5)   # E equal to min
+    decision = full_gates().decide(0, discrepancy=3.5, entropy=0.5)  # E equal to min
     assert decision.ask and not decision.respond and not decision.fire
 
 
@@ -60,7 +60,7 @@ def test_qasac_ignores_entropy_and_eqsac_waits_for_the_entropy_queue():
         qasac.decide(0, discrepancy=d)
     assert qasac.decide(0, discrepancy=3.0).fire
     assert len(qasac.e_queue) == 0
-    eqsac = full_gates(e=())   # D queue full, E queue empty
+    eqsac = full_gates(e=())  # D queue full, E queue empty
     assert not eqsac.decide(0, discrepancy=9.0, entropy=-5.0).fire
 
 
@@ -85,13 +85,14 @@ def test_outside_budget_queues_are_left_alone():
 
 def test_fixed_thresholds():
     gates = AdvisingGates('eqsac', 30, threshold_kind='fixed', fixed_d_threshold=1.0, fixed_e_threshold=0.0)
-    assert gates.decide(0, discrepancy=1.5, entropy=-0.1).fire          # no queue warm-up
+    assert gates.decide(0, discrepancy=1.5, entropy=-0.1).fire  # no queue warm-up
     assert not gates.decide(0, discrepancy=1.0, entropy=-0.1).fire
     assert not gates.decide(0, discrepancy=1.5, entropy=0.0).fire
 
 
-@pytest.mark.parametrize('kwargs', [dict(mode='eq'), dict(advising_budget=-1), dict(queue_length=0),
-                                    dict(threshold_kind='adaptive')])
+@pytest.mark.parametrize(
+    'kwargs', [dict(mode='eq'), dict(advising_budget=-1), dict(queue_length=0), dict(threshold_kind='adaptive')]
+)
 def test_bad_settings_are_refused(kwargs):
     settings = dict(mode='eqsac', advising_budget=30, queue_length=15)
     settings.update(kwargs)

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # see setup.cfg: left out by make test-fast
+
 REPO = Path(__file__).resolve().parents[2]
 VENV = Path(sys.prefix)
 
@@ -25,16 +27,30 @@ def colcon_install(tmp_path_factory):
     workspace = tmp_path_factory.mktemp('ws')
     (workspace / 'src').mkdir()
     # A checkout of this repository under src/, as a ROS user would have it (build outputs left out).
-    shutil.copytree(REPO, workspace / 'src' / 'eqhrl', ignore=shutil.ignore_patterns(
-        '.venv', 'build', 'install', 'log', 'runs', '.git', '__pycache__', '*.egg-info'))
+    shutil.copytree(
+        REPO,
+        workspace / 'src' / 'eqhrl',
+        ignore=shutil.ignore_patterns('.venv', 'build', 'install', 'log', 'runs', '.git', '__pycache__', '*.egg-info'),
+    )
     env = dict(os.environ, AMENT_PREFIX_PATH=str(VENV), CMAKE_PREFIX_PATH=str(VENV))
-    env['PATH'] = f"{VENV / 'bin'}:{env['PATH']}"
+    env['PATH'] = f'{VENV / "bin"}:{env["PATH"]}'
     result = subprocess.run(
-        [str(colcon), 'build', '--event-handlers', 'console_direct-',
-         '--cmake-args', f'-DPython3_EXECUTABLE={sys.executable}',
-         f"-DCMAKE_PROJECT_INCLUDE={REPO / 'tools' / 'cmake' / 'venv_underlay_fixes.cmake'}",
-         '-DBUILD_TESTING=OFF'],
-        cwd=workspace, env=env, capture_output=True, text=True, timeout=600)
+        [
+            str(colcon),
+            'build',
+            '--event-handlers',
+            'console_direct-',
+            '--cmake-args',
+            f'-DPython3_EXECUTABLE={sys.executable}',
+            f'-DCMAKE_PROJECT_INCLUDE={REPO / "tools" / "cmake" / "venv_underlay_fixes.cmake"}',
+            '-DBUILD_TESTING=OFF',
+        ],
+        cwd=workspace,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     return workspace / 'install'
 
@@ -54,9 +70,11 @@ def test_ros2_run_finds_the_executables(colcon_install):
 
 
 def test_install_space_provides_the_advise_type(colcon_install):
-    script = (f'. {colcon_install}/setup.sh && {sys.executable} -c '
-              '"import eqhrl_interfaces.srv as s, eqhrl_ros.core as c; '
-              'print(s.Advise.__module__, s.__file__); print(c.__file__)"')
+    script = (
+        f'. {colcon_install}/setup.sh && {sys.executable} -c '
+        '"import eqhrl_interfaces.srv as s, eqhrl_ros.core as c; '
+        'print(s.Advise.__module__, s.__file__); print(c.__file__)"'
+    )
     env = dict(os.environ, AMENT_PREFIX_PATH=str(VENV))
     result = subprocess.run(['bash', '-c', script], env=env, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr[-2000:]

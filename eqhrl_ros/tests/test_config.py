@@ -7,6 +7,7 @@ import yaml
 
 from eqhrl_ros.core.config import FIELDS, LearnerConfig, check_value, ros_name
 from eqhrl_ros.nodes.params import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
+
 from ros_helpers import PARAMS_DIR
 
 

@@ -25,8 +25,8 @@ def test_bellman_target_eq4_matches_hand_computation_on_tiny_network():
     s_next = torch.tensor([[1.0], [2.0]])
     a_next = torch.tensor([[0.5], [-0.5]])
     q1, q2 = critic(s_next, a_next)
-    assert q1.tolist() == pytest.approx([2.0, 2.0])       # relu(1.5)+0.5, relu(1.5)+0.5
-    assert q2.tolist() == pytest.approx([5.0, 11.0])      # 3*2-1, 3*4-1
+    assert q1.tolist() == pytest.approx([2.0, 2.0])  # relu(1.5)+0.5, relu(1.5)+0.5
+    assert q2.tolist() == pytest.approx([5.0, 11.0])  # 3*2-1, 3*4-1
     reward = torch.tensor([1.0, -2.0])
     terminated = torch.tensor([0.0, 1.0])
     log_prob = torch.tensor([-0.3, 0.7])
@@ -77,6 +77,7 @@ def test_squashed_log_prob_matches_change_of_variables():
 @pytest.mark.parametrize('mu,sigma', [(0.0, 0.5), (0.3, 0.8), (-1.2, 1.5), (2.0, 0.2)])
 def test_entropy_estimator_eq9_matches_numerical_integration(mu, sigma):
     """E(s) = -int p(a) log p(a) da over a in (-1, 1), p the density of tanh(N(mu, sigma^2))."""
+
     def density(a):
         u = math.atanh(a)
         return stats.norm(mu, sigma).pdf(u) / (1 - a * a)
@@ -89,8 +90,9 @@ def test_entropy_estimator_eq9_matches_numerical_integration(mu, sigma):
     generator = torch.Generator().manual_seed(0)
     # 200k draws: the Monte Carlo standard error stays below 0.007 even for sigma = 1.5.
     noise = torch.randn((200_000, 1, 1), generator=generator, dtype=torch.float64)
-    estimate = eq.policy_entropy(torch.tensor([[mu]], dtype=torch.float64),
-                                 torch.tensor([[math.log(sigma)]], dtype=torch.float64), noise)
+    estimate = eq.policy_entropy(
+        torch.tensor([[mu]], dtype=torch.float64), torch.tensor([[math.log(sigma)]], dtype=torch.float64), noise
+    )
     assert float(estimate) == pytest.approx(reference, abs=0.03)
 
 
@@ -99,8 +101,9 @@ def test_entropy_is_additive_over_action_dimensions():
     log_std = torch.tensor([[-0.5, 0.2]])
     noise = torch.randn((4000, 1, 2), generator=torch.Generator().manual_seed(1))
     joint = eq.policy_entropy(mean, log_std, noise)
-    parts = sum(float(eq.policy_entropy(mean[:, i:i + 1], log_std[:, i:i + 1], noise[..., i:i + 1]))
-                for i in range(2))
+    parts = sum(
+        float(eq.policy_entropy(mean[:, i : i + 1], log_std[:, i : i + 1], noise[..., i : i + 1])) for i in range(2)
+    )
     assert float(joint) == pytest.approx(parts, rel=1e-5)
 
 

@@ -15,11 +15,30 @@ def read(path):
 
 
 def tiny_run(output, *extra):
-    return experiment.main(['--params', 'demo', '--algorithms', 'sac', 'eqsac', '--seeds', '0', '1',
-                            '--episodes', '2', '--max-steps', '15', '--jobs', '2', '--output', str(output),
-                            *extra])
+    return experiment.main(
+        [
+            '--params',
+            'demo',
+            '--algorithms',
+            'sac',
+            'eqsac',
+            '--seeds',
+            '0',
+            '1',
+            '--episodes',
+            '2',
+            '--max-steps',
+            '15',
+            '--jobs',
+            '2',
+            '--output',
+            str(output),
+            *extra,
+        ]
+    )
 
 
+@pytest.mark.slow
 def test_runner_writes_the_documented_columns_and_resume_skips_finished_runs(tmp_path, capsys):
     assert tiny_run(tmp_path) == 0
     rows = read(tmp_path / 'episodes.csv')
@@ -31,7 +50,7 @@ def test_runner_writes_the_documented_columns_and_resume_skips_finished_runs(tmp
 
     finished = tmp_path / 'sac' / 'seed0' / 'episodes.csv'
     kept_mtime = finished.stat().st_mtime_ns
-    (tmp_path / 'eqsac' / 'seed1' / 'DONE').unlink()     # as if interrupted during this run
+    (tmp_path / 'eqsac' / 'seed1' / 'DONE').unlink()  # as if interrupted during this run
     capsys.readouterr()
     assert tiny_run(tmp_path) == 0
     assert '1 runs to do (3 finished already)' in capsys.readouterr().out
@@ -55,8 +74,9 @@ def write_synthetic(folder):
             for episode in range(40):
                 ret = -500.0 if episode < 20 else 0.0
                 given = 1 if episode < advised else 0
-                writer.writerow(['eqsac', seed, episode, ret, 100, given + 1 if given else 0, given,
-                                 int(episode >= 20)])
+                writer.writerow(
+                    ['eqsac', seed, episode, ret, 100, given + 1 if given else 0, given, int(episode >= 20)]
+                )
 
 
 def test_report_table_shows_the_known_values(tmp_path):
@@ -64,7 +84,7 @@ def test_report_table_shows_the_known_values(tmp_path):
     table = {row['algorithm']: row for row in report.summarize(report.read_runs([tmp_path / 'runs']), -200.0)}
     sac, eqsac = table['sac'], table['eqsac']
     assert sac['final_return'] == pytest.approx((-200.0, 100.0))
-    assert sac['advice_given'] == (0.0, 0.0) and sac['reached'] == 1     # only seed 0 is above -200
+    assert sac['advice_given'] == (0.0, 0.0) and sac['reached'] == 1  # only seed 0 is above -200
     assert eqsac['advice_given'] == pytest.approx((4.0, 1.0))
     assert eqsac['advice_asked'] == pytest.approx((8.0, 2.0))
     assert eqsac['final_return'] == pytest.approx((0.0, 0.0))
@@ -94,6 +114,7 @@ def test_episodes_to_reach_is_nan_when_never_reached():
     assert math.isnan(report.episodes_to_reach(np.full(30, -500.0), -200.0))
 
 
+@pytest.mark.slow
 def test_in_process_and_through_ros_give_the_same_numbers(tmp_path):
     """Lock-step ROS runs the same algorithm on the same seed: the same episodes, with the
     same advice, and returns equal up to float32 rounding of rewards in the messages."""
@@ -103,28 +124,41 @@ def test_in_process_and_through_ros_give_the_same_numbers(tmp_path):
         'expert:\n  ros__parameters:\n    backend: heuristic\n    env_id: Pendulum-v1\n'
         'learner:\n  ros__parameters:\n    env_id: Pendulum-v1\n    hidden_sizes: [16, 16]\n'
         '    batch_size: 16\n    learning_starts: 20\n    queue_length: 3\n    advising_budget: 2\n'
-        '    max_episodes: 3\n')
+        '    max_episodes: 3\n'
+    )
     common = ['--params', str(params_file), '--algorithms', 'eqsac', '--seeds', '5', '--jobs', '1']
     assert experiment.main([*common, '--output', str(tmp_path / 'core')]) == 0
     assert experiment.main([*common, '--through-ros', '--output', str(tmp_path / 'ros')]) == 0
     core, ros = read(tmp_path / 'core' / 'episodes.csv'), read(tmp_path / 'ros' / 'episodes.csv')
     assert len(core) == len(ros) == 3
     for a, b in zip(core, ros):
-        assert (a['episode'], a['length'], a['advice_asked'], a['advice_given']) == \
-               (b['episode'], b['length'], b['advice_asked'], b['advice_given'])
+        assert (a['episode'], a['length'], a['advice_asked'], a['advice_given']) == (
+            b['episode'],
+            b['length'],
+            b['advice_asked'],
+            b['advice_given'],
+        )
         assert float(a['return']) == pytest.approx(float(b['return']), rel=1e-3)
     assert sum(int(r['advice_given']) for r in core) > 0
 
 
 # ------------------------------------------------------------------ one reading path for params files
 
-@pytest.mark.parametrize('line,message', [('    gama: 0.9', "unknown parameter(s) for node 'learner': gama"),
-                                          ('    tau: 2.0', "'tau' of node 'learner' is 2.0"),
-                                          ('    batch_size: 64.0', "'batch_size' of node 'learner' is 64.0")])
+
+@pytest.mark.parametrize(
+    'line,message',
+    [
+        ('    gama: 0.9', "unknown parameter(s) for node 'learner': gama"),
+        ('    tau: 2.0', "'tau' of node 'learner' is 2.0"),
+        ('    batch_size: 64.0', "'batch_size' of node 'learner' is 64.0"),
+    ],
+)
 def test_the_experiment_refuses_a_params_file_as_the_learner_node_does(tmp_path, capsys, line, message):
     params = tmp_path / 'bad.yaml'
     params.write_text(f'learner:\n  ros__parameters:\n    env_id: Pendulum-v1\n{line}\n')
-    assert experiment.main(['--params', str(params), '--output', str(tmp_path / 'out'), '--seeds', '0',
-                            '--episodes', '1']) == 2
+    assert (
+        experiment.main(['--params', str(params), '--output', str(tmp_path / 'out'), '--seeds', '0', '--episodes', '1'])
+        == 2
+    )
     assert message in capsys.readouterr().err
     assert not (tmp_path / 'out').exists()

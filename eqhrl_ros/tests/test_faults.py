@@ -4,9 +4,7 @@ import csv
 import gc
 import signal
 import subprocess
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,11 +15,14 @@ from std_msgs.msg import Float32MultiArray, MultiArrayLayout
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
+
 from process_helpers import BIN, episodes_in_csv, learner_args, start, stop, wait_for
 from ros_helpers import Probe, StubExpert, observation_publisher, params, run_learner, small_learner_params
 
-@pytest.mark.parametrize('answer,kind', [([0.5, 0.5], 'wrong_size'), ([float('nan')], 'non_finite'),
-                                         ([7.0], 'out_of_bounds')])
+
+@pytest.mark.parametrize(
+    'answer,kind', [([0.5, 0.5], 'wrong_size'), ([float('nan')], 'non_finite'), ([7.0], 'out_of_bounds')]
+)
 def test_bad_advice_is_counted_by_kind_and_never_used(harness, ros_context, tmp_path, answer, kind):
     expert = StubExpert(ros_context, answer)
     try:
@@ -35,18 +36,24 @@ def test_bad_advice_is_counted_by_kind_and_never_used(harness, ros_context, tmp_
 
 def test_expert_that_crashes_and_comes_back(harness, ros_context, tmp_path):
     harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-        tmp_path, mode='qasac', advising_budget=1000, max_episodes=9, advice_timeout_s=0.2)))
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=small_learner_params(
+                tmp_path, mode='qasac', advising_budget=1000, max_episodes=9, advice_timeout_s=0.2
+            ),
+        )
+    )
     expert = StubExpert(ros_context)
     assert harness.spin_until(lambda: learner.learner.episode >= 2, timeout=60)
-    expert.close()                                        # the expert dies mid-run
+    expert.close()  # the expert dies mid-run
     given_before = learner.learner.advice_total.given
     assert given_before > 0
     assert harness.spin_until(lambda: learner.learner.episode >= 5, timeout=60)
     totals = learner.learner.advice_total
     missed = totals.failed['unavailable'] + totals.failed['timeout']
-    assert missed > 0 and totals.given == given_before   # training went on alone
-    expert = StubExpert(ros_context, name='stub_expert_again')    # and it comes back
+    assert missed > 0 and totals.given == given_before  # training went on alone
+    expert = StubExpert(ros_context, name='stub_expert_again')  # and it comes back
     try:
         assert harness.spin_until(lambda: learner.done, timeout=60)
     finally:
@@ -56,10 +63,11 @@ def test_expert_that_crashes_and_comes_back(harness, ros_context, tmp_path):
 
 
 def test_untrusted_expert_is_refused(harness, ros_context, tmp_path):
-    expert = StubExpert(ros_context)   # answers as 'stub'
+    expert = StubExpert(ros_context)  # answers as 'stub'
     try:
-        learner, _ = run_learner(harness, ros_context, tmp_path, episodes=2, mode='qasac',
-                                 accept_expert='/trusted_expert')
+        learner, _ = run_learner(
+            harness, ros_context, tmp_path, episodes=2, mode='qasac', accept_expert='/trusted_expert'
+        )
     finally:
         expert.close()
     totals = learner.learner.advice_total
@@ -68,10 +76,14 @@ def test_untrusted_expert_is_refused(harness, ros_context, tmp_path):
 
 def test_env_that_dies_mid_episode_and_restarts(harness, ros_context, tmp_path):
     env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-        tmp_path, mode='sac', max_episodes=4, stall_timeout_s=0.5)))
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=small_learner_params(tmp_path, mode='sac', max_episodes=4, stall_timeout_s=0.5),
+        )
+    )
     assert harness.spin_until(lambda: learner.learner.episode == 1 and learner.learner.episode_step >= 5)
-    harness.executor.remove_node(env)          # the env dies in the middle of episode 1
+    harness.executor.remove_node(env)  # the env dies in the middle of episode 1
     harness.nodes.remove(env)
     env.destroy_node()
     steps_at_death = learner.learner.total_steps
@@ -93,7 +105,7 @@ def test_bad_observations_are_dropped_and_never_stored(harness, ros_context, tmp
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
     publisher = observation_publisher(harness)
     publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], 0.0, False, False, 0, 0))  # good
-    publisher.publish(messages.build([('obs', [0.1, 0.2]), ('tail', [0, 0, 0, 0, 1])]))     # too short
+    publisher.publish(messages.build([('obs', [0.1, 0.2]), ('tail', [0, 0, 0, 0, 1])]))  # too short
     publisher.publish(messages.observation_msg([0.1, np.nan, 0.3], -1.0, False, False, 0, 1))
     publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], np.inf, False, False, 0, 1))
     assert harness.spin_until(lambda: learner.dropped_messages == 3)
@@ -110,6 +122,7 @@ def test_observation_error_names_topic_and_sizes():
 
 def test_serialized_reader_deserializes_once_per_layout(monkeypatch):
     from rclpy.serialization import serialize_message
+
     out = messages.observation_out(3)
     calls = []
     real = messages.deserialize_message
@@ -126,15 +139,16 @@ def test_serialized_reader_deserializes_once_per_layout(monkeypatch):
     assert messages.parse_observation(reader.values(other), 3).step == 5
     assert len(calls) == 2
     short = serialize_message(Float32MultiArray(data=[0.0] * 7))
-    with pytest.raises(messages.MessageError, match=r"7 values, expected 8"):
+    with pytest.raises(messages.MessageError, match=r'7 values, expected 8'):
         messages.parse_observation(reader.values(short), 3)
     with pytest.raises(messages.MessageError, match='not a Float32MultiArray'):
         reader.values(b'\x00\x01\x00\x00\xff\xff\xff\xff')
-    assert messages.parse_observation(reader.values(other), 3).step == 5   # still reads
+    assert messages.parse_observation(reader.values(other), 3).step == 5  # still reads
 
 
 def test_outgoing_message_falls_back_to_the_message_if_bytes_are_not_as_expected(monkeypatch):
     from rclpy.serialization import serialize_message
+
     # A middleware whose encoding does not end with the values (here: 4 extra bytes).
     monkeypatch.setattr(messages, 'serialize_message', lambda msg: serialize_message(msg) + bytes(4))
     out = messages.action_out(2)
@@ -147,7 +161,9 @@ def test_outgoing_message_falls_back_to_the_message_if_bytes_are_not_as_expected
 
 # ------------------------------------------------------------------ processes
 
+
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+@pytest.mark.slow
 def test_learner_stopped_mid_episode_saves_and_resumes_without_gaps(tmp_path, sig):
     out = tmp_path / 'run'
     env = start('gym_env', '--ros-args', '-p', 'max_episode_steps:=20', log_dir=tmp_path)
@@ -156,7 +172,7 @@ def test_learner_stopped_mid_episode_saves_and_resumes_without_gaps(tmp_path, si
         learner = start('learner', *learner_args(out), log_dir=tmp_path)
         csv_path = out / 'episodes.csv'
         assert wait_for(lambda: csv_path.exists() and len(episodes_in_csv(csv_path)) >= 3, 90), stop(learner)
-        time.sleep(0.13)                          # somewhere inside the next episode
+        time.sleep(0.13)  # somewhere inside the next episode
         log = stop(learner, sig)
         assert learner.returncode == 0, log
         done = episodes_in_csv(csv_path)
@@ -165,8 +181,13 @@ def test_learner_stopped_mid_episode_saves_and_resumes_without_gaps(tmp_path, si
         assert len(probe['gates']['d_queue']) > 0
 
         target = len(done) + 2
-        resumed = start('learner', *learner_args(out, ['-p', 'resume:=true', '-p', f'max_episodes:={target}',
-                                                       '-p', 'shutdown_when_done:=true']), log_dir=tmp_path)
+        resumed = start(
+            'learner',
+            *learner_args(
+                out, ['-p', 'resume:=true', '-p', f'max_episodes:={target}', '-p', 'shutdown_when_done:=true']
+            ),
+            log_dir=tmp_path,
+        )
         try:
             resumed.wait(timeout=120)
         finally:
@@ -179,47 +200,63 @@ def test_learner_stopped_mid_episode_saves_and_resumes_without_gaps(tmp_path, si
         stop(expert)
 
 
-@pytest.mark.parametrize('line,key', [('    gama: 0.9', 'gama'), ('    batch_size: big', 'batch_size'),
-                                      ('    tau: 2.0', 'tau')])
+@pytest.mark.parametrize(
+    'line,key', [('    gama: 0.9', 'gama'), ('    batch_size: big', 'batch_size'), ('    tau: 2.0', 'tau')]
+)
+@pytest.mark.slow
 def test_bad_params_file_is_refused_at_start_up_naming_the_key(tmp_path, line, key):
     params_file = tmp_path / 'bad.yaml'
     params_file.write_text(f'learner:\n  ros__parameters:\n    env_id: Pendulum-v1\n{line}\n')
-    result = subprocess.run([str(BIN / 'learner'), '--ros-args', '--params-file', str(params_file),
-                             '-p', f'output_dir:={tmp_path}'], capture_output=True, text=True, timeout=60)
+    result = subprocess.run(
+        [str(BIN / 'learner'), '--ros-args', '--params-file', str(params_file), '-p', f'output_dir:={tmp_path}'],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert result.returncode == 1
     assert 'refused to start' in result.stderr and key in result.stderr, result.stderr[-2000:]
     assert 'Traceback' not in result.stderr
 
 
+@pytest.mark.slow
 def test_resume_from_a_corrupt_checkpoint_refuses_to_start(tmp_path):
     (tmp_path / 'checkpoint.pt').write_bytes(b'PK\x03\x04 this is not a zip file')
-    result = subprocess.run([str(BIN / 'learner'), '--ros-args', '-p', f'output_dir:={tmp_path}',
-                             '-p', 'resume:=true'], capture_output=True, text=True, timeout=60)
+    result = subprocess.run(
+        [str(BIN / 'learner'), '--ros-args', '-p', f'output_dir:={tmp_path}', '-p', 'resume:=true'],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert result.returncode == 1 and 'not a readable eqhrl_ros.checkpoint' in result.stderr
-    assert (tmp_path / 'checkpoint.pt').read_bytes().startswith(b'PK\x03\x04 this')   # left untouched
+    assert (tmp_path / 'checkpoint.pt').read_bytes().startswith(b'PK\x03\x04 this')  # left untouched
 
 
 # ------------------------------------------------------------------ issue 16: starved, flooded, relabelled
+
 
 def rows_of(path):
     with open(path, newline='') as f:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_a_paused_env_continues_its_episode_and_no_row_is_corrupted(tmp_path):
     # SIGSTOP stands for an env that is paused or starved of CPU for longer than
     # stall_timeout_s. Its episode must go on when it comes back, never end up as a
     # fragment recorded as a whole episode.
     out = tmp_path / 'run'
     env = start('gym_env', '--ros-args', '-p', 'max_episode_steps:=40', log_dir=tmp_path)
-    learner = start('learner', *learner_args(out, ['-p', 'mode:=sac', '-p', 'stall_timeout_s:=0.3',
-                                                   '-p', 'checkpoint_every_episodes:=0']), log_dir=tmp_path)
+    learner = start(
+        'learner',
+        *learner_args(out, ['-p', 'mode:=sac', '-p', 'stall_timeout_s:=0.3', '-p', 'checkpoint_every_episodes:=0']),
+        log_dir=tmp_path,
+    )
     csv_path = out / 'episodes.csv'
     try:
         assert wait_for(lambda: csv_path.exists() and len(rows_of(csv_path)) >= 1, 90), stop(learner)
-        time.sleep(0.15)                                   # inside the next episode
+        time.sleep(0.15)  # inside the next episode
         env.send_signal(signal.SIGSTOP)
-        time.sleep(1.5)                                    # five stall timeouts
+        time.sleep(1.5)  # five stall timeouts
         env.send_signal(signal.SIGCONT)
         assert wait_for(lambda: len(rows_of(csv_path)) >= 4, 90)
     finally:
@@ -239,26 +276,30 @@ def publish_steps(harness, publisher, learner, steps, obs_dim=3):
         done = step == steps[-1]
         before = learner.learner.total_steps + learner.learner.episode
         publisher.publish(messages.observation_msg([0.1, 0.2, 0.3 + step], -1.0, False, done, 0, step))
-        harness.spin_until(lambda: learner.learner.total_steps + learner.learner.episode > before
-                           or learner._key == (0, step), timeout=5)
+        harness.spin_until(
+            lambda: learner.learner.total_steps + learner.learner.episode > before or learner._key == (0, step),
+            timeout=5,
+        )
 
 
 def test_a_lost_observation_marks_the_episode_interrupted(harness, ros_context, tmp_path):
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-        tmp_path, mode='sac')))
+    learner = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, mode='sac'))
+    )
     publisher = observation_publisher(harness)
-    publish_steps(harness, publisher, learner, [0, 1, 2, 4, 5, 6])      # step 3 never arrives
+    publish_steps(harness, publisher, learner, [0, 1, 2, 4, 5, 6])  # step 3 never arrives
     assert harness.spin_until(lambda: len(learner.summaries) == 1)
     summary = learner.summaries[0]
     assert summary.interrupted and not summary.success
     assert learner.observation_gaps == 1
-    assert learner.learner.total_steps == 4                             # no transition across the gap
+    assert learner.learner.total_steps == 4  # no transition across the gap
     assert rows_of(tmp_path / 'episodes.csv')[0]['interrupted'] == '1'
 
 
 def test_a_learner_that_joins_mid_episode_marks_it_interrupted(harness, ros_context, tmp_path):
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-        tmp_path, mode='sac')))
+    learner = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, mode='sac'))
+    )
     publisher = observation_publisher(harness)
     publish_steps(harness, publisher, learner, [7, 8, 9])
     assert harness.spin_until(lambda: len(learner.summaries) == 1)
@@ -270,8 +311,14 @@ def test_advice_timeout_and_stall_warning_do_not_depend_on_ros_time(harness, ros
     expert = StubExpert(ros_context, delay=1.0)
     try:
         harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
-        learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-            tmp_path, mode='qasac', max_episodes=2, advice_timeout_s=0.2, use_sim_time=True)))
+        learner = harness.add(
+            LearnerNode(
+                context=ros_context,
+                parameter_overrides=small_learner_params(
+                    tmp_path, mode='qasac', max_episodes=2, advice_timeout_s=0.2, use_sim_time=True
+                ),
+            )
+        )
         assert harness.spin_until(lambda: learner.done, timeout=60)
     finally:
         expert.close()
@@ -283,15 +330,31 @@ def test_a_relabelled_message_is_refused_not_read_by_position(harness, ros_conte
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
     publisher = observation_publisher(harness)
     # Right size, but 'step' and 'episode' swapped, and another with obs of the wrong size.
-    swapped = messages.build([('obs', [0.1, 0.2, 0.3]), ('reward', [0.0]), ('terminated', [0.0]),
-                              ('truncated', [0.0]), ('step', [0.0]), ('episode', [0.0])])
-    resized = messages.build([('obs', [0.1, 0.2]), ('reward', [0.0, 0.0]), ('terminated', [0.0]),
-                              ('truncated', [0.0]), ('episode', [0.0]), ('step', [0.0])])
+    swapped = messages.build(
+        [
+            ('obs', [0.1, 0.2, 0.3]),
+            ('reward', [0.0]),
+            ('terminated', [0.0]),
+            ('truncated', [0.0]),
+            ('step', [0.0]),
+            ('episode', [0.0]),
+        ]
+    )
+    resized = messages.build(
+        [
+            ('obs', [0.1, 0.2]),
+            ('reward', [0.0, 0.0]),
+            ('terminated', [0.0]),
+            ('truncated', [0.0]),
+            ('episode', [0.0]),
+            ('step', [0.0]),
+        ]
+    )
     publisher.publish(swapped)
     publisher.publish(resized)
     assert harness.spin_until(lambda: learner.dropped_messages == 2)
     assert learner._key is None and learner.learner.total_steps == 0
-    publisher.publish(Float32MultiArray(data=[0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0]))   # unlabelled: by position
+    publisher.publish(Float32MultiArray(data=[0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0]))  # unlabelled: by position
     assert harness.spin_until(lambda: learner._key == (0, 0))
 
 
@@ -299,10 +362,10 @@ def test_check_layout_accepts_ours_and_unlabelled_only():
     ours = messages.observation_msg([0.1, 0.2, 0.3], 0.0, False, False, 0, 0)
     messages.check_layout(ours.layout, messages.observation_layouts(3), 'observation')
     messages.check_layout(Float32MultiArray().layout, messages.observation_layouts(3), 'observation')
-    with pytest.raises(messages.MessageError, match=r"layout \[action:1\] is not"):
+    with pytest.raises(messages.MessageError, match=r'layout \[action:1\] is not'):
         messages.check_layout(messages.action_msg([0.5]).layout, messages.observation_layouts(3), 'observation')
     offset = messages.action_msg([0.5], 1, 2)
-    offset.layout = MultiArrayLayout(dim=list(offset.layout.dim), data_offset=1)   # layouts are shared: copy
+    offset.layout = MultiArrayLayout(dim=list(offset.layout.dim), data_offset=1)  # layouts are shared: copy
     with pytest.raises(messages.MessageError, match='data_offset 1'):
         messages.parse_action(offset, 1)
 
@@ -341,14 +404,14 @@ def test_a_flood_leaves_no_backlog_with_the_default_executor(harness, ros_contex
     before = rss_mb()
     for _ in range(100_000):
         publisher.publish(bad)
-    time.sleep(0.5)                                   # let the middleware deliver
+    time.sleep(0.5)  # let the middleware deliver
     gc.collect()
     grown = rss_mb() - before
-    harness.spin_until(lambda: False, timeout=1.0)    # drain whatever waits
+    harness.spin_until(lambda: False, timeout=1.0)  # drain whatever waits
     assert grown < 5.0, f'{grown:.1f} MB held for 100,000 messages'
     assert 0 < learner.dropped_messages <= 50
     publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], 0.0, False, False, 0, 0))
-    assert harness.spin_until(lambda: learner._key == (0, 0), timeout=2.0)   # back at once
+    assert harness.spin_until(lambda: learner._key == (0, 0), timeout=2.0)  # back at once
 
 
 def test_env_throttles_its_rejection_log(harness, ros_context, capfd):

@@ -6,15 +6,32 @@ import numpy as np
 import pytest
 import torch
 
-from eqhrl_ros.core import (Advice, CheckpointError, EQSACLearner, LearnerConfig, PolicyExpert,
-                            export_policy, load_checkpoint, make_env, run_episode, save_checkpoint)
+from eqhrl_ros.core import (
+    Advice,
+    CheckpointError,
+    EQSACLearner,
+    LearnerConfig,
+    PolicyExpert,
+    export_policy,
+    load_checkpoint,
+    make_env,
+    run_episode,
+    save_checkpoint,
+)
 
 LOW, HIGH = [-2.0], [2.0]
 
 
 def small_learner(mode='eqsac', **overrides) -> EQSACLearner:
-    settings = dict(mode=mode, hidden=(32, 32), batch_size=16, learning_starts=32,
-                    replay_capacity=5000, queue_length=3, advising_budget=10)
+    settings = dict(
+        mode=mode,
+        hidden=(32, 32),
+        batch_size=16,
+        learning_starts=32,
+        replay_capacity=5000,
+        queue_length=3,
+        advising_budget=10,
+    )
     settings.update(overrides)
     return EQSACLearner(3, LOW, HIGH, LearnerConfig(**settings))
 
@@ -67,8 +84,8 @@ def test_advice_is_requested_exactly_when_gates_fire_and_used():
     assert summary.advice_asked == len(expert.requests) > 0
     assert summary.advice_given == summary.advice_asked
     assert len(learner.advice_replay) == summary.advice_given
-    stored = learner.advice_replay.action[:len(learner.advice_replay), 0]
-    assert torch.allclose(stored, torch.full_like(stored, 0.75))    # 1.5 normalised by scale 2
+    stored = learner.advice_replay.action[: len(learner.advice_replay), 0]
+    assert torch.allclose(stored, torch.full_like(stored, 0.75))  # 1.5 normalised by scale 2
     request = expert.requests[0]
     assert request.episode == 0 and np.isfinite(request.entropy) and request.discrepancy >= 0
 
@@ -90,12 +107,15 @@ def test_no_advice_outside_the_budget():
     assert second.episode == 1 and second.advice_asked == 0 and len(expert.requests) == asked_in_budget
 
 
-@pytest.mark.parametrize('answer,field', [
-    (Advice.decline('deadman not held'), 'declined'),
-    (Advice(np.array([5.0], dtype=np.float32)), 'out_of_bounds'),
-    (Advice(np.array([np.nan], dtype=np.float32)), 'non_finite'),
-    (Advice(np.array([0.1, 0.2], dtype=np.float32)), 'wrong_size'),
-])
+@pytest.mark.parametrize(
+    'answer,field',
+    [
+        (Advice.decline('deadman not held'), 'declined'),
+        (Advice(np.array([5.0], dtype=np.float32)), 'out_of_bounds'),
+        (Advice(np.array([np.nan], dtype=np.float32)), 'non_finite'),
+        (Advice(np.array([0.1, 0.2], dtype=np.float32)), 'wrong_size'),
+    ],
+)
 def test_refused_or_bad_advice_keeps_own_action_and_is_counted_apart(answer, field):
     learner = small_learner(advising_budget=100)
     summary = pendulum_episode(learner, ScriptedExpert(answer))
@@ -111,6 +131,7 @@ def test_refused_or_bad_advice_keeps_own_action_and_is_counted_apart(answer, fie
 def test_a_crashing_expert_does_not_stop_training():
     def broken(request):
         raise RuntimeError('expert bug')
+
     learner = small_learner(advising_budget=100)
     summary = pendulum_episode(learner, broken)
     assert summary.length == 30 and learner.advice_total.failed['error'] == summary.advice_asked > 0
@@ -131,23 +152,22 @@ def test_update_order_main_critic_then_advice_critic_then_actor(monkeypatch):
     original_critic = learner._critic_update
     original_actor = learner._actor_and_alpha_update
     monkeypatch.setattr(learner, '_critic_update', lambda b, y: calls.append(('critic', b)) or original_critic(b, y))
-    monkeypatch.setattr(learner, '_actor_and_alpha_update',
-                        lambda b: calls.append(('actor', b)) or original_actor(b))
+    monkeypatch.setattr(learner, '_actor_and_alpha_update', lambda b: calls.append(('actor', b)) or original_actor(b))
     for _ in range(40):
         learner.replay.add(np.random.randn(3), [0.1], -1.0, np.random.randn(3), False)
 
-    learner.update()   # advice buffer empty: the second critic step is skipped
+    learner.update()  # advice buffer empty: the second critic step is skipped
     assert [c[0] for c in calls] == ['critic', 'actor']
     assert calls[0][1] is calls[1][1]
 
     calls.clear()
-    for _ in range(3):   # fewer than a batch: sampled with replacement
+    for _ in range(3):  # fewer than a batch: sampled with replacement
         learner.advice_replay.add(np.ones(3), [0.5], 1.0, np.ones(3), True)
     learner.update()
     assert [c[0] for c in calls] == ['critic', 'critic', 'actor']
     advice_batch = calls[1][1]
     assert advice_batch.obs.shape == (16, 3) and torch.all(advice_batch.action == 0.5)
-    assert calls[2][1] is calls[0][1]   # the actor trains on the main batch
+    assert calls[2][1] is calls[0][1]  # the actor trains on the main batch
 
 
 def test_qasac_also_uses_the_advice_critic_step_but_sac_does_not(monkeypatch):
@@ -208,7 +228,7 @@ def test_corrupt_and_foreign_checkpoints_give_clear_errors_and_change_nothing(tm
     learner = small_learner()
     save_checkpoint(learner, tmp_path / 'good.pt')
     data = (tmp_path / 'good.pt').read_bytes()
-    (tmp_path / 'truncated.pt').write_bytes(data[:len(data) // 2])
+    (tmp_path / 'truncated.pt').write_bytes(data[: len(data) // 2])
     (tmp_path / 'text.pt').write_text('not a checkpoint')
     torch.save({'weights': torch.zeros(3)}, tmp_path / 'other.pt')
     other_env = EQSACLearner(8, [-1, -1], [1, 1], LearnerConfig(hidden=(32, 32)))
@@ -216,9 +236,13 @@ def test_corrupt_and_foreign_checkpoints_give_clear_errors_and_change_nothing(tm
 
     target = small_learner(seed=5)
     before = [p.clone() for p in target.actor.parameters()]
-    for name, message in [('truncated.pt', 'not a readable'), ('text.pt', 'not a readable'),
-                          ('other.pt', 'expected a eqhrl_ros.checkpoint'), ('lunar.pt', 'observations of 8'),
-                          ('missing.pt', 'no such file')]:
+    for name, message in [
+        ('truncated.pt', 'not a readable'),
+        ('text.pt', 'not a readable'),
+        ('other.pt', 'expected a eqhrl_ros.checkpoint'),
+        ('lunar.pt', 'observations of 8'),
+        ('missing.pt', 'no such file'),
+    ]:
         with pytest.raises(CheckpointError, match=message):
             load_checkpoint(target, tmp_path / name)
     assert all(torch.equal(a, b) for a, b in zip(before, target.actor.parameters()))

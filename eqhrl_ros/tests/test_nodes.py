@@ -11,19 +11,28 @@ from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
+
 from ros_helpers import PARAMS_DIR, Probe, StubExpert, params, run_learner, small_learner_params
 
 # ------------------------------------------------------------------ env node
 
+
 def test_env_node_layout_step_reset_and_rejections(harness, ros_context):
     probe = Probe(harness)
-    env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(
-        max_episode_steps=3, republish_period_s=0.2)))
+    env = harness.add(
+        GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=3, republish_period_s=0.2))
+    )
     # The first observation is re-sent until someone acts, so a late subscriber gets it.
     assert harness.spin_until(lambda: len(probe.observations) >= 1)
     first = probe.observations[-1]
     assert [(d.label, d.size) for d in first.layout.dim] == [
-        ('obs', 3), ('reward', 1), ('terminated', 1), ('truncated', 1), ('episode', 1), ('step', 1)]
+        ('obs', 3),
+        ('reward', 1),
+        ('terminated', 1),
+        ('truncated', 1),
+        ('episode', 1),
+        ('step', 1),
+    ]
     step0 = messages.parse_observation(first, 3)
     assert (step0.episode, step0.step, step0.done) == (0, 0, False)
 
@@ -36,7 +45,7 @@ def test_env_node_layout_step_reset_and_rejections(harness, ros_context):
     assert harness.spin_until(lambda: env.rejected_actions == 2)
     assert env.step_index == 1
 
-    probe.action_pub.publish(messages.action_msg([0.0], 0, 0))   # stale tag: ignored
+    probe.action_pub.publish(messages.action_msg([0.0], 0, 0))  # stale tag: ignored
     assert harness.spin_until(lambda: env.stale_actions == 1)
     assert env.step_index == 1
 
@@ -60,7 +69,7 @@ def test_a_late_subscriber_gets_the_observation_when_it_connects(harness, ros_co
     # reports no change in the count.
     env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(republish_period_s=60.0)))
     if joins == 'while_spinning':
-        harness.spin_until(lambda: False, timeout=0.3)      # the first observation went out to nobody
+        harness.spin_until(lambda: False, timeout=0.3)  # the first observation went out to nobody
     start = time.monotonic()
     probe = Probe(harness)
     assert harness.spin_until(lambda: len(probe.observations) >= 1, timeout=5)
@@ -72,6 +81,7 @@ def test_executor_kinds():
     from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 
     from eqhrl_ros.nodes.lifecycle import make_executor
+
     context = rclpy.Context()
     rclpy.init(context=context)
     try:
@@ -86,6 +96,7 @@ def test_executor_kinds():
 
 # ------------------------------------------------------------------ learner with stub experts
 
+
 def test_learner_asks_exactly_when_gates_fire_and_only_inside_budget(harness, ros_context, tmp_path):
     expert = StubExpert(ros_context)
     try:
@@ -97,8 +108,8 @@ def test_learner_asks_exactly_when_gates_fire_and_only_inside_budget(harness, ro
     fired = [(int(g['episode']), int(g['step'])) for g in gates if g['fire'] > 0.5]
     assert fired, 'the gates never fired in the budget episodes'
     assert [(r[0], r[1]) for r in expert.requests] == fired
-    assert all(episode < 2 for episode, _ in fired)              # advising_budget = 2
-    assert all(np.isfinite(r[3]) for r in expert.requests)       # eqsac sends E(s)
+    assert all(episode < 2 for episode, _ in fired)  # advising_budget = 2
+    assert all(np.isfinite(r[3]) for r in expert.requests)  # eqsac sends E(s)
     totals = learner.learner.advice_total
     assert totals.asked == totals.given == len(fired)
     assert len(learner.learner.advice_replay) == len(fired)
@@ -113,11 +124,12 @@ def test_sac_mode_never_calls_the_service(harness, ros_context, tmp_path):
     assert expert.requests == [] and learner.learner.advice_total.asked == 0
 
 
-@pytest.mark.parametrize('answer,delay,kind', [('decline', 0.0, 'declined'), ('advise', 0.6, 'timeout'),
-                                               (None, 0.0, 'unavailable')])
+@pytest.mark.parametrize(
+    'answer,delay,kind', [('decline', 0.0, 'declined'), ('advise', 0.6, 'timeout'), (None, 0.0, 'unavailable')]
+)
 @pytest.mark.parametrize('harness', ['single', 'events'], indirect=True)
-def test_declining_slow_or_absent_expert_leaves_training_going(harness, ros_context, tmp_path,
-                                                               answer, delay, kind):
+@pytest.mark.slow
+def test_declining_slow_or_absent_expert_leaves_training_going(harness, ros_context, tmp_path, answer, delay, kind):
     expert = StubExpert(ros_context, answer, delay) if answer else None
     try:
         learner, probe = run_learner(harness, ros_context, tmp_path, episodes=3, mode='qasac')
@@ -133,6 +145,7 @@ def test_declining_slow_or_absent_expert_leaves_training_going(harness, ros_cont
 
 
 # ------------------------------------------------------------------ all three nodes
+
 
 def read_csv(path):
     with open(path, newline='') as f:
@@ -151,7 +164,7 @@ def test_three_nodes_run_and_resume_from_checkpoint(harness, ros_context, tmp_pa
         assert int(row['episode']) == int(stat['episode']) and int(row['length']) == int(stat['length']) == 25
         assert float(row['return']) == pytest.approx(stat['return'], rel=1e-5)
         assert int(row['advice_given']) == int(stat['advice_given'])
-    assert sum(int(r['advice_given']) for r in rows) > 0     # the heuristic expert answered
+    assert sum(int(r['advice_given']) for r in rows) > 0  # the heuristic expert answered
     assert (tmp_path / 'checkpoint.pt').exists() and (tmp_path / 'policy.pt').exists()
     steps_before = learner.learner.total_steps
     for node in list(harness.nodes):
@@ -161,14 +174,18 @@ def test_three_nodes_run_and_resume_from_checkpoint(harness, ros_context, tmp_pa
             node.close()
             node.destroy_node()
 
-    resumed = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-        tmp_path, max_episodes=5, resume=True)))
+    resumed = harness.add(
+        LearnerNode(
+            context=ros_context, parameter_overrides=small_learner_params(tmp_path, max_episodes=5, resume=True)
+        )
+    )
     assert resumed.learner.episode == 3 and resumed.learner.total_steps == steps_before
     assert harness.spin_until(lambda: resumed.done, timeout=60)
     assert [int(r['episode']) for r in read_csv(tmp_path / 'episodes.csv')] == [0, 1, 2, 3, 4]
 
 
 # ------------------------------------------------------------------ parameters
+
 
 @pytest.mark.parametrize('name', ['pendulum', 'lunar_lander', 'demo'])
 def test_each_params_file_loads_into_all_three_nodes(name, tmp_path):
@@ -190,12 +207,15 @@ def test_each_params_file_loads_into_all_three_nodes(name, tmp_path):
         context.try_shutdown()
 
 
-@pytest.mark.parametrize('override,message', [
-    (dict(gamma=1.5), 'gamma'),
-    (dict(mode='ddpg'), 'mode'),
-    (dict(batch_size='big'), 'batch_size'),
-    (dict(advice_timeuot_s=1.0), 'advice_timeuot_s'),
-])
+@pytest.mark.parametrize(
+    'override,message',
+    [
+        (dict(gamma=1.5), 'gamma'),
+        (dict(mode='ddpg'), 'mode'),
+        (dict(batch_size='big'), 'batch_size'),
+        (dict(advice_timeuot_s=1.0), 'advice_timeuot_s'),
+    ],
+)
 def test_bad_parameters_are_refused_at_start_up_naming_the_key(ros_context, tmp_path, override, message):
     with pytest.raises(Exception, match=message):
         LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, **override))
@@ -207,20 +227,21 @@ def test_run_time_parameters_are_range_checked_and_applied(harness, ros_context,
     assert not results[0].successful
     assert learner.set_parameters(params(advising_budget=7))[0].successful
     assert learner.learner.gates.advising_budget == 7
-    assert not learner.set_parameters(params(seed=3))[0].successful    # read-only while running
+    assert not learner.set_parameters(params(seed=3))[0].successful  # read-only while running
 
 
 def test_realtime_env_steps_at_its_rate_holding_the_last_action(harness, ros_context):
     probe = Probe(harness)
-    env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(
-        realtime=True, rate_hz=50.0, max_episode_steps=1000)))
-    assert harness.spin_until(lambda: env.step_index >= 5)             # no action needed to step
+    env = harness.add(
+        GymEnvNode(context=ros_context, parameter_overrides=params(realtime=True, rate_hz=50.0, max_episode_steps=1000))
+    )
+    assert harness.spin_until(lambda: env.step_index >= 5)  # no action needed to step
     probe.action_pub.publish(messages.action_msg([2.0]))
     assert harness.spin_until(lambda: float(env._held_action[0]) == 2.0)
     start_step, start = env.step_index, time.monotonic()
     assert harness.spin_until(lambda: env.step_index >= start_step + 10)
     rate = (env.step_index - start_step) / (time.monotonic() - start)
-    assert 10.0 < rate < 80.0, rate   # 50 Hz asked; wide bounds for a loaded machine
+    assert 10.0 < rate < 80.0, rate  # 50 Hz asked; wide bounds for a loaded machine
 
 
 def test_launch_file_is_valid_python_naming_the_three_executables():
@@ -235,10 +256,19 @@ def test_realtime_env_with_a_slow_expert_keeps_every_transition(harness, ros_con
     action: those steps are stored as transitions, none is lost, and advice still lands."""
     expert = StubExpert(ros_context, 'advise', delay=0.15)
     try:
-        harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(
-            realtime=True, rate_hz=60.0, max_episode_steps=40)))
-        learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-            tmp_path, mode='qasac', advising_budget=100, max_episodes=3, advice_timeout_s=1.0)))
+        harness.add(
+            GymEnvNode(
+                context=ros_context, parameter_overrides=params(realtime=True, rate_hz=60.0, max_episode_steps=40)
+            )
+        )
+        learner = harness.add(
+            LearnerNode(
+                context=ros_context,
+                parameter_overrides=small_learner_params(
+                    tmp_path, mode='qasac', advising_budget=100, max_episodes=3, advice_timeout_s=1.0
+                ),
+            )
+        )
         assert harness.spin_until(lambda: learner.done, timeout=60)
     finally:
         expert.close()

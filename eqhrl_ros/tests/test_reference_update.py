@@ -49,27 +49,29 @@ def reference_update(ref, learner, gamma=0.99, tau=0.005):
     cfg = learner.config
     rng = ref['rng']
     batch = learner.replay.sample(cfg.batch_size, rng['replay'])
-    advice = learner.advice_replay.sample(cfg.batch_size, rng['replay'],
-                                          replacement=len(learner.advice_replay) < cfg.batch_size)
+    advice = learner.advice_replay.sample(
+        cfg.batch_size, rng['replay'], replacement=len(learner.advice_replay) < cfg.batch_size
+    )
     alpha = ref['log_alpha'].detach().exp()
 
-    def target(b):   # Eq. 4
+    def target(b):  # Eq. 4
         with torch.no_grad():
             mean, log_std = actor_forward(ref['actor'], b.next_obs)
             noise = torch.randn(mean.shape, generator=rng['update'])
             a, logp = sample(mean, log_std, noise)
-            q = torch.min(critic_forward(ref['target'], b.next_obs, a, 0),
-                          critic_forward(ref['target'], b.next_obs, a, 1))
+            q = torch.min(
+                critic_forward(ref['target'], b.next_obs, a, 0), critic_forward(ref['target'], b.next_obs, a, 1)
+            )
             return b.reward + gamma * (1 - b.terminated) * (q - alpha * logp)
 
     y, y_advice = target(batch), target(advice)
-    for b, yb in ((batch, y), (advice, y_advice)):                  # Eq. 5 on D, then on D_advising
+    for b, yb in ((batch, y), (advice, y_advice)):  # Eq. 5 on D, then on D_advising
         loss = sum(F.mse_loss(critic_forward(ref['critic'], b.obs, b.action, k), yb) for k in (0, 1))
         ref['critic_opt'].zero_grad()
         loss.backward()
         ref['critic_opt'].step()
 
-    mean, log_std = actor_forward(ref['actor'], batch.obs)          # Eq. 6
+    mean, log_std = actor_forward(ref['actor'], batch.obs)  # Eq. 6
     noise = torch.randn(mean.shape, generator=rng['update'])
     a, logp = sample(mean, log_std, noise)
     q = torch.min(critic_forward(ref['critic'], batch.obs, a, 0), critic_forward(ref['critic'], batch.obs, a, 1))
@@ -92,8 +94,9 @@ def leaves(state_dict):
 
 def test_optimised_update_matches_the_plain_reference():
     torch.manual_seed(0)
-    learner = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(mode='eqsac', hidden=(64, 64), batch_size=32,
-                                                          learning_starts=10**9, seed=5))
+    learner = EQSACLearner(
+        3, [-2.0], [2.0], LearnerConfig(mode='eqsac', hidden=(64, 64), batch_size=32, learning_starts=10**9, seed=5)
+    )
     rng = np.random.default_rng(0)
     for i in range(200):
         obs, next_obs = rng.standard_normal(3), rng.standard_normal(3)
@@ -102,17 +105,20 @@ def test_optimised_update_matches_the_plain_reference():
             learner.advice_replay.add(obs, rng.uniform(-1, 1, 1), rng.standard_normal(), next_obs, False)
 
     cfg = learner.config
-    ref = {'actor': leaves(learner.actor.state_dict()), 'critic': leaves(learner.critic.state_dict()),
-           'target': {k: v.clone() for k, v in learner.critic_target.state_dict().items()},
-           'log_alpha': learner.log_alpha.detach().clone().requires_grad_(True),
-           'rng': {name: torch.Generator() for name in learner.rng}}
+    ref = {
+        'actor': leaves(learner.actor.state_dict()),
+        'critic': leaves(learner.critic.state_dict()),
+        'target': {k: v.clone() for k, v in learner.critic_target.state_dict().items()},
+        'log_alpha': learner.log_alpha.detach().clone().requires_grad_(True),
+        'rng': {name: torch.Generator() for name in learner.rng},
+    }
     for name, gen in learner.rng.items():
         ref['rng'][name].set_state(gen.get_state())
     ref['actor_opt'] = torch.optim.Adam(ref['actor'].values(), lr=cfg.actor_lr, foreach=False)
     ref['critic_opt'] = torch.optim.Adam(ref['critic'].values(), lr=cfg.critic_lr, foreach=False)
     ref['alpha_opt'] = torch.optim.Adam([ref['log_alpha']], lr=cfg.alpha_lr, foreach=False)
 
-    replay_state = learner.replay.state_dict()   # sampling must not change the buffers
+    replay_state = learner.replay.state_dict()  # sampling must not change the buffers
     for _ in range(5):
         reference_update(ref, learner)
         learner.update()
@@ -123,8 +129,12 @@ def test_optimised_update_matches_the_plain_reference():
         torch.testing.assert_close(value, ref['critic'][name].detach(), rtol=1e-4, atol=1e-5, msg=name)
     for name, value in learner.critic_target.state_dict().items():
         torch.testing.assert_close(value, ref['target'][name], rtol=1e-4, atol=1e-5, msg=name)
-    assert math.isclose(float(learner.log_alpha.detach()), float(ref["log_alpha"].detach()), rel_tol=1e-5)
+    assert math.isclose(float(learner.log_alpha.detach()), float(ref['log_alpha'].detach()), rel_tol=1e-5)
     # The weights moved: a no-op update would not pass for the wrong reason.
-    assert not torch.allclose(ref['critic']['weights.1'], leaves(EQSACLearner(
-        3, [-2.0], [2.0], LearnerConfig(mode='eqsac', hidden=(64, 64), seed=5)).critic.state_dict())['weights.1'])
+    assert not torch.allclose(
+        ref['critic']['weights.1'],
+        leaves(
+            EQSACLearner(3, [-2.0], [2.0], LearnerConfig(mode='eqsac', hidden=(64, 64), seed=5)).critic.state_dict()
+        )['weights.1'],
+    )
     torch.testing.assert_close(learner.replay.state_dict()['obs'], replay_state['obs'])

@@ -23,6 +23,7 @@ def test_advise_service_round_trip(ros_context):
     client_node = rclpy.create_node('advise_client', context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     try:
+
         def serve(request, response):
             response.advised = request.discrepancy > 1.0
             response.action = [2.0 * x for x in request.proposed_action]
@@ -36,9 +37,16 @@ def test_advise_service_round_trip(ros_context):
         executor.add_node(client_node)
         assert spin_until(executor, client.service_is_ready)
 
-        request = Advise.Request(observation=[0.1, 0.2, 0.3], proposed_action=[0.25, -0.5],
-                                 action_low=[-1.0, -1.0], action_high=[1.0, 1.0],
-                                 discrepancy=1.5, entropy=-0.3, episode=4, step=17)
+        request = Advise.Request(
+            observation=[0.1, 0.2, 0.3],
+            proposed_action=[0.25, -0.5],
+            action_low=[-1.0, -1.0],
+            action_high=[1.0, 1.0],
+            discrepancy=1.5,
+            entropy=-0.3,
+            episode=4,
+            step=17,
+        )
         future = client.call_async(request)
         executor.spin_until_future_complete(future, timeout_sec=5.0)
         response = future.result()
@@ -81,6 +89,7 @@ def test_float32_multiarray_publish_subscribe(ros_context):
 
 def test_tests_run_in_a_private_domain():
     import os
+
     assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert 1 <= int(os.environ['ROS_DOMAIN_ID']) <= 100
 
@@ -126,16 +135,19 @@ def test_a_raw_subscription_reads_any_publishers_layout(ros_context):
         out = messages.action_out(2)
         publisher.publish(out.fill([0.5, -0.5], 1, 7))
         publisher.publish(out.fill([0.25, 1.0], 1, 8))
-        publisher.publish(Float32MultiArray(data=[0.75, -1.0]))              # bare, unlabelled
-        publisher.publish(messages.action_msg([0.1, 0.2], 2, 0))             # built elsewhere
+        publisher.publish(Float32MultiArray(data=[0.75, -1.0]))  # bare, unlabelled
+        publisher.publish(messages.action_msg([0.1, 0.2], 2, 0))  # built elsewhere
         publisher.publish(out.fill([float('nan'), 0.0], 2, 1))
         assert spin_until(executor, lambda: len(received) == 5)
         assert all(isinstance(data, bytes) for data in received)
         reader = messages.SerializedReader()
         parsed = [messages.parse_action(reader.values(data), 2) for data in received[:4]]
         assert [(a.tolist(), tag) for a, tag in parsed] == [
-            ([0.5, -0.5], (1, 7)), ([0.25, 1.0], (1, 8)), ([0.75, -1.0], None),
-            (pytest.approx([0.1, 0.2]), (2, 0))]
+            ([0.5, -0.5], (1, 7)),
+            ([0.25, 1.0], (1, 8)),
+            ([0.75, -1.0], None),
+            (pytest.approx([0.1, 0.2]), (2, 0)),
+        ]
         with pytest.raises(messages.MessageError, match='non-finite'):
             messages.parse_action(reader.values(received[4]), 2)
     finally:

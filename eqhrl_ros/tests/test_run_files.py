@@ -19,8 +19,9 @@ from eqhrl_ros.core.records import EpisodeRecord, RunFolder, RunFolderError
 
 
 def small_learner(seed=0, **overrides):
-    config = LearnerConfig(hidden=(16, 16), batch_size=8, learning_starts=10, replay_capacity=500,
-                           seed=seed, **overrides)
+    config = LearnerConfig(
+        hidden=(16, 16), batch_size=8, learning_starts=10, replay_capacity=500, seed=seed, **overrides
+    )
     return EQSACLearner(3, np.array([-2.0], np.float32), np.array([2.0], np.float32), config)
 
 
@@ -37,7 +38,7 @@ def params_of(learner):
 
 # ------------------------------------------------------------------ writes that fail
 
-WRITE_IN_A_SMALL_FILE_LIMIT = textwrap.dedent('''
+WRITE_IN_A_SMALL_FILE_LIMIT = textwrap.dedent("""
     import resource, sys
     import numpy as np
     from eqhrl_ros.core.checkpoint import CheckpointWriteError, save_checkpoint
@@ -50,18 +51,20 @@ WRITE_IN_A_SMALL_FILE_LIMIT = textwrap.dedent('''
         save_checkpoint(learner, sys.argv[1])
     except CheckpointWriteError as error:
         print('refused:', error)
-''')
+""")
 
 
+@pytest.mark.slow
 def test_a_save_that_the_os_refuses_is_one_clear_error_and_the_previous_file_stays(tmp_path):
     path = tmp_path / 'checkpoint.pt'
     path.write_bytes(b'previous checkpoint')
-    result = subprocess.run([sys.executable, '-c', WRITE_IN_A_SMALL_FILE_LIMIT, str(path)],
-                            capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, '-c', WRITE_IN_A_SMALL_FILE_LIMIT, str(path)], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     assert f'refused: cannot write {path}: File too large' in result.stdout
     assert path.read_bytes() == b'previous checkpoint'
-    assert list(tmp_path.iterdir()) == [path]                  # no temporary file left behind
+    assert list(tmp_path.iterdir()) == [path]  # no temporary file left behind
 
 
 def test_a_failed_checkpoint_write_leaves_the_pair_untouched(tmp_path, monkeypatch):
@@ -75,9 +78,10 @@ def test_a_failed_checkpoint_write_leaves_the_pair_untouched(tmp_path, monkeypat
 
     def write_then_fail(data, tmp):
         calls.append(tmp)
-        if len(calls) == 2:                                    # the replay went fine, the checkpoint did not
+        if len(calls) == 2:  # the replay went fine, the checkpoint did not
             raise OSError(errno.ENOSPC, 'No space left on device')
         real(data, tmp)
+
     monkeypatch.setattr(ckpt, '_write_file', write_then_fail)
     with pytest.raises(CheckpointWriteError, match='No space left on device'):
         save_checkpoint(learner, tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
@@ -98,7 +102,7 @@ def test_checkpoint_and_replay_of_two_saves_are_refused_as_a_pair(tmp_path):
     with pytest.raises(CheckpointError, match='different saves'):
         load_checkpoint(fresh, tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
     assert all(torch.equal(a, b) for a, b in zip(kept, params_of(fresh))) and len(fresh.replay) == 0
-    load_checkpoint(fresh, tmp_path / 'checkpoint.pt')         # without the replay it resumes
+    load_checkpoint(fresh, tmp_path / 'checkpoint.pt')  # without the replay it resumes
     assert fresh.total_steps == 50
 
 
@@ -114,6 +118,7 @@ def test_stale_temporaries_are_removed_when_a_run_folder_is_opened(tmp_path):
 
 
 # ------------------------------------------------------------------ checkpoints that load but should not
+
 
 def tampered(tmp_path, change):
     learner = small_learner()
@@ -145,11 +150,16 @@ def inf_optimizer_moment(state):
     next(iter(state['critic_optimizer']['state'].values()))['exp_avg'].fill_(float('inf'))
 
 
-@pytest.mark.parametrize('change,message', [
-    (nan_actor, "'actor' holds non-finite"), (list_config, "'config' must be a dict"),
-    (negative_episode, 'counters.episode must be an integer >= 0'),
-    (episode_beyond_steps, 'exceeds counters.total_steps'),
-    (inf_optimizer_moment, "'critic_optimizer' holds non-finite")])
+@pytest.mark.parametrize(
+    'change,message',
+    [
+        (nan_actor, "'actor' holds non-finite"),
+        (list_config, "'config' must be a dict"),
+        (negative_episode, 'counters.episode must be an integer >= 0'),
+        (episode_beyond_steps, 'exceeds counters.total_steps'),
+        (inf_optimizer_moment, "'critic_optimizer' holds non-finite"),
+    ],
+)
 def test_checkpoints_no_run_can_produce_are_refused_and_change_nothing(tmp_path, change, message):
     path = tampered(tmp_path, change)
     fresh = small_learner(seed=3)
@@ -170,7 +180,7 @@ def test_non_finite_replay_memories_are_refused(tmp_path):
         load_checkpoint(small_learner(), tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
 
 
-BOMB_LOAD = textwrap.dedent('''
+BOMB_LOAD = textwrap.dedent("""
     import resource, sys
     import numpy as np
     from eqhrl_ros.core.checkpoint import CheckpointError, load_checkpoint
@@ -183,17 +193,17 @@ BOMB_LOAD = textwrap.dedent('''
     except CheckpointError as error:
         print('refused:', error)
     print('peak grew MB', (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024)
-''')
+""")
 
 
+@pytest.mark.slow
 def test_a_deflate_bomb_is_refused_before_it_is_unpacked(tmp_path):
     path = tmp_path / 'checkpoint.pt'
     with zipfile.ZipFile(path, 'w', compression=zipfile.ZIP_DEFLATED) as archive:
         archive.writestr('archive/data.pkl', io.BytesIO().getvalue())
-        archive.writestr('archive/data/0', bytes(256 << 20))       # 256 MB of zeros, ~256 KB packed
+        archive.writestr('archive/data/0', bytes(256 << 20))  # 256 MB of zeros, ~256 KB packed
     assert path.stat().st_size < 1 << 20
-    result = subprocess.run([sys.executable, '-c', BOMB_LOAD, str(path)], capture_output=True, text=True,
-                            timeout=120)
+    result = subprocess.run([sys.executable, '-c', BOMB_LOAD, str(path)], capture_output=True, text=True, timeout=120)
     assert 'refused:' in result.stdout and 'is compressed' in result.stdout, result.stdout + result.stderr[-2000:]
     grew = float(result.stdout.split('peak grew MB')[1])
     assert grew < 50, result.stdout
@@ -204,7 +214,7 @@ def test_a_file_larger_than_the_learner_can_need_is_refused_unread(tmp_path, mon
     save_checkpoint(learner, tmp_path / 'checkpoint.pt')
     limit = ckpt.checkpoint_size_limit(learner)
     with (tmp_path / 'checkpoint.pt').open('ab') as f:
-        f.write(bytes(limit))                                     # still a zip (trailing data), far too large
+        f.write(bytes(limit))  # still a zip (trailing data), far too large
     loaded = []
     monkeypatch.setattr(ckpt.torch, 'load', lambda *a, **k: loaded.append(1))
     with pytest.raises(CheckpointError, match="more than the .* that this learner's sizes can need"):
@@ -214,19 +224,20 @@ def test_a_file_larger_than_the_learner_can_need_is_refused_unread(tmp_path, mon
 
 # ------------------------------------------------------------------ run folders and the record
 
+
 def test_a_folder_that_holds_a_run_is_refused_unless_resumed_or_overwritten(tmp_path):
     (tmp_path / 'episodes.csv').write_text('episode\n0\n')
-    with pytest.raises(RunFolderError, match=r"holds a run \(episodes.csv\).*resume.*overwrite"):
+    with pytest.raises(RunFolderError, match=r'holds a run \(episodes.csv\).*resume.*overwrite'):
         RunFolder(tmp_path)
     RunFolder(tmp_path, overwrite=True)
     assert not (tmp_path / 'episodes.csv').exists()
-    RunFolder(tmp_path)                                           # now empty: a fresh run may start
+    RunFolder(tmp_path)  # now empty: a fresh run may start
 
 
 def test_folders_that_cannot_be_used_are_refused_with_one_line(tmp_path):
     a_file = tmp_path / 'not_a_folder'
     a_file.write_text('x')
-    with pytest.raises(RunFolderError, match="is a file"):
+    with pytest.raises(RunFolderError, match='is a file'):
         RunFolder(a_file)
     with pytest.raises(RunFolderError, match='cannot be written'):
         RunFolder(a_file / 'run')
@@ -241,14 +252,15 @@ def test_a_row_that_cannot_be_written_is_kept_and_written_whole_later(tmp_path, 
 
     def half_then_full_disk(fd, data):
         monkeypatch.setattr(records.os, 'write', full_disk)
-        return real(fd, data[:3])                                # a torn write, then ENOSPC
+        return real(fd, data[:3])  # a torn write, then ENOSPC
 
     def full_disk(fd, data):
         raise OSError(errno.ENOSPC, 'No space left on device')
+
     monkeypatch.setattr(records.os, 'write', half_then_full_disk)
     error = record.append([1, '-2.5'])
     assert error is not None and error.errno == errno.ENOSPC and record.unwritten_rows == 1
-    monkeypatch.setattr(records.os, 'write', real)                # space again
+    monkeypatch.setattr(records.os, 'write', real)  # space again
     assert record.append([2, '-3.5']) is None and record.unwritten_rows == 0
     record.close()
     assert (tmp_path / 'episodes.csv').read_bytes().decode() == 'episode,return\r\n0,-1.5\r\n1,-2.5\r\n2,-3.5\r\n'

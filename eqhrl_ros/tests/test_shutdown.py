@@ -12,28 +12,40 @@ import torch
 from eqhrl_ros.core import checkpoint as ckpt
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
+
 from process_helpers import BIN, learner_args, read_rows, start, stop, wait_for
 from ros_helpers import params, small_learner_params
 
-EXECUTABLES = ('gym_env', 'learner', 'expert', 'teleop_expert', 'keyboard_teleop', 'eqhrl-train',
-               'eqhrl-demo', 'eqhrl-experiment', 'eqhrl-report')
+EXECUTABLES = (
+    'gym_env',
+    'learner',
+    'expert',
+    'teleop_expert',
+    'keyboard_teleop',
+    'eqhrl-train',
+    'eqhrl-demo',
+    'eqhrl-experiment',
+    'eqhrl-report',
+)
 
 
 @pytest.mark.parametrize('executable', EXECUTABLES)
 def test_help_prints_usage_starts_nothing_and_loads_no_torch(executable, tmp_path):
     env = dict(os.environ, PYTHONPROFILEIMPORTTIME='1')
-    result = subprocess.run([str(BIN / executable), '--help'], capture_output=True, text=True, timeout=60,
-                            cwd=tmp_path, env=env)
+    result = subprocess.run(
+        [str(BIN / executable), '--help'], capture_output=True, text=True, timeout=60, cwd=tmp_path, env=env
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     assert result.stdout.startswith('usage:'), result.stdout[:500]
     imported = [line.rsplit('|', 1)[-1].strip() for line in result.stderr.splitlines() if 'import time:' in line]
     assert 'torch' not in imported and 'gymnasium' not in imported
-    assert list(tmp_path.iterdir()) == []                       # no runs/ folder, nothing written
+    assert list(tmp_path.iterdir()) == []  # no runs/ folder, nothing written
 
 
 def test_a_node_refuses_arguments_that_are_not_ros_arguments(tmp_path):
-    result = subprocess.run([str(BIN / 'learner'), '--output', 'x'], capture_output=True, text=True,
-                            timeout=60, cwd=tmp_path)
+    result = subprocess.run(
+        [str(BIN / 'learner'), '--output', 'x'], capture_output=True, text=True, timeout=60, cwd=tmp_path
+    )
     assert result.returncode == 2 and 'unrecognized argument(s): --output x' in result.stderr
     assert list(tmp_path.iterdir()) == []
 
@@ -44,19 +56,27 @@ def clean(log):
 
 @pytest.mark.parametrize('twice', [False, True], ids=['once', 'twice'])
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+@pytest.mark.slow
 def test_every_node_exits_0_and_quietly_on_a_signal_and_a_second_one(tmp_path, sig, twice):
     # A Ctrl-C in a terminal reaches every process of the group, then `ros2 launch` sends
     # SIGINT again (and SIGTERM after a while): a second signal lands during shutdown.
     out = tmp_path / 'run'
-    nodes = {'gym_env': start('gym_env', '--ros-args', '-p', 'max_episode_steps:=20', log_dir=tmp_path),
-             'expert': start('expert', log_dir=tmp_path),
-             'teleop_expert': start('teleop_expert', log_dir=tmp_path),
-             'learner': start('learner', *learner_args(out, ['-p', 'mode:=qasac', '-p', 'advising_budget:=1000',
-                                                             '-p', 'checkpoint_every_episodes:=0']),
-                              log_dir=tmp_path)}
+    nodes = {
+        'gym_env': start('gym_env', '--ros-args', '-p', 'max_episode_steps:=20', log_dir=tmp_path),
+        'expert': start('expert', log_dir=tmp_path),
+        'teleop_expert': start('teleop_expert', log_dir=tmp_path),
+        'learner': start(
+            'learner',
+            *learner_args(
+                out, ['-p', 'mode:=qasac', '-p', 'advising_budget:=1000', '-p', 'checkpoint_every_episodes:=0']
+            ),
+            log_dir=tmp_path,
+        ),
+    }
     try:
-        assert wait_for(lambda: (out / 'episodes.csv').exists() and len(read_rows(out / 'episodes.csv')) >= 2,
-                        90), stop(nodes['learner'])
+        assert wait_for(lambda: (out / 'episodes.csv').exists() and len(read_rows(out / 'episodes.csv')) >= 2, 90), (
+            stop(nodes['learner'])
+        )
     finally:
         for process in nodes.values():
             process.send_signal(sig)
@@ -73,18 +93,36 @@ def test_every_node_exits_0_and_quietly_on_a_signal_and_a_second_one(tmp_path, s
     assert state['counters']['episode'] >= 2
 
 
+@pytest.mark.slow
 def test_a_signal_during_updates_never_saves_half_an_update(tmp_path):
     # Updates take most of each step here, so the signal lands inside one. Each update
     # steps the critics, the actor and the temperature once (SAC): the saved optimisers
     # must all have taken exactly `updates` steps.
     out = tmp_path / 'run'
     env = start('gym_env', '--ros-args', '-p', 'max_episode_steps:=50', log_dir=tmp_path)
-    learner = start('learner', *learner_args(out, ['-p', 'mode:=sac', '-p', 'hidden_sizes:=[128,128]',
-                                                   '-p', 'batch_size:=128', '-p', 'torch_threads:=1',
-                                                   '-p', 'checkpoint_every_episodes:=0']), log_dir=tmp_path)
+    learner = start(
+        'learner',
+        *learner_args(
+            out,
+            [
+                '-p',
+                'mode:=sac',
+                '-p',
+                'hidden_sizes:=[128,128]',
+                '-p',
+                'batch_size:=128',
+                '-p',
+                'torch_threads:=1',
+                '-p',
+                'checkpoint_every_episodes:=0',
+            ],
+        ),
+        log_dir=tmp_path,
+    )
     try:
-        assert wait_for(lambda: (out / 'episodes.csv').exists() and len(read_rows(out / 'episodes.csv')) >= 2,
-                        90), stop(learner)
+        assert wait_for(lambda: (out / 'episodes.csv').exists() and len(read_rows(out / 'episodes.csv')) >= 2, 90), (
+            stop(learner)
+        )
         time.sleep(0.37)
     finally:
         log = stop(learner)
@@ -102,6 +140,7 @@ def limit_file_size(limit):
     return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
 
+@pytest.mark.slow
 def test_a_save_that_fails_at_exit_says_so_and_exits_non_zero(tmp_path):
     # Files may grow to 6 KB: the CSV fits, a checkpoint does not (a real EFBIG from the
     # OS, as a full disk gives ENOSPC). Periodic saves fail with one line each and training
@@ -110,8 +149,9 @@ def test_a_save_that_fails_at_exit_says_so_and_exits_non_zero(tmp_path):
     env = start('gym_env', '--ros-args', '-p', 'max_episode_steps:=10', log_dir=tmp_path)
     learner = start('learner', *learner_args(out), log_dir=tmp_path, preexec_fn=limit_file_size(6_000))
     try:
-        assert wait_for(lambda: (out / 'episodes.csv').exists() and len(read_rows(out / 'episodes.csv')) >= 4,
-                        90), stop(learner)
+        assert wait_for(lambda: (out / 'episodes.csv').exists() and len(read_rows(out / 'episodes.csv')) >= 4, 90), (
+            stop(learner)
+        )
     finally:
         log = stop(learner)
         stop(env)
@@ -123,17 +163,20 @@ def test_a_save_that_fails_at_exit_says_so_and_exits_non_zero(tmp_path):
     assert not (out / 'checkpoint.pt').exists() and not list(out.glob('.*.tmp'))
 
 
-def test_a_periodic_save_that_fails_keeps_the_previous_checkpoint_and_tries_again(harness, ros_context, tmp_path,
-                                                                                monkeypatch):
+def test_a_periodic_save_that_fails_keeps_the_previous_checkpoint_and_tries_again(
+    harness, ros_context, tmp_path, monkeypatch
+):
     harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=10)))
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-        tmp_path, mode='sac', max_episodes=6)))
+    learner = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, mode='sac', max_episodes=6))
+    )
     assert harness.spin_until(lambda: learner.learner.episode >= 2, timeout=60)
     saved = (tmp_path / 'checkpoint.pt').read_bytes()
     real = ckpt._write_file
 
     def full_disk(data, tmp):
         raise OSError(28, 'No space left on device')
+
     monkeypatch.setattr(ckpt, '_write_file', full_disk)
     assert harness.spin_until(lambda: learner.failed_saves >= 2, timeout=60)
     assert (tmp_path / 'checkpoint.pt').read_bytes() == saved and not list(tmp_path.glob('.*.tmp'))
@@ -142,10 +185,20 @@ def test_a_periodic_save_that_fails_keeps_the_previous_checkpoint_and_tries_agai
     assert torch.load(tmp_path / 'checkpoint.pt', weights_only=True)['counters']['episode'] == 6
 
 
+@pytest.mark.slow
 def test_eqhrl_train_refuses_a_folder_with_a_run_unless_told(tmp_path):
     out = tmp_path / 'run'
-    command = [str(BIN / 'eqhrl-train'), '--params', 'demo', '--episodes', '1', '--max-steps', '5',
-               '--output', str(out)]
+    command = [
+        str(BIN / 'eqhrl-train'),
+        '--params',
+        'demo',
+        '--episodes',
+        '1',
+        '--max-steps',
+        '5',
+        '--output',
+        str(out),
+    ]
     first = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert first.returncode == 0, first.stderr[-2000:]
     rows = (out / 'episodes.csv').read_text()
@@ -156,12 +209,30 @@ def test_eqhrl_train_refuses_a_folder_with_a_run_unless_told(tmp_path):
     assert third.returncode == 0, third.stderr[-2000:]
 
 
+@pytest.mark.slow
 def test_two_eqhrl_train_runs_on_one_machine_do_not_hear_each_other(tmp_path):
     runs = [tmp_path / 'a', tmp_path / 'b']
-    processes = [subprocess.Popen([str(BIN / 'eqhrl-train'), '--params', 'demo', '--episodes', '4',
-                                   '--max-steps', '60', '--output', str(out), '--seed', str(i)],
-                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-                 for i, out in enumerate(runs)]
+    processes = [
+        subprocess.Popen(
+            [
+                str(BIN / 'eqhrl-train'),
+                '--params',
+                'demo',
+                '--episodes',
+                '4',
+                '--max-steps',
+                '60',
+                '--output',
+                str(out),
+                '--seed',
+                str(i),
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for i, out in enumerate(runs)
+    ]
     logs = [p.communicate(timeout=180)[0] for p in processes]
     for process, log, out in zip(processes, logs, runs):
         assert process.returncode == 0, log[-3000:]

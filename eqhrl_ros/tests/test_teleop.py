@@ -23,13 +23,22 @@ from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
 from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
+
 from ros_helpers import params, small_learner_params
 
 
 def request(low=(-2.0,), high=(2.0,)):
     n = len(low)
-    return AdviceRequest(np.zeros(3, np.float32), np.zeros(n, np.float32), np.array(low, np.float32),
-                         np.array(high, np.float32), 1.0, -1.0, 0, 0)
+    return AdviceRequest(
+        np.zeros(3, np.float32),
+        np.zeros(n, np.float32),
+        np.array(low, np.float32),
+        np.array(high, np.float32),
+        1.0,
+        -1.0,
+        0,
+        0,
+    )
 
 
 class FakeClock:
@@ -42,9 +51,17 @@ class FakeClock:
 
 # ------------------------------------------------------------------ core mapping
 
+
 def test_joy_mapping_scales_axes_and_requires_the_deadman():
-    held = joy_command([0.1, -0.5, 0.9], [0, 1], axis_indices=[1, 2], scales=[2.0, -1.0], offsets=[0.0, 0.5],
-                       require_enable_button=True, enable_button=1)
+    held = joy_command(
+        [0.1, -0.5, 0.9],
+        [0, 1],
+        axis_indices=[1, 2],
+        scales=[2.0, -1.0],
+        offsets=[0.0, 0.5],
+        require_enable_button=True,
+        enable_button=1,
+    )
     assert held.enabled and held.values.tolist() == pytest.approx([-1.0, -0.4])
     released = joy_command([0.1, -0.5, 0.9], [0, 0], [1], [1.0], [0.0], True, 1)
     assert not released.enabled and 'button 1 is not held' in released.disabled_reason
@@ -64,7 +81,7 @@ def test_teleop_expert_declines_with_reasons_and_clips():
     clock = FakeClock()
     expert = TeleopExpert(stale_after_s=0.5, name='person', clock=clock)
     assert 'no teleop command' in expert(request()).reason
-    expert.update(array_command([0.9], [0], [4.0], [0.0]))          # 3.6, beyond the torque limit
+    expert.update(array_command([0.9], [0], [4.0], [0.0]))  # 3.6, beyond the torque limit
     advice = expert(request())
     assert advice.advised and advice.human and advice.action.tolist() == [2.0]
     clock.now += 0.6
@@ -77,17 +94,32 @@ def test_teleop_expert_declines_with_reasons_and_clips():
 
 # ------------------------------------------------------------------ the node
 
+
 def call_advise(harness, client, low=(-2.0,), high=(2.0,)):
     assert harness.spin_until(client.service_is_ready)
-    future = client.call_async(Advise.Request(observation=[0.0, 0.0, 0.0], proposed_action=[0.0] * len(low),
-                                              action_low=list(low), action_high=list(high), episode=0, step=0))
+    future = client.call_async(
+        Advise.Request(
+            observation=[0.0, 0.0, 0.0],
+            proposed_action=[0.0] * len(low),
+            action_low=list(low),
+            action_high=list(high),
+            episode=0,
+            step=0,
+        )
+    )
     assert harness.spin_until(future.done)
     return future.result()
 
 
 def test_teleop_expert_node_follows_joy_with_deadman_and_staleness(harness, ros_context):
-    harness.add(TeleopExpertNode(context=ros_context, parameter_overrides=params(
-        source='joy', axes=[1], scales=[3.0], offsets=[0.0], enable_button=2, stale_after_s=0.3)))
+    harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(
+                source='joy', axes=[1], scales=[3.0], offsets=[0.0], enable_button=2, stale_after_s=0.3
+            ),
+        )
+    )
     probe = harness.add(rclpy.create_node('joy_probe', context=ros_context))
     joy_pub = probe.create_publisher(Joy, 'joy', 10)
     client = probe.create_client(Advise, 'advise')
@@ -103,21 +135,30 @@ def test_teleop_expert_node_follows_joy_with_deadman_and_staleness(harness, ros_
     response = call_advise(harness, client)
     assert response.advised and response.human and list(response.action) == pytest.approx([1.2])
     assert response.expert_name == '/teleop_expert'
-    send([0.0, -0.9], [0, 0, 1])                                   # -2.7: clipped to the bound
+    send([0.0, -0.9], [0, 0, 1])  # -2.7: clipped to the bound
     assert list(call_advise(harness, client).action) == pytest.approx([-2.0])
-    send([0.0, 0.4], [0, 0, 0])                                    # deadman released
+    send([0.0, 0.4], [0, 0, 0])  # deadman released
     response = call_advise(harness, client)
     assert not response.advised and 'button 2 is not held' in response.reason
     send([0.0, 0.4], [0, 0, 1])
-    harness.spin_until(lambda: False, timeout=0.5)                 # no new command: stale
+    harness.spin_until(lambda: False, timeout=0.5)  # no new command: stale
     response = call_advise(harness, client)
     assert not response.advised and 'old' in response.reason
 
 
 def test_teleop_expert_node_follows_twist(harness, ros_context):
-    harness.add(TeleopExpertNode(context=ros_context, parameter_overrides=params(
-        source='twist', twist_fields=['linear.x', 'angular.z'], axes=[0, 1], scales=[1.0, -1.0],
-        offsets=[0.0, 0.0])))
+    harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(
+                source='twist',
+                twist_fields=['linear.x', 'angular.z'],
+                axes=[0, 1],
+                scales=[1.0, -1.0],
+                offsets=[0.0, 0.0],
+            ),
+        )
+    )
     probe = harness.add(rclpy.create_node('twist_probe', context=ros_context))
     twist_pub = probe.create_publisher(Twist, 'cmd_vel', 10)
     client = probe.create_client(Advise, 'advise')
@@ -145,22 +186,30 @@ def test_env_publishes_frames_of_the_right_size_and_encoding(harness, ros_contex
     assert frame.encoding == 'rgb8' and (frame.height, frame.width) == (500, 500)
     assert frame.step == 500 * 3 and len(frame.data) == 500 * 500 * 3
     pixels = np.frombuffer(bytes(frame.data), np.uint8)
-    assert pixels.min() < pixels.max()      # a picture, not a blank buffer
+    assert pixels.min() < pixels.max()  # a picture, not a blank buffer
 
 
 def test_advice_from_a_person_is_marked_in_stats_and_csv(harness, ros_context, tmp_path):
-    harness.add(TeleopExpertNode(context=ros_context, parameter_overrides=params(
-        source='array', axes=[0], scales=[2.0], offsets=[0.0], stale_after_s=5.0)))
+    harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(source='array', axes=[0], scales=[2.0], offsets=[0.0], stale_after_s=5.0),
+        )
+    )
     probe = harness.add(rclpy.create_node('person', context=ros_context))
     command_pub = probe.create_publisher(Float32MultiArray, 'teleop_command', 10)
     requests = []
-    from eqhrl_ros.nodes.keyboard_teleop import LATCHED
+    from eqhrl_ros.nodes.messages import LATCHED_QOS as LATCHED
+
     probe.create_subscription(Float32MultiArray, 'learner/advice_request', requests.append, LATCHED)
     assert harness.spin_until(lambda: command_pub.get_subscription_count() > 0)
     command_pub.publish(messages.build([('command', [0.5])]))
     harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(
-        tmp_path, mode='qasac', max_episodes=2)))
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context, parameter_overrides=small_learner_params(tmp_path, mode='qasac', max_episodes=2)
+        )
+    )
     assert harness.spin_until(lambda: learner.done, timeout=60)
     totals = learner.learner.advice_total
     assert totals.given > 0 and totals.human == totals.given
@@ -173,20 +222,25 @@ def test_advice_from_a_person_is_marked_in_stats_and_csv(harness, ros_context, t
 
 # ------------------------------------------------------------------ keyboard_teleop, for real, in tmux
 
+
 class Tmux:
     def __init__(self, name):
         if shutil.which('tmux') is None:
             pytest.fail('tmux is needed for this test: apt-get install tmux')
-        self.base = ['tmux', '-L', name]      # a private server: inherits this test's ROS domain
-        subprocess.run(self.base + ['new-session', '-d', '-s', 'kb', '-x', '110', '-y', '20',
-                                    'bash --norc --noprofile'], check=True, env=dict(os.environ, PS1='$ '))
+        self.base = ['tmux', '-L', name]  # a private server: inherits this test's ROS domain
+        subprocess.run(
+            self.base + ['new-session', '-d', '-s', 'kb', '-x', '110', '-y', '20', 'bash --norc --noprofile'],
+            check=True,
+            env=dict(os.environ, PS1='$ '),
+        )
 
     def send(self, *keys):
         subprocess.run(self.base + ['send-keys', '-t', 'kb', *keys], check=True)
 
     def screen(self) -> str:
-        return subprocess.run(self.base + ['capture-pane', '-p', '-t', 'kb'], check=True,
-                              capture_output=True, text=True).stdout
+        return subprocess.run(
+            self.base + ['capture-pane', '-p', '-t', 'kb'], check=True, capture_output=True, text=True
+        ).stdout
 
     def wait_for(self, text, timeout=20.0) -> bool:
         deadline = time.monotonic() + timeout
@@ -206,21 +260,35 @@ class Tmux:
         return False
 
     def running(self) -> str:
-        return subprocess.run(self.base + ['display-message', '-p', '-t', 'kb', '#{pane_current_command}'],
-                              check=True, capture_output=True, text=True).stdout.strip()
+        return subprocess.run(
+            self.base + ['display-message', '-p', '-t', 'kb', '#{pane_current_command}'],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout.strip()
 
     def close(self):
         subprocess.run(self.base + ['kill-server'], capture_output=True)
 
 
+@pytest.mark.slow
 def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
     probe = harness.add(rclpy.create_node('keyboard_probe', context=ros_context))
     commands = []
     probe.create_subscription(Float32MultiArray, 'teleop_command', commands.append, 50)
-    from eqhrl_ros.nodes.keyboard_teleop import LATCHED
+    from eqhrl_ros.nodes.messages import LATCHED_QOS as LATCHED
+
     request_pub = probe.create_publisher(Float32MultiArray, 'learner/advice_request', LATCHED)
-    ask = AdviceRequest(np.zeros(3, np.float32), np.zeros(2, np.float32), -np.ones(2, np.float32),
-                        np.ones(2, np.float32), 2.0, -1.0, 3, 41)
+    ask = AdviceRequest(
+        np.zeros(3, np.float32),
+        np.zeros(2, np.float32),
+        -np.ones(2, np.float32),
+        np.ones(2, np.float32),
+        2.0,
+        -1.0,
+        3,
+        41,
+    )
     request_pub.publish(messages.advice_request_msg('pending', ask, 2.0))
 
     tmux = Tmux(f'eqhrl_test_{os.getpid()}')
@@ -236,14 +304,14 @@ def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
         tmux.send('d', 'd', 'w')
         assert harness.spin_until(lambda: commands and list(commands[-1].data) == [0.5, 0.25])
         assert tmux.wait_for('command: [+0.50, +0.25]'), tmux.screen()
-        tmux.send('a', 'a', 'a', 'a', 'a', 'a')                   # clipped at -1
+        tmux.send('a', 'a', 'a', 'a', 'a', 'a')  # clipped at -1
         assert harness.spin_until(lambda: list(commands[-1].data) == [-1.0, 0.25])
         tmux.send('Space')
         assert harness.spin_until(lambda: list(commands[-1].data) == [0.0, 0.0])
         tmux.send('p')
         assert tmux.wait_for('PAUSED'), tmux.screen()
         count = len(commands)
-        assert latest() is not None and len(commands) - count <= 1   # nothing sent while paused
+        assert latest() is not None and len(commands) - count <= 1  # nothing sent while paused
 
         request_pub.publish(messages.advice_request_msg('given', ask, 2.0))
         assert tmux.wait_for('no request pending (last one: given)'), tmux.screen()
@@ -252,13 +320,15 @@ def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
         deadline = time.monotonic() + 20
         while tmux.running() != 'bash' and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert tmux.running() == 'bash', tmux.screen()                     # keyboard_teleop exited
+        assert tmux.running() == 'bash', tmux.screen()  # keyboard_teleop exited
         # The typed line holds 'DONE""' and '-icanon'; only the output holds 'FLAGS: ... DONE'.
-        tmux.send('clear; echo FLAGS: $(stty -a | tr " " "\\n" | grep -x -e icanon -e -icanon -e echo -e -echo) DONE""',
-                  'Enter')
+        tmux.send(
+            'clear; echo FLAGS: $(stty -a | tr " " "\\n" | grep -x -e icanon -e -icanon -e echo -e -echo) DONE""',
+            'Enter',
+        )
         assert tmux.wait_for_line(r'FLAGS: .* DONE'), tmux.screen()
         settings = re.search(r'^FLAGS: (.*) DONE$', tmux.screen(), re.M).group(1).split()
-        assert 'icanon' in settings and 'echo' in settings, tmux.screen()     # the terminal is restored
+        assert 'icanon' in settings and 'echo' in settings, tmux.screen()  # the terminal is restored
         assert '-icanon' not in settings and '-echo' not in settings
     finally:
         tmux.close()

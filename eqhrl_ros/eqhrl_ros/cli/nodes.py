@@ -15,45 +15,65 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class NodeProgram:
-    module: str            # eqhrl_ros.nodes.<module>, with main(args=None)
-    params: tuple          # names of the parameter tables in nodes/params.py
+    module: str  # eqhrl_ros.nodes.<module>, with main(args=None)
+    params: tuple  # names of the parameter tables in nodes/params.py
     summary: str
 
 
 NODES = {
-    'gym_env': NodeProgram('gym_env_node', ('GYM_ENV_PARAMS',),
-                           'A gymnasium env behind the observation and action topics (lock-step or real time).'),
-    'learner': NodeProgram('learner_node', ('LEARNER_CONFIG_PARAMS', 'LEARNER_NODE_PARAMS'),
-                           'SAC, QASAC or EQSAC on the observation topic; asks advise when the gates fire.'),
-    'expert': NodeProgram('expert_node', ('EXPERT_PARAMS',),
-                          "Serves advise with a built-in controller or a policy file exported by a learner."),
-    'teleop_expert': NodeProgram('teleop_expert_node', ('TELEOP_EXPERT_PARAMS',),
-                                 "Serves advise with a person's command (joy, cmd_vel or teleop_command)."),
-    'keyboard_teleop': NodeProgram('keyboard_teleop', ('KEYBOARD_PARAMS',),
-                                   'A terminal teleop for teleop_expert (source: array); needs a terminal.'),
+    'gym_env': NodeProgram(
+        'gym_env_node',
+        ('GYM_ENV_PARAMS',),
+        'A gymnasium env behind the observation and action topics (lock-step or real time).',
+    ),
+    'learner': NodeProgram(
+        'learner_node',
+        ('LEARNER_CONFIG_PARAMS', 'LEARNER_NODE_PARAMS'),
+        'SAC, QASAC or EQSAC on the observation topic; asks advise when the gates fire.',
+    ),
+    'expert': NodeProgram(
+        'expert_node',
+        ('EXPERT_PARAMS',),
+        'Serves advise with a built-in controller or a policy file exported by a learner.',
+    ),
+    'teleop_expert': NodeProgram(
+        'teleop_expert_node',
+        ('TELEOP_EXPERT_PARAMS',),
+        "Serves advise with a person's command (joy, cmd_vel or teleop_command).",
+    ),
+    'keyboard_teleop': NodeProgram(
+        'keyboard_teleop',
+        ('KEYBOARD_PARAMS',),
+        'A terminal teleop for teleop_expert (source: array); needs a terminal.',
+    ),
 }
 
 
 def help_text(name: str) -> str:
     from ..nodes import params
+
     program = NODES[name]
     tables = [getattr(params, table) for table in program.params]
-    return (f'usage: {name} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r FROM:=TO ...]]\n\n'
-            f'{program.summary}\n\n'
-            'ROS parameters (= default [range] (choices); * may change while the node runs):\n'
-            f'{params.describe(*tables)}\n\n'
-            f'Example: ros2 run eqhrl_ros {name} --ros-args --params-file params/pendulum.yaml')
+    return (
+        f'usage: {name} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r FROM:=TO ...]]\n\n'
+        f'{program.summary}\n\n'
+        'ROS parameters (= default [range] (choices); * may change while the node runs):\n'
+        f'{params.describe(*tables)}\n\n'
+        f'Example: ros2 run eqhrl_ros {name} --ros-args --params-file params/pendulum.yaml'
+    )
 
 
 def run(name: str, argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
+    own = argv[: argv.index('--ros-args')] if '--ros-args' in argv else argv
     if '-h' in own or '--help' in own:
         print(help_text(name))
         return 0
     if own:
-        print(f"{name}: unrecognized argument(s): {' '.join(own)} (ROS arguments go after --ros-args; "
-              f'see {name} --help)', file=sys.stderr)
+        print(
+            f'{name}: unrecognized argument(s): {" ".join(own)} (ROS arguments go after --ros-args; see {name} --help)',
+            file=sys.stderr,
+        )
         return 2
     module = importlib.import_module(f'eqhrl_ros.nodes.{NODES[name].module}')
     module.main()

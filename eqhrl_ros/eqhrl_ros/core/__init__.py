@@ -18,13 +18,26 @@ import importlib
 # Names and the module that holds each. Loaded on first use (PEP 562), so that a light
 # reader of core.summary or core.records does not pay for torch.
 _HOME = {
-    'AdvisingGates': 'advising', 'FifoQueue': 'advising', 'GateDecision': 'advising',
-    'CheckpointError': 'checkpoint', 'PolicyExpert': 'checkpoint', 'export_policy': 'checkpoint',
-    'load_checkpoint': 'checkpoint', 'save_checkpoint': 'checkpoint',
-    'ActionScaler': 'envs', 'make_env': 'envs', 'success_criterion': 'envs',
-    'Advice': 'experts', 'AdviceRequest': 'experts', 'heuristic_expert': 'experts',
-    'EQSACLearner': 'learner', 'LearnerConfig': 'learner', 'Proposal': 'learner',
-    'EpisodeSummary': 'summary', 'run_episode': 'training', 'train': 'training',
+    'AdvisingGates': 'advising',
+    'FifoQueue': 'advising',
+    'GateDecision': 'advising',
+    'CheckpointError': 'checkpoint',
+    'PolicyExpert': 'checkpoint',
+    'export_policy': 'checkpoint',
+    'load_checkpoint': 'checkpoint',
+    'save_checkpoint': 'checkpoint',
+    'ActionScaler': 'envs',
+    'make_env': 'envs',
+    'success_criterion': 'envs',
+    'Advice': 'experts',
+    'AdviceRequest': 'experts',
+    'heuristic_expert': 'experts',
+    'EQSACLearner': 'learner',
+    'LearnerConfig': 'learner',
+    'Proposal': 'learner',
+    'EpisodeSummary': 'summary',
+    'run_episode': 'training',
+    'train': 'training',
 }
 __all__ = sorted(_HOME)
 

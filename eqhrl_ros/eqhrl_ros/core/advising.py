@@ -42,12 +42,12 @@ class GateDecision:
     fire: bool
     reason: str
     within_budget: bool
-    ask: bool = False          # Eq. 10 left (or D(s) > fixed threshold)
-    respond: bool = False      # Eq. 10 right (or E(s) < fixed threshold)
-    discrepancy: float = float('nan')   # D(s), Eq. 8; NaN when not evaluated
-    entropy: float = float('nan')       # E(s), Eq. 9; NaN when not evaluated
-    d_threshold: float = float('nan')   # max(D_queue) before the push, or the fixed threshold
-    e_threshold: float = float('nan')   # min(E_queue) before the push, or the fixed threshold
+    ask: bool = False  # Eq. 10 left (or D(s) > fixed threshold)
+    respond: bool = False  # Eq. 10 right (or E(s) < fixed threshold)
+    discrepancy: float = float('nan')  # D(s), Eq. 8; NaN when not evaluated
+    entropy: float = float('nan')  # E(s), Eq. 9; NaN when not evaluated
+    d_threshold: float = float('nan')  # max(D_queue) before the push, or the fixed threshold
+    e_threshold: float = float('nan')  # min(E_queue) before the push, or the fixed threshold
 
 
 class AdvisingGates:
@@ -64,9 +64,15 @@ class AdvisingGates:
     (``threshold_kind='fixed'``) compare with constants instead.
     """
 
-    def __init__(self, mode: str, advising_budget: int, queue_length: int = 15,
-                 threshold_kind: str = 'dynamic', fixed_d_threshold: float = 1.0,
-                 fixed_e_threshold: float = 0.0):
+    def __init__(
+        self,
+        mode: str,
+        advising_budget: int,
+        queue_length: int = 15,
+        threshold_kind: str = 'dynamic',
+        fixed_d_threshold: float = 1.0,
+        fixed_e_threshold: float = 0.0,
+    ):
         # The rules of each value live with LearnerConfig's fields (core/config.py).
         self.mode = check_value('mode', mode)
         check_value('threshold_kind', threshold_kind)
@@ -85,13 +91,13 @@ class AdvisingGates:
         """Whether D(s) and E(s) must be computed this step (skipped when they cannot matter)."""
         return self.mode != 'sac' and eq.early_advising(episode, self.advising_budget)
 
-    def decide(self, episode: int, discrepancy: float | None = None,
-               entropy: float | None = None) -> GateDecision:
+    def decide(self, episode: int, discrepancy: float | None = None, entropy: float | None = None) -> GateDecision:
         if self.mode == 'sac':
             return GateDecision(False, 'mode sac never asks', within_budget=False)
         if not eq.early_advising(episode, self.advising_budget):
-            return GateDecision(False, f'episode {episode} is past the advising budget '
-                                       f'({self.advising_budget})', within_budget=False)
+            return GateDecision(
+                False, f'episode {episode} is past the advising budget ({self.advising_budget})', within_budget=False
+            )
         if discrepancy is None or (self.uses_entropy and entropy is None):
             raise ValueError('D(s) (and E(s) in eqsac mode) are needed inside the budget')
 
@@ -124,11 +130,16 @@ class AdvisingGates:
         else:
             reason = 'E(s) >= threshold: the policy is not sure'
         return GateDecision(
-            fire=fire, reason=reason, within_budget=True, ask=ask,
+            fire=fire,
+            reason=reason,
+            within_budget=True,
+            ask=ask,
             respond=respond if self.uses_entropy else False,
             discrepancy=float(discrepancy),
             entropy=float(entropy) if entropy is not None else float('nan'),
-            d_threshold=d_threshold, e_threshold=e_threshold if self.uses_entropy else float('nan'))
+            d_threshold=d_threshold,
+            e_threshold=e_threshold if self.uses_entropy else float('nan'),
+        )
 
     def state_dict(self) -> dict:
         return {'d_queue': self.d_queue.values(), 'e_queue': self.e_queue.values()}

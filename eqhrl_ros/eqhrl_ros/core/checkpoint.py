@@ -43,7 +43,7 @@ def _write_file(data: bytes, tmp: str) -> None:
     try:
         view = memoryview(data)
         while view:
-            view = view[os.write(fd, view):]
+            view = view[os.write(fd, view) :]
         os.fsync(fd)
     finally:
         os.close(fd)
@@ -74,7 +74,7 @@ def _replace(tmp: str, path: Path) -> None:
         os.replace(tmp, path)
         dir_fd = os.open(path.parent, os.O_RDONLY)
         try:
-            os.fsync(dir_fd)      # the rename itself reaches the disk
+            os.fsync(dir_fd)  # the rename itself reaches the disk
         finally:
             os.close(dir_fd)
     except OSError as error:
@@ -91,8 +91,7 @@ def _check_zip(path: Path, expected_format: str, max_bytes: int | None) -> None:
     """Refuse, before unpickling, what torch.save never writes or what is larger than needed."""
     size = path.stat().st_size
     if max_bytes is not None and size > max_bytes:
-        raise CheckpointError(f'{path}: {size:,} bytes, more than the {max_bytes:,} that this '
-                              "learner's sizes can need")
+        raise CheckpointError(f"{path}: {size:,} bytes, more than the {max_bytes:,} that this learner's sizes can need")
     try:
         with zipfile.ZipFile(path) as archive:
             entries = archive.infolist()
@@ -100,11 +99,14 @@ def _check_zip(path: Path, expected_format: str, max_bytes: int | None) -> None:
         raise CheckpointError(f'{path}: not a readable {expected_format} file ({error})') from error
     for entry in entries:
         if entry.compress_type != zipfile.ZIP_STORED:
-            raise CheckpointError(f'{path}: entry {entry.filename!r} is compressed; torch.save never '
-                                  'compresses, so the file is refused unread')
+            raise CheckpointError(
+                f'{path}: entry {entry.filename!r} is compressed; torch.save never '
+                'compresses, so the file is refused unread'
+            )
         if entry.file_size > size:
-            raise CheckpointError(f'{path}: entry {entry.filename!r} claims {entry.file_size:,} bytes '
-                                  f'in a file of {size:,}')
+            raise CheckpointError(
+                f'{path}: entry {entry.filename!r} claims {entry.file_size:,} bytes in a file of {size:,}'
+            )
 
 
 def _safe_load(path: Path, expected_format: str, max_bytes: int | None = None) -> dict:
@@ -114,15 +116,23 @@ def _safe_load(path: Path, expected_format: str, max_bytes: int | None = None) -
     _check_zip(path, expected_format, max_bytes)
     try:
         obj = torch.load(path, map_location='cpu', weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError,
-            AttributeError, TypeError, OSError) as error:
+    except (
+        pickle.UnpicklingError,
+        RuntimeError,
+        EOFError,
+        zipfile.BadZipFile,
+        ValueError,
+        AttributeError,
+        TypeError,
+        OSError,
+    ) as error:
         first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise CheckpointError(f'{path}: not a readable {expected_format} file ({first_line})') from error
     if not isinstance(obj, dict) or obj.get('format') != expected_format:
         found = obj.get('format') if isinstance(obj, dict) else type(obj).__name__
         raise CheckpointError(f'{path}: expected a {expected_format} file, found {found!r}')
     if obj.get('version') != FORMAT_VERSION:
-        raise CheckpointError(f"{path}: format version {obj.get('version')!r}, this code reads {FORMAT_VERSION}")
+        raise CheckpointError(f'{path}: format version {obj.get("version")!r}, this code reads {FORMAT_VERSION}')
     return obj
 
 
@@ -160,12 +170,29 @@ def save_checkpoint(learner, path, replay_path=None) -> None:
     try:
         if replay_path is not None:
             replay_path = Path(replay_path)
-            written.append((_write_temporary({
-                'format': REPLAY_FORMAT, 'version': FORMAT_VERSION, 'pair': pair,
-                'replay': learner.replay.state_dict(),
-                'advice_replay': learner.advice_replay.state_dict()}, replay_path), replay_path))
-        written.append((_write_temporary({'format': CHECKPOINT_FORMAT, 'version': FORMAT_VERSION,
-                                          'pair': pair, **learner.state_dict()}, path), path))
+            written.append(
+                (
+                    _write_temporary(
+                        {
+                            'format': REPLAY_FORMAT,
+                            'version': FORMAT_VERSION,
+                            'pair': pair,
+                            'replay': learner.replay.state_dict(),
+                            'advice_replay': learner.advice_replay.state_dict(),
+                        },
+                        replay_path,
+                    ),
+                    replay_path,
+                )
+            )
+        written.append(
+            (
+                _write_temporary(
+                    {'format': CHECKPOINT_FORMAT, 'version': FORMAT_VERSION, 'pair': pair, **learner.state_dict()}, path
+                ),
+                path,
+            )
+        )
     except BaseException:
         for tmp, _ in written:
             Path(tmp).unlink(missing_ok=True)
@@ -183,13 +210,15 @@ def load_checkpoint(learner, path, replay_path=None) -> None:
         if replay.get('pair') != state.get('pair'):
             raise CheckpointError(
                 f'{replay_path} and {path} come from different saves (one was interrupted between '
-                f'the two): remove {Path(replay_path).name} to resume without the replay memories')
+                f'the two): remove {Path(replay_path).name} to resume without the replay memories'
+            )
     # Load into copies first, so that a replay memory that does not fit changes nothing.
     candidate_replay = candidate_advice = None
     if replay is not None:
         try:
-            candidate_replay, candidate_advice = (type(b)(b.capacity, b.obs_dim, b.action_dim)
-                                                  for b in (learner.replay, learner.advice_replay))
+            candidate_replay, candidate_advice = (
+                type(b)(b.capacity, b.obs_dim, b.action_dim) for b in (learner.replay, learner.advice_replay)
+            )
             candidate_replay.load_state_dict(replay['replay'])
             candidate_advice.load_state_dict(replay['advice_replay'])
         except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as error:
@@ -204,12 +233,18 @@ def load_checkpoint(learner, path, replay_path=None) -> None:
 
 def export_policy(learner, path) -> None:
     """A small file with the actor alone: an expert node can serve it (a learner becomes a teacher)."""
-    _atomic_save({
-        'format': POLICY_FORMAT, 'version': FORMAT_VERSION,
-        'obs_dim': learner.obs_dim, 'hidden': list(learner.config.hidden),
-        'action_low': learner.scaler.low.tolist(), 'action_high': learner.scaler.high.tolist(),
-        'actor': learner.actor.state_dict(),
-    }, path)
+    _atomic_save(
+        {
+            'format': POLICY_FORMAT,
+            'version': FORMAT_VERSION,
+            'obs_dim': learner.obs_dim,
+            'hidden': list(learner.config.hidden),
+            'action_low': learner.scaler.low.tolist(),
+            'action_high': learner.scaler.high.tolist(),
+            'actor': learner.actor.state_dict(),
+        },
+        path,
+    )
 
 
 class PolicyExpert:

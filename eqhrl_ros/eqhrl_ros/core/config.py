@@ -18,48 +18,66 @@ THRESHOLD_KINDS = ('dynamic', 'fixed')
 INT_MAX = 2**31 - 1
 
 
-def hyper(default: Any, description: str, *, range: Optional[tuple] = None, choices: Optional[tuple] = None,
-          dynamic: bool = False, ros_name: Optional[str] = None):
+def hyper(
+    default: Any,
+    description: str,
+    *,
+    range: Optional[tuple] = None,
+    choices: Optional[tuple] = None,
+    dynamic: bool = False,
+    ros_name: Optional[str] = None,
+):
     """A LearnerConfig field: ``range`` is inclusive; ``dynamic``: may change while a learner
     runs (a ROS parameter set at run time); ``ros_name``: the parameter's name when it differs."""
-    return field(default=default, metadata={'description': description, 'range': range, 'choices': choices,
-                                            'dynamic': dynamic, 'ros_name': ros_name})
+    return field(
+        default=default,
+        metadata={
+            'description': description,
+            'range': range,
+            'choices': choices,
+            'dynamic': dynamic,
+            'ros_name': ros_name,
+        },
+    )
 
 
 @dataclass
 class LearnerConfig:
     """Hyperparameters of SAC, QASAC and EQSAC (see each field's description)."""
 
-    mode: str = hyper('eqsac', 'Learning mode: plain SAC, QASAC (ask gate only) or EQSAC (ask and respond gates)',
-                      choices=MODES)
-    hidden: tuple[int, ...] = hyper((256, 256), 'Hidden layer sizes of actor and critics (Table 1: 256x256)',
-                                    ros_name='hidden_sizes')
+    mode: str = hyper(
+        'eqsac', 'Learning mode: plain SAC, QASAC (ask gate only) or EQSAC (ask and respond gates)', choices=MODES
+    )
+    hidden: tuple[int, ...] = hyper(
+        (256, 256), 'Hidden layer sizes of actor and critics (Table 1: 256x256)', ros_name='hidden_sizes'
+    )
     actor_lr: float = hyper(1e-4, 'Actor learning rate (Table 1)', range=(1e-8, 1.0))
     critic_lr: float = hyper(1e-3, 'Critic learning rate (Table 1)', range=(1e-8, 1.0))
     alpha_lr: float = hyper(1e-4, 'Temperature learning rate (Table 1)', range=(1e-8, 1.0))
-    initial_alpha: float = hyper(1.0, "Initial entropy temperature alpha (not in the paper; SB3's and "
-                                      "CleanRL's start)", range=(1e-6, 100.0))
+    initial_alpha: float = hyper(
+        1.0, "Initial entropy temperature alpha (not in the paper; SB3's and CleanRL's start)", range=(1e-6, 100.0)
+    )
     gamma: float = hyper(0.99, 'Discount factor (Table 1)', range=(0.0, 1.0))
     tau: float = hyper(0.005, 'Soft target update rate (Table 1)', range=(1e-6, 1.0))
     batch_size: int = hyper(256, 'Minibatch size (not in the paper; SB3 default)', range=(1, 65536))
     replay_capacity: int = hyper(500_000, 'Replay buffer size (Table 1)', range=(1, 50_000_000))
-    learning_starts: int = hyper(5_000, 'Transitions stored before updates start (Table 1 "minimal buffer '
-                                        'size")', range=(1, INT_MAX))
+    learning_starts: int = hyper(
+        5_000, 'Transitions stored before updates start (Table 1 "minimal buffer size")', range=(1, INT_MAX)
+    )
     updates_per_step: int = hyper(1, 'Gradient updates per env step', range=(0, 100))
-    random_warmup_steps: int = hyper(0, 'Uniform-random actions for the first N steps (off in the paper)',
-                                     range=(0, INT_MAX))
+    random_warmup_steps: int = hyper(
+        0, 'Uniform-random actions for the first N steps (off in the paper)', range=(0, INT_MAX)
+    )
     seed: int = hyper(42, 'Random seed (Table 1)', range=(0, INT_MAX))
     # Advising (Section 3)
-    advising_budget: int = hyper(30, 'Early-advising budget: advice only in episodes below it (Eq. 7)',
-                                 range=(0, INT_MAX), dynamic=True)
+    advising_budget: int = hyper(
+        30, 'Early-advising budget: advice only in episodes below it (Eq. 7)', range=(0, INT_MAX), dynamic=True
+    )
     queue_length: int = hyper(15, 'Length of the D and E FIFO queues (Table 1)', range=(1, 100_000))
-    threshold_kind: str = hyper('dynamic', 'Dynamic queue thresholds (Eq. 10) or fixed ones',
-                                choices=THRESHOLD_KINDS)
+    threshold_kind: str = hyper('dynamic', 'Dynamic queue thresholds (Eq. 10) or fixed ones', choices=THRESHOLD_KINDS)
     fixed_d_threshold: float = hyper(1.0, 'Ask when D(s) exceeds this (threshold_kind fixed)', range=(0.0, 1e9))
-    fixed_e_threshold: float = hyper(0.0, 'Respond when E(s) is below this (threshold_kind fixed)',
-                                     range=(-1e9, 1e9))
-    entropy_samples: int = hyper(32, 'Monte Carlo samples K of the entropy estimate E(s) (Eq. 9)',
-                                 range=(1, 100_000))
+    fixed_e_threshold: float = hyper(0.0, 'Respond when E(s) is below this (threshold_kind fixed)', range=(-1e9, 1e9))
+    entropy_samples: int = hyper(32, 'Monte Carlo samples K of the entropy estimate E(s) (Eq. 9)', range=(1, 100_000))
     actor_on_advice: bool = hyper(False, 'Also train the actor on the advice batch')
 
     def __post_init__(self):
@@ -74,8 +92,9 @@ class LearnerConfig:
         names = {ros_name(f): f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(params) - set(names) - set(node_keys))
         if unknown:
-            raise ValueError(f"unknown learner parameter(s): {', '.join(unknown)}; "
-                             f"known: {', '.join(sorted([*names, *node_keys]))}")
+            raise ValueError(
+                f'unknown learner parameter(s): {", ".join(unknown)}; known: {", ".join(sorted([*names, *node_keys]))}'
+            )
         values = {names[k]: v for k, v in params.items() if k in names}
         values.update(overrides)
         return cls(**values)
@@ -100,6 +119,7 @@ def check_value(name: str, value: Any) -> Any:
 
     def refuse(expected: str):
         raise ValueError(f'LearnerConfig.{name} must be {expected}, got {value!r}')
+
     if kind is tuple:
         try:
             value = tuple(int(h) for h in value)
@@ -114,7 +134,7 @@ def check_value(name: str, value: Any) -> Any:
         return value
     if kind is str:
         if value not in meta['choices']:
-            refuse(f"one of {meta['choices']}")
+            refuse(f'one of {meta["choices"]}')
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and not isinstance(value, int)):
         refuse('an integer' if kind is int else 'a number')

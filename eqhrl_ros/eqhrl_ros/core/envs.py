@@ -20,8 +20,9 @@ def make_env(env_id: str, max_episode_steps: int | None = None, render_mode: str
     env = gym.make(env_id, max_episode_steps=steps, render_mode=render_mode)
     if not isinstance(env.action_space, gym.spaces.Box):
         env.close()
-        raise ValueError(f'{env_id} has a {type(env.action_space).__name__} action space; '
-                         'EQ-HRL needs a continuous (Box) one')
+        raise ValueError(
+            f'{env_id} has a {type(env.action_space).__name__} action space; EQ-HRL needs a continuous (Box) one'
+        )
     return env
 
 
@@ -84,8 +85,10 @@ class PendulumUpright(SuccessCriterion):
     def __init__(self, max_angle_deg: float = 18.0, hold_steps: int = 10):
         self.min_cos = math.cos(math.radians(max_angle_deg))
         self.hold_steps = hold_steps
-        self.description = (f'upright (|theta| <= {max_angle_deg:g} deg, cos(theta) >= {self.min_cos:.3f}) '
-                            f'for the final {hold_steps} steps of the episode')
+        self.description = (
+            f'upright (|theta| <= {max_angle_deg:g} deg, cos(theta) >= {self.min_cos:.3f}) '
+            f'for the final {hold_steps} steps of the episode'
+        )
         self.reset()
 
     def reset(self) -> None:

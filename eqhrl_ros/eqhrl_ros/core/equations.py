@@ -30,6 +30,7 @@ LOG_2 = math.log(2.0)
 
 # --------------------------------------------------------------------------- SAC (Section 2.2)
 
+
 def soft_bellman_target(
     reward: torch.Tensor,
     terminated: torch.Tensor,
@@ -57,9 +58,7 @@ def critic_loss(q: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return F.mse_loss(q, y)
 
 
-def actor_loss(
-    log_prob: torch.Tensor, q1: torch.Tensor, q2: torch.Tensor, alpha: torch.Tensor | float
-) -> torch.Tensor:
+def actor_loss(log_prob: torch.Tensor, q1: torch.Tensor, q2: torch.Tensor, alpha: torch.Tensor | float) -> torch.Tensor:
     """Eq. 6: L_pi(phi) = E[ alpha * log pi_phi(a|s) - Q(s, a) ], a ~ pi_phi(.|s).
 
     Q is min_i Q_theta_i of the *current* critics, as in Algorithm 1's actor update
@@ -68,9 +67,7 @@ def actor_loss(
     return (alpha * log_prob - torch.min(q1, q2)).mean()
 
 
-def temperature_loss(
-    log_alpha: torch.Tensor, log_prob: torch.Tensor, target_entropy: float
-) -> torch.Tensor:
+def temperature_loss(log_alpha: torch.Tensor, log_prob: torch.Tensor, target_entropy: float) -> torch.Tensor:
     """Learned temperature (Table 1: 'Learning rate (alpha)', 'Target alpha: negative action dim').
 
     Minimising -alpha * (log pi + H_target) raises alpha when the policy's entropy
@@ -80,15 +77,14 @@ def temperature_loss(
 
 
 @torch.no_grad()
-def soft_update(
-    target_params: Sequence[torch.Tensor], online_params: Sequence[torch.Tensor], tau: float
-) -> None:
+def soft_update(target_params: Sequence[torch.Tensor], online_params: Sequence[torch.Tensor], tau: float) -> None:
     """Algorithm 1, last line: theta_i^- <- tau * theta_i + (1 - tau) * theta_i^-."""
     # lerp(target, online, tau) = target + tau * (online - target), in one fused call.
     torch._foreach_lerp_(list(target_params), list(online_params), tau)
 
 
 # --------------------------------------------------------------------------- the policy pi
+
 
 def log_one_minus_tanh_squared(u: torch.Tensor) -> torch.Tensor:
     """log(1 - tanh(u)^2), the log-Jacobian of the tanh squashing, computed stably.
@@ -119,6 +115,7 @@ def squashed_gaussian_sample(
 
 # --------------------------------------------------------------------------- advising (Section 3)
 
+
 def early_advising(episode: int, advising_budget: int) -> bool:
     """Eq. 7: Iteration < AdvisingBudget. Advice only in the first ``advising_budget`` episodes."""
     return episode < advising_budget
@@ -129,9 +126,7 @@ def q_discrepancy(q1: torch.Tensor, q2: torch.Tensor) -> torch.Tensor:
     return (q1 - q2).abs()
 
 
-def policy_entropy(
-    mean: torch.Tensor, log_std: torch.Tensor, noise: torch.Tensor
-) -> torch.Tensor:
+def policy_entropy(mean: torch.Tensor, log_std: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
     """Eq. 9: E(s) = -integral pi(a|s) log pi(a|s) da for the tanh-squashed Gaussian policy.
 
     No closed form exists. With a = tanh(u), u ~ N(mean, std^2):

@@ -9,7 +9,7 @@ class CheckpointWriteError(OSError):
     """A file could not be written (full disk, read-only folder...); the previous one is intact."""
 
     def __str__(self) -> str:
-        return self.strerror or super().__str__()   # 'cannot write <path>: <why>', no '[Errno N]'
+        return self.strerror or super().__str__()  # 'cannot write <path>: <why>', no '[Errno N]'
 
 
 class RunFolderError(ValueError):

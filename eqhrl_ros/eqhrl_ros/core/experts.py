@@ -19,11 +19,11 @@ class AdviceRequest:
     """What the learner tells the expert when its gates fire (mirrors eqhrl_interfaces/srv/Advise)."""
 
     observation: np.ndarray
-    proposed_action: np.ndarray     # env units
+    proposed_action: np.ndarray  # env units
     action_low: np.ndarray
     action_high: np.ndarray
-    discrepancy: float              # D(s), Eq. 8
-    entropy: float                  # E(s), Eq. 9 (NaN in qasac mode)
+    discrepancy: float  # D(s), Eq. 8
+    entropy: float  # E(s), Eq. 9 (NaN in qasac mode)
     episode: int
     step: int
 
@@ -35,7 +35,7 @@ class Advice:
     action: Optional[np.ndarray]
     reason: str = ''
     expert_name: str = ''
-    human: bool = False             # a person gave it (teleop)
+    human: bool = False  # a person gave it (teleop)
 
     @property
     def advised(self) -> bool:
@@ -53,8 +53,9 @@ Expert = Callable[[AdviceRequest], Advice]
 FAILURE_KINDS = ('unavailable', 'timeout', 'error', 'wrong_size', 'non_finite', 'out_of_bounds', 'untrusted')
 
 
-def check_advised_action(action, low: np.ndarray, high: np.ndarray,
-                         tolerance: float = 1e-4) -> tuple[Optional[np.ndarray], str]:
+def check_advised_action(
+    action, low: np.ndarray, high: np.ndarray, tolerance: float = 1e-4
+) -> tuple[Optional[np.ndarray], str]:
     """Validate an advised action. Returns (action, '') or (None, failure kind)."""
     action = np.asarray(action, dtype=np.float32).reshape(-1)
     if action.shape[0] != low.shape[0]:
@@ -92,8 +93,8 @@ class PendulumSwingUpExpert:
         if cos_th >= self.balance_cos:
             u = -self.kp * theta - self.kd * th_dot
         else:
-            inertia = self.m * self.l ** 2 / 3.0
-            energy = 0.5 * inertia * th_dot ** 2 + 0.5 * self.m * self.g * self.l * cos_th
+            inertia = self.m * self.l**2 / 3.0
+            energy = 0.5 * inertia * th_dot**2 + 0.5 * self.m * self.g * self.l * cos_th
             energy_up = 0.5 * self.m * self.g * self.l
             # Pump along theta' (a kick from rest when theta' is zero).
             direction = math.copysign(1.0, th_dot if abs(th_dot) > 1e-3 else 1.0)
@@ -111,6 +112,7 @@ class LunarLanderExpert:
 
     def __init__(self):
         from gymnasium.envs.box2d.lunar_lander import heuristic
+
         self._heuristic = heuristic
         # The heuristic reads env.unwrapped.continuous and nothing else of the env.
         self._env = SimpleNamespace(unwrapped=SimpleNamespace(continuous=True))
@@ -128,5 +130,7 @@ def heuristic_expert(env_id: str):
         return PendulumSwingUpExpert()
     if env_id.startswith('LunarLander'):
         return LunarLanderExpert()
-    raise ValueError(f'no heuristic expert for {env_id!r}; built in: Pendulum-v1, '
-                     'LunarLanderContinuous-v3 (use the policy backend for other envs)')
+    raise ValueError(
+        f'no heuristic expert for {env_id!r}; built in: Pendulum-v1, '
+        'LunarLanderContinuous-v3 (use the policy backend for other envs)'
+    )

@@ -4,7 +4,7 @@ One step of Algorithm 1, as the caller drives it:
 
     proposal = learner.propose(obs)                  # a_t ~ pi(.|s_t); D(s), E(s); the gates
     if proposal.decision.fire:                       # Eq. 7 and Eq. 10
-        action, advised = learner.resolve_advice(proposal, expert(proposal.request))
+        action, advised = learner.resolve_advice(proposal, expert(proposal.request)).take()
     else:
         action, advised = proposal.action, False
     next_obs, reward, terminated, truncated, _ = env.step(action)
@@ -27,7 +27,7 @@ import torch
 
 from . import equations as eq
 from .advising import AdvisingGates, GateDecision
-from .config import LearnerConfig
+from .config import LearnerConfig, check_value
 from .envs import ActionScaler, SuccessCriterion
 from .experts import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
 from .networks import SquashedGaussianActor, TwinCritic
@@ -39,16 +39,30 @@ from .summary import EpisodeSummary
 class Proposal:
     """The learner's own action for s_t, the gate decision, and the request to send if it fired."""
 
-    action: np.ndarray               # env units
+    action: np.ndarray  # env units
     decision: GateDecision
     request: Optional[AdviceRequest]
+
+
+@dataclass(frozen=True)
+class Resolution:
+    """How an advice request ended: the action to take, and why."""
+
+    action: np.ndarray  # env units: the advice, or the learner's own action
+    advised: bool  # the advice is used (and goes to D_advising)
+    outcome: str  # 'given', 'declined' or 'failed'
+    detail: str = ''  # the failure kind, or the expert's reason for declining
+
+    def take(self) -> tuple[np.ndarray, bool]:
+        """(action, advised): what Algorithm 1 acts with and stores."""
+        return self.action, self.advised
 
 
 @dataclass
 class AdviceCounts:
     asked: int = 0
     given: int = 0
-    human: int = 0          # of the given advice, how much came from a person
+    human: int = 0  # of the given advice, how much came from a person
     declined: int = 0
     failed: dict = field(default_factory=lambda: {kind: 0 for kind in FAILURE_KINDS})
 
@@ -65,8 +79,13 @@ class AdviceCounts:
             self.failed[kind] += n
 
     def to_dict(self) -> dict:
-        return {'asked': self.asked, 'given': self.given, 'human': self.human, 'declined': self.declined,
-                'failed': dict(self.failed)}
+        return {
+            'asked': self.asked,
+            'given': self.given,
+            'human': self.human,
+            'declined': self.declined,
+            'failed': dict(self.failed),
+        }
 
     @staticmethod
     def from_dict(d: dict) -> 'AdviceCounts':
@@ -115,26 +134,40 @@ def _check_state(state) -> None:
         if isinstance(value, bool) or not isinstance(value, int) or value < 0:
             raise ValueError(f'counters.{key} must be an integer >= 0, found {value!r}')
     if counters['episode'] > counters['total_steps']:
-        raise ValueError(f"counters.episode {counters['episode']} exceeds counters.total_steps "
-                         f"{counters['total_steps']} (an episode has at least one step)")
+        raise ValueError(
+            f'counters.episode {counters["episode"]} exceeds counters.total_steps '
+            f'{counters["total_steps"]} (an episode has at least one step)'
+        )
     if not isinstance(counters.get('advice_total'), dict):
         raise ValueError('counters.advice_total must be a dict')
-    for key in ('actor', 'critic', 'critic_target', 'log_alpha', 'actor_optimizer',
-                'critic_optimizer', 'alpha_optimizer'):
+    for key in (
+        'actor',
+        'critic',
+        'critic_target',
+        'log_alpha',
+        'actor_optimizer',
+        'critic_optimizer',
+        'alpha_optimizer',
+    ):
         if any(t.is_floating_point() and not torch.isfinite(t).all() for t in _tensors(state.get(key))):
             raise ValueError(f"'{key}' holds non-finite values (NaN or inf)")
     for key in ('d_queue', 'e_queue'):
         values = state['gates'].get(key)
-        if not isinstance(values, list) or not all(isinstance(v, (int, float)) and math.isfinite(v)
-                                                   for v in values):
+        if not isinstance(values, list) or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
             raise ValueError(f'gates.{key} must be a list of finite numbers')
 
 
 class EQSACLearner:
     """Soft Actor-Critic with EQ-HRL advising gates and dual replay (SAC / QASAC / EQSAC)."""
 
-    def __init__(self, obs_dim: int, action_low, action_high,
-                 config: LearnerConfig | None = None, success: SuccessCriterion | None = None):
+    def __init__(
+        self,
+        obs_dim: int,
+        action_low,
+        action_high,
+        config: LearnerConfig | None = None,
+        success: SuccessCriterion | None = None,
+    ):
         self.config = config or LearnerConfig()
         cfg = self.config
         if obs_dim < 1:
@@ -151,7 +184,7 @@ class EQSACLearner:
             self.critic = TwinCritic(self.obs_dim, self.action_dim, cfg.hidden)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.log_alpha = torch.tensor(math.log(cfg.initial_alpha), requires_grad=True)
-        self.target_entropy = -float(self.action_dim)   # Table 1: target alpha = -action dim
+        self.target_entropy = -float(self.action_dim)  # Table 1: target alpha = -action dim
         # The optimisers are made at the first update: torch imports its compiler
         # (torch._dynamo, ~1.4 s here) when the first one is made, which would otherwise
         # delay the first env step by that much.
@@ -159,15 +192,23 @@ class EQSACLearner:
 
         # One random stream per purpose, so that e.g. estimating E(s) never shifts
         # the noise of the policy's own actions.
-        self.rng = {name: torch.Generator().manual_seed(cfg.seed + i)
-                    for i, name in enumerate(('act', 'update', 'replay', 'entropy', 'warmup'))}
+        self.rng = {
+            name: torch.Generator().manual_seed(cfg.seed + i)
+            for i, name in enumerate(('act', 'update', 'replay', 'entropy', 'warmup'))
+        }
 
-        self.replay = ReplayBuffer(cfg.replay_capacity, self.obs_dim, self.action_dim)              # D
-        self.advice_replay = ReplayBuffer(cfg.replay_capacity, self.obs_dim, self.action_dim)       # D_advising
-        self.gates = AdvisingGates(cfg.mode, cfg.advising_budget, cfg.queue_length,
-                                   cfg.threshold_kind, cfg.fixed_d_threshold, cfg.fixed_e_threshold)
+        self.replay = ReplayBuffer(cfg.replay_capacity, self.obs_dim, self.action_dim)  # D
+        self.advice_replay = ReplayBuffer(cfg.replay_capacity, self.obs_dim, self.action_dim)  # D_advising
+        self.gates = AdvisingGates(
+            cfg.mode,
+            cfg.advising_budget,
+            cfg.queue_length,
+            cfg.threshold_kind,
+            cfg.fixed_d_threshold,
+            cfg.fixed_e_threshold,
+        )
 
-        self.episode = 0          # index of the current episode: Eq. 7's "Iteration"
+        self.episode = 0  # index of the current episode: Eq. 7's "Iteration"
         self.episode_step = 0
         self.total_steps = 0
         self.updates = 0
@@ -227,15 +268,19 @@ class EQSACLearner:
         request = None
         if decision.fire:
             request = AdviceRequest(
-                observation=obs_t[0].numpy().copy(), proposed_action=env_action,
-                action_low=self.scaler.low, action_high=self.scaler.high,
-                discrepancy=decision.discrepancy, entropy=decision.entropy,
-                episode=self.episode, step=self.episode_step)
+                observation=obs_t[0].numpy().copy(),
+                proposed_action=env_action,
+                action_low=self.scaler.low,
+                action_high=self.scaler.high,
+                discrepancy=decision.discrepancy,
+                entropy=decision.entropy,
+                episode=self.episode,
+                step=self.episode_step,
+            )
         return Proposal(env_action, decision, request)
 
-    def resolve_advice(self, proposal: Proposal, advice: Advice | None = None,
-                       failure: str = '') -> tuple[np.ndarray, bool]:
-        """Count the outcome of an advice request and return (action to take, advised?).
+    def resolve_advice(self, proposal: Proposal, advice: Advice | None = None, failure: str = '') -> Resolution:
+        """Count the outcome of an advice request and return what to do.
 
         ``failure`` names why no answer came (one of experts.FAILURE_KINDS); otherwise
         ``advice`` is the answer. A refusal or a failure leaves the learner's own action.
@@ -246,22 +291,27 @@ class EQSACLearner:
             if failure not in counts.failed:
                 raise ValueError(f'unknown failure kind {failure!r}; one of {FAILURE_KINDS}')
             counts.failed[failure] += 1
-            return proposal.action, False
+            return Resolution(proposal.action, False, 'failed', failure)
         if advice is None or not advice.advised:
             counts.declined += 1
-            return proposal.action, False
+            return Resolution(proposal.action, False, 'declined', advice.reason if advice else '')
         action, failure = check_advised_action(advice.action, self.scaler.low, self.scaler.high)
         if failure:
             counts.failed[failure] += 1
-            return proposal.action, False
+            return Resolution(proposal.action, False, 'failed', failure)
         counts.given += 1
         counts.human += int(advice.human)
-        return action, True
+        return Resolution(action, True, 'given')
+
+    def set_advising_budget(self, episodes: int) -> None:
+        """Change the early-advising budget (Eq. 7) while learning, e.g. from a person's console."""
+        self.gates.advising_budget = self.config.advising_budget = check_value('advising_budget', episodes)
 
     # ------------------------------------------------------------------ storing and learning
 
-    def step(self, obs, action, reward: float, next_obs, terminated: bool, truncated: bool,
-             advised: bool = False) -> Optional[EpisodeSummary]:
+    def step(
+        self, obs, action, reward: float, next_obs, terminated: bool, truncated: bool, advised: bool = False
+    ) -> Optional[EpisodeSummary]:
         """Store (s_t, a_t, r_t, s_{t+1}) in D, and in D_advising when advised; update.
 
         Returns the episode's summary when this transition ended it. A non-finite or
@@ -304,7 +354,8 @@ class EQSACLearner:
         advice_batch = None
         if self.mode != 'sac' and len(self.advice_replay) > 0:
             advice_batch = self.advice_replay.sample(
-                cfg.batch_size, self.rng['replay'], replacement=len(self.advice_replay) < cfg.batch_size)
+                cfg.batch_size, self.rng['replay'], replacement=len(self.advice_replay) < cfg.batch_size
+            )
 
         # Eq. 4 targets of both batches. The actor, alpha and the target critics stay
         # as they are until the end of the update, so both come from one forward pass.
@@ -333,8 +384,13 @@ class EQSACLearner:
         sizes = [len(b.reward) for b in batches]
         # One draw per batch, in order: the same noise as computing each batch on its own.
         noise = torch.cat([torch.randn((n, self.action_dim), generator=self.rng['update']) for n in sizes])
-        y = self._targets(torch.cat([b.next_obs for b in batches]), torch.cat([b.reward for b in batches]),
-                          torch.cat([b.terminated for b in batches]), noise, self.log_alpha.detach().exp())
+        y = self._targets(
+            torch.cat([b.next_obs for b in batches]),
+            torch.cat([b.reward for b in batches]),
+            torch.cat([b.terminated for b in batches]),
+            noise,
+            self.log_alpha.detach().exp(),
+        )
         y = y.split(sizes)
         return y[0], (y[1] if advice_batch is not None else None)
 
@@ -346,12 +402,11 @@ class EQSACLearner:
         next_mean, next_log_std = self.actor(next_obs)
         next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, noise)
         next_q1, next_q2 = self.critic_target(next_obs, next_action)
-        return eq.soft_bellman_target(reward, terminated, next_q1, next_q2, next_log_prob, alpha,
-                                      self.config.gamma)
+        return eq.soft_bellman_target(reward, terminated, next_q1, next_q2, next_log_prob, alpha, self.config.gamma)
 
     def _critic_loss(self, obs, action, y) -> torch.Tensor:
         q1, q2 = self.critic(obs, action)
-        return eq.critic_loss(q1, y) + eq.critic_loss(q2, y)                             # Eq. 5, i = 1, 2
+        return eq.critic_loss(q1, y) + eq.critic_loss(q2, y)  # Eq. 5, i = 1, 2
 
     def _actor_loss(self, obs, noise, alpha) -> tuple[torch.Tensor, torch.Tensor]:
         """Eq. 6 with a = tanh(mean + std * noise); also log pi(a|s) for the temperature."""
@@ -395,12 +450,19 @@ class EQSACLearner:
         """Close the current episode: its summary, then the next episode index."""
         counts = self._episode_advice
         summary = EpisodeSummary(
-            episode=self.episode, episode_return=self._episode_return, length=self.episode_step,
-            advice_asked=counts.asked, advice_given=counts.given, advice_human=counts.human,
+            episode=self.episode,
+            episode_return=self._episode_return,
+            length=self.episode_step,
+            advice_asked=counts.asked,
+            advice_given=counts.given,
+            advice_human=counts.human,
             advice_declined=counts.declined,
             advice_failed=counts.failed_total,
             success=bool(self.success.success(self._episode_return)) and not self.episode_interrupted,
-            total_steps=self.total_steps, alpha=self.alpha, interrupted=self.episode_interrupted)
+            total_steps=self.total_steps,
+            alpha=self.alpha,
+            interrupted=self.episode_interrupted,
+        )
         self.advice_total.add(counts)
         self.episode += 1
         self._reset_episode()
@@ -441,8 +503,12 @@ class EQSACLearner:
             'critic_optimizer': self.critic_optimizer.state_dict(),
             'alpha_optimizer': self.alpha_optimizer.state_dict(),
             'gates': self.gates.state_dict(),
-            'counters': {'episode': self.episode, 'total_steps': self.total_steps,
-                         'updates': self.updates, 'advice_total': self.advice_total.to_dict()},
+            'counters': {
+                'episode': self.episode,
+                'total_steps': self.total_steps,
+                'updates': self.updates,
+                'advice_total': self.advice_total.to_dict(),
+            },
             'rng': {name: gen.get_state() for name, gen in self.rng.items()},
         }
 
@@ -451,8 +517,9 @@ class EQSACLearner:
         _check_state(state)
         if int(state['obs_dim']) != self.obs_dim or len(state['action_low']) != self.action_dim:
             raise ValueError(
-                f"checkpoint is for observations of {state['obs_dim']} and actions of "
-                f"{len(state['action_low'])} values; this learner has {self.obs_dim} and {self.action_dim}")
+                f'checkpoint is for observations of {state["obs_dim"]} and actions of '
+                f'{len(state["action_low"])} values; this learner has {self.obs_dim} and {self.action_dim}'
+            )
         saved_hidden = tuple(state['config'].get('hidden', ()))
         if saved_hidden != self.config.hidden:
             raise ValueError(f'checkpoint has hidden layers {saved_hidden}, this learner {self.config.hidden}')

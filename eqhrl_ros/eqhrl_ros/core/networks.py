@@ -35,7 +35,7 @@ class _NumpyTanh(torch.autograd.Function):
         return torch.ops.aten.tanh_backward(grad, y)
 
 
-NUMPY_TANH_FROM = 4096   # elements
+NUMPY_TANH_FROM = 4096  # elements
 
 
 def tanh(x: torch.Tensor) -> torch.Tensor:
@@ -45,8 +45,12 @@ def tanh(x: torch.Tensor) -> torch.Tensor:
     Function's own overhead would cost more than it saves; so do other devices and dtypes,
     and code traced by torch.compile, which generates its own vectorised tanh.
     """
-    if (x.numel() >= NUMPY_TANH_FROM and x.device.type == 'cpu' and x.dtype == torch.float32
-            and not torch.compiler.is_compiling()):
+    if (
+        x.numel() >= NUMPY_TANH_FROM
+        and x.device.type == 'cpu'
+        and x.dtype == torch.float32
+        and not torch.compiler.is_compiling()
+    ):
         return _NumpyTanh.apply(x)
     return torch.tanh(x)
 
@@ -85,7 +89,7 @@ class SquashedGaussianActor(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         x = obs
-        for layer in self._hidden:                     # = self.body(obs)
+        for layer in self._hidden:  # = self.body(obs)
             x = tanh(F.linear(x, layer.weight, layer.bias))
         mean, raw_log_std = F.linear(x, self.heads.weight, self.heads.bias).split(self.action_dim, dim=-1)
         log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (torch.tanh(raw_log_std) + 1.0)

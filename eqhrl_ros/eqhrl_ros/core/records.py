@@ -57,13 +57,13 @@ class RunFolder:
             os.close(fd)
             os.unlink(probe)
         except OSError as error:
-            raise RunFolderError(f"output folder '{self.path}' cannot be written: "
-                                 f'{error.strerror or error}') from error
+            raise RunFolderError(f"output folder '{self.path}' cannot be written: {error.strerror or error}") from error
         existing = [name for name in ('episodes.csv', 'checkpoint.pt') if (self.path / name).exists()]
         if existing and not (resume or overwrite):
             raise RunFolderError(
                 f"output folder '{self.path}' holds a run ({', '.join(existing)}): resume it "
-                '(resume:=true, eqhrl-train --resume) or replace it (overwrite:=true, --overwrite)')
+                '(resume:=true, eqhrl-train --resume) or replace it (overwrite:=true, --overwrite)'
+            )
         if resume and not self.checkpoint.exists():
             raise RunFolderError(f"nothing to resume: '{self.checkpoint}' does not exist")
         self.removed_temporaries = remove_stale_temporaries(self.path)

@@ -11,10 +11,10 @@ import torch
 @dataclass
 class Batch:
     obs: torch.Tensor
-    action: torch.Tensor        # normalised to [-1, 1]
+    action: torch.Tensor  # normalised to [-1, 1]
     reward: torch.Tensor
     next_obs: torch.Tensor
-    terminated: torch.Tensor    # 1.0 where the episode ended by termination (no bootstrap)
+    terminated: torch.Tensor  # 1.0 where the episode ended by termination (no bootstrap)
 
 
 class ReplayBuffer:
@@ -63,11 +63,13 @@ class ReplayBuffer:
         next_obs = np.asarray(next_obs, dtype=np.float32).reshape(-1)
         if obs.shape[0] != self.obs_dim or next_obs.shape[0] != self.obs_dim:
             raise ValueError(
-                f'observation has {obs.shape[0]}/{next_obs.shape[0]} values, the buffer holds {self.obs_dim}')
+                f'observation has {obs.shape[0]}/{next_obs.shape[0]} values, the buffer holds {self.obs_dim}'
+            )
         if action.shape[0] != self.action_dim:
             raise ValueError(f'action has {action.shape[0]} values, the buffer holds {self.action_dim}')
-        if not (np.isfinite(obs).all() and np.isfinite(action).all()
-                and np.isfinite(next_obs).all() and np.isfinite(reward)):
+        if not (
+            np.isfinite(obs).all() and np.isfinite(action).all() and np.isfinite(next_obs).all() and np.isfinite(reward)
+        ):
             raise ValueError('transition holds a non-finite value (NaN or inf); not stored')
         i = self.position
         self._np['obs'][i] = obs
@@ -92,8 +94,10 @@ class ReplayBuffer:
     def state_dict(self) -> dict:
         """Tensors of the stored part only, in insertion order's ring layout, plus the cursor."""
         return {
-            **{name: getattr(self, name)[:self.size].clone() for name in self.FIELDS},
-            'position': self.position, 'size': self.size, 'capacity': self.capacity,
+            **{name: getattr(self, name)[: self.size].clone() for name in self.FIELDS},
+            'position': self.position,
+            'size': self.size,
+            'capacity': self.capacity,
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -106,8 +110,10 @@ class ReplayBuffer:
             saved = state[name]
             target = getattr(self, name)
             if tuple(saved.shape[1:]) != tuple(target.shape[1:]) or saved.shape[0] != size:
-                raise ValueError(f'saved buffer field {name!r} has shape {tuple(saved.shape)}, '
-                                 f'expected ({size}, ...{tuple(target.shape[1:])})')
+                raise ValueError(
+                    f'saved buffer field {name!r} has shape {tuple(saved.shape)}, '
+                    f'expected ({size}, ...{tuple(target.shape[1:])})'
+                )
             if not torch.isfinite(saved).all():
                 raise ValueError(f'saved buffer field {name!r} holds non-finite values (NaN or inf)')
         for name in self.FIELDS:

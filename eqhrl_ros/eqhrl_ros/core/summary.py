@@ -27,10 +27,33 @@ class EpisodeSummary:
     # mid-episode): return and length cover only what it saw. Never a normal episode.
     interrupted: bool = False
 
-    CSV_FIELDS = ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'advice_human',
-                  'advice_declined', 'advice_failed', 'success', 'total_steps', 'alpha', 'interrupted')
+    CSV_FIELDS = (
+        'episode',
+        'return',
+        'length',
+        'advice_asked',
+        'advice_given',
+        'advice_human',
+        'advice_declined',
+        'advice_failed',
+        'success',
+        'total_steps',
+        'alpha',
+        'interrupted',
+    )
 
     def csv_row(self) -> list:
-        return [self.episode, f'{self.episode_return:.4f}', self.length, self.advice_asked,
-                self.advice_given, self.advice_human, self.advice_declined, self.advice_failed,
-                int(self.success), self.total_steps, f'{self.alpha:.6f}', int(self.interrupted)]
+        return [
+            self.episode,
+            f'{self.episode_return:.4f}',
+            self.length,
+            self.advice_asked,
+            self.advice_given,
+            self.advice_human,
+            self.advice_declined,
+            self.advice_failed,
+            int(self.success),
+            self.total_steps,
+            f'{self.alpha:.6f}',
+            int(self.interrupted),
+        ]

@@ -20,7 +20,7 @@ class Command:
     """One mapped teleop command: values per action dimension (env units, not yet clipped)."""
 
     values: np.ndarray
-    enabled: bool          # the deadman/enable button is held (always True without one)
+    enabled: bool  # the deadman/enable button is held (always True without one)
     disabled_reason: str = ''
 
 
@@ -29,9 +29,15 @@ def affine(values: Sequence[float], scales: Sequence[float], offsets: Sequence[f
     return values * np.asarray(scales, dtype=np.float32) + np.asarray(offsets, dtype=np.float32)
 
 
-def joy_command(axes: Sequence[float], buttons: Sequence[int], axis_indices: Sequence[int],
-                scales: Sequence[float], offsets: Sequence[float],
-                require_enable_button: bool = True, enable_button: int = 0) -> Command:
+def joy_command(
+    axes: Sequence[float],
+    buttons: Sequence[int],
+    axis_indices: Sequence[int],
+    scales: Sequence[float],
+    offsets: Sequence[float],
+    require_enable_button: bool = True,
+    enable_button: int = 0,
+) -> Command:
     """sensor_msgs/Joy -> Command, in the style of teleop_twist_joy (axis index and scale per output).
 
     An axis index beyond the joystick's axes reads as 0.
@@ -48,8 +54,9 @@ def joy_command(axes: Sequence[float], buttons: Sequence[int], axis_indices: Seq
 TWIST_FIELDS = ('linear.x', 'linear.y', 'linear.z', 'angular.x', 'angular.y', 'angular.z')
 
 
-def twist_command(read: Callable[[str], float], fields: Sequence[str], scales: Sequence[float],
-                  offsets: Sequence[float]) -> Command:
+def twist_command(
+    read: Callable[[str], float], fields: Sequence[str], scales: Sequence[float], offsets: Sequence[float]
+) -> Command:
     """geometry_msgs/Twist -> Command: ``fields`` names one Twist field per action dimension.
 
     ``read('angular.z')`` returns that field's value. teleop_twist_keyboard and the like
@@ -58,8 +65,9 @@ def twist_command(read: Callable[[str], float], fields: Sequence[str], scales: S
     return Command(affine([read(f) for f in fields], scales, offsets), True)
 
 
-def array_command(data: Sequence[float], indices: Sequence[int], scales: Sequence[float],
-                  offsets: Sequence[float]) -> Command:
+def array_command(
+    data: Sequence[float], indices: Sequence[int], scales: Sequence[float], offsets: Sequence[float]
+) -> Command:
     """A plain Float32MultiArray command: value ``indices[i]`` drives action dimension i."""
     if any(i >= len(data) or i < 0 for i in indices):
         raise ValueError(f'command has {len(data)} values, the mapping reads indices {list(indices)}')
@@ -75,8 +83,7 @@ class TeleopExpert:
     (given in each request) and marks the advice as human.
     """
 
-    def __init__(self, stale_after_s: float = 0.5, name: str = 'teleop',
-                 clock: Callable[[], float] = time.monotonic):
+    def __init__(self, stale_after_s: float = 0.5, name: str = 'teleop', clock: Callable[[], float] = time.monotonic):
         if stale_after_s <= 0:
             raise ValueError(f'stale_after_s must be > 0, got {stale_after_s}')
         self.stale_after_s = stale_after_s
@@ -99,13 +106,15 @@ class TeleopExpert:
             return Advice.decline('no teleop command received yet', self.name)
         age = self._clock() - self._stamp
         if age > self.stale_after_s:
-            return Advice.decline(f'last teleop command is {age:.2f} s old '
-                                  f'(stale after {self.stale_after_s:g} s)', self.name)
+            return Advice.decline(
+                f'last teleop command is {age:.2f} s old (stale after {self.stale_after_s:g} s)', self.name
+            )
         if not command.enabled:
             return Advice.decline(command.disabled_reason or 'teleop disabled', self.name)
         low = np.asarray(request.action_low, dtype=np.float32)
         high = np.asarray(request.action_high, dtype=np.float32)
         if command.values.shape[0] != low.shape[0]:
-            return Advice.decline(f'teleop command has {command.values.shape[0]} values, '
-                                  f'the env action has {low.shape[0]}', self.name)
+            return Advice.decline(
+                f'teleop command has {command.values.shape[0]} values, the env action has {low.shape[0]}', self.name
+            )
         return Advice(np.clip(command.values, low, high), expert_name=self.name, human=True)

@@ -7,10 +7,10 @@ from typing import Callable, Optional
 import gymnasium as gym
 
 from .experts import Expert
-from .learner import EpisodeSummary, EQSACLearner
+from .learner import EpisodeSummary, EQSACLearner, Resolution
 
 
-def ask_expert(learner: EQSACLearner, proposal, expert: Optional[Expert]):
+def ask_expert(learner: EQSACLearner, proposal, expert: Optional[Expert]) -> Resolution:
     """Call the expert for a fired gate; any exception counts as a failed request, never a crash."""
     if expert is None:
         return learner.resolve_advice(proposal, failure='unavailable')
@@ -21,14 +21,15 @@ def ask_expert(learner: EQSACLearner, proposal, expert: Optional[Expert]):
     return learner.resolve_advice(proposal, advice)
 
 
-def run_episode(env: gym.Env, learner: EQSACLearner, expert: Optional[Expert] = None,
-                seed: Optional[int] = None) -> EpisodeSummary:
+def run_episode(
+    env: gym.Env, learner: EQSACLearner, expert: Optional[Expert] = None, seed: Optional[int] = None
+) -> EpisodeSummary:
     """One episode of Algorithm 1's outer loop. The env must end episodes (a TimeLimit)."""
     obs, _ = env.reset(seed=seed)
     while True:
         proposal = learner.propose(obs)
         if proposal.decision.fire:
-            action, advised = ask_expert(learner, proposal, expert)
+            action, advised = ask_expert(learner, proposal, expert).take()
         else:
             action, advised = proposal.action, False
         next_obs, reward, terminated, truncated, _ = env.step(action)
@@ -38,9 +39,14 @@ def run_episode(env: gym.Env, learner: EQSACLearner, expert: Optional[Expert] = 
         obs = next_obs
 
 
-def train(env: gym.Env, learner: EQSACLearner, episodes: int, expert: Optional[Expert] = None,
-          seed: Optional[int] = None,
-          on_episode: Callable[[EpisodeSummary], None] | None = None) -> list[EpisodeSummary]:
+def train(
+    env: gym.Env,
+    learner: EQSACLearner,
+    episodes: int,
+    expert: Optional[Expert] = None,
+    seed: Optional[int] = None,
+    on_episode: Callable[[EpisodeSummary], None] | None = None,
+) -> list[EpisodeSummary]:
     """Run episodes until the learner's episode index reaches ``episodes`` (resumes count)."""
     summaries = []
     first = True

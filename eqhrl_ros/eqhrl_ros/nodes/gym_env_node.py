@@ -31,8 +31,9 @@ class GymEnvNode(Node):
         self.params = declare(self, GYM_ENV_PARAMS)
         self.add_on_set_parameters_callback(choices_validator(GYM_ENV_PARAMS))
         p = self.params
-        self.env = make_env(p['env_id'], p['max_episode_steps'],
-                            render_mode='rgb_array' if p['publish_images'] else None)
+        self.env = make_env(
+            p['env_id'], p['max_episode_steps'], render_mode='rgb_array' if p['publish_images'] else None
+        )
         self.action_dim = int(np.prod(self.env.action_space.shape))
         self.obs_dim = int(np.prod(self.env.observation_space.shape))
         self.episode = 0
@@ -48,8 +49,11 @@ class GymEnvNode(Node):
         self._last_msg = None
         self._observation_out = messages.observation_out(self.obs_dim)
         self.observation_pub = self.create_publisher(
-            Float32MultiArray, 'observation', QOS,
-            event_callbacks=PublisherEventCallbacks(matched=self._on_subscriber_matched))
+            Float32MultiArray,
+            'observation',
+            QOS,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_subscriber_matched),
+        )
         # Actions arrive serialized (raw): see messages.SerializedReader.
         self._action_reader = messages.SerializedReader(messages.action_layouts(self.action_dim), 'action')
         self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS, raw=True)
@@ -65,9 +69,10 @@ class GymEnvNode(Node):
             self.image_pub = self.create_publisher(Image, '~/image', 2)
             self.create_timer(1.0 / p['image_rate_hz'], self._publish_image, clock=steady)
         self.get_logger().info(
-            f"{p['env_id']}: obs {self.obs_dim}, action {self.action_dim} in "
-            f"[{self.env.action_space.low.tolist()}, {self.env.action_space.high.tolist()}], "
-            f"{'real-time at %.1f Hz' % p['rate_hz'] if p['realtime'] else 'lock-step'}")
+            f'{p["env_id"]}: obs {self.obs_dim}, action {self.action_dim} in '
+            f'[{self.env.action_space.low.tolist()}, {self.env.action_space.high.tolist()}], '
+            f'{"real-time at %.1f Hz" % p["rate_hz"] if p["realtime"] else "lock-step"}'
+        )
 
     def _publish(self) -> None:
         self.observation_pub.publish(self._last_msg)
@@ -85,8 +90,7 @@ class GymEnvNode(Node):
         self.steps_taken += 1
         if self.steps_taken == 1:
             self.get_logger().info(f'first env step {seconds_since_process_start():.2f} s after the process started')
-        self._last_msg = self._observation_out.fill(obs, reward, terminated, truncated,
-                                                    self.episode, self.step_index)
+        self._last_msg = self._observation_out.fill(obs, reward, terminated, truncated, self.episode, self.step_index)
         self._publish()
         if terminated or truncated:
             self.episode += 1
@@ -97,14 +101,16 @@ class GymEnvNode(Node):
             action, tag = messages.parse_action(self._action_reader.values(data), self.action_dim)
         except messages.MessageError as error:
             self.rejected_actions += 1
-            self.get_logger().error(f'rejected action, not stepping: {error} '
-                                    f'({self.rejected_actions} rejected so far)', throttle_duration_sec=5.0)
+            self.get_logger().error(
+                f'rejected action, not stepping: {error} ({self.rejected_actions} rejected so far)',
+                throttle_duration_sec=5.0,
+            )
             return
         if self.params['realtime']:
             self._held_action = action
             return
         if tag is not None and tag != (self.episode, self.step_index):
-            self.stale_actions += 1   # an answer to an observation already stepped past
+            self.stale_actions += 1  # an answer to an observation already stepped past
             return
         self._step(action)
 
@@ -113,10 +119,16 @@ class GymEnvNode(Node):
 
     def _publish_image(self) -> None:
         if self.image_pub.get_subscription_count() == 0:
-            return   # rendering costs time: only for someone watching
+            return  # rendering costs time: only for someone watching
         frame = np.ascontiguousarray(self.env.render(), dtype=np.uint8)
-        msg = Image(height=frame.shape[0], width=frame.shape[1], encoding='rgb8', is_bigendian=0,
-                    step=frame.shape[1] * 3, data=frame.tobytes())
+        msg = Image(
+            height=frame.shape[0],
+            width=frame.shape[1],
+            encoding='rgb8',
+            is_bigendian=0,
+            step=frame.shape[1] * 3,
+            data=frame.tobytes(),
+        )
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = 'gym_env'
         self.image_pub.publish(msg)
@@ -145,6 +157,7 @@ class GymEnvNode(Node):
 
 def main(args=None):
     run_node(GymEnvNode, args, name='gym_env')
+
 
 if __name__ == '__main__':
     main()

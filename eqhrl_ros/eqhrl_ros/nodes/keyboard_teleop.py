@@ -18,7 +18,6 @@ import tty
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32MultiArray
 
 from . import messages
@@ -28,7 +27,6 @@ from .params import KEYBOARD_PARAMS, declare, reject_unknown_overrides
 KEYS = {'a': (0, -1), 'd': (0, +1), 'w': (1, +1), 's': (1, -1)}
 CLEAR, HOME, REVERSE, RESET = '\x1b[2J', '\x1b[H', '\x1b[7m', '\x1b[0m'
 HIDE_CURSOR, SHOW_CURSOR = '\x1b[?25l', '\x1b[?25h'
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
 
 
@@ -41,10 +39,10 @@ class KeyboardTeleop(Node):
         self.command = np.zeros(self.params['dimensions'], dtype=np.float32)
         self.sending = True
         self.quit = False
-        self.request = None            # the latest advice_request fields
+        self.request = None  # the latest advice_request fields
         self.request_seen = 0.0
         self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
-        self.create_subscription(Float32MultiArray, 'learner/advice_request', self._on_request, LATCHED)
+        self.create_subscription(Float32MultiArray, 'learner/advice_request', self._on_request, messages.LATCHED_QOS)
         self.create_timer(1.0 / self.params['rate_hz'], self._publish)
         self.create_timer(0.02, self._read_keys)
         self.create_timer(0.2, self.draw)
@@ -86,19 +84,29 @@ class KeyboardTeleop(Node):
 
     def draw(self) -> None:
         n = len(self.command)
-        lines = ['eqhrl_ros keyboard teleop: you are the expert', '',
-                 '  a / d : action[0] - / +' + ('      w / s : action[1] + / -' if n > 1 else ''),
-                 '  space : zero        p : pause/resume sending        q : quit', '',
-                 f"  command: [{', '.join(f'{v:+.2f}' for v in self.command)}]   "
-                 + (f"sending at {self.params['rate_hz']:g} Hz" if self.sending
-                    else 'PAUSED (the expert declines: no fresh command)'), '']
+        lines = [
+            'eqhrl_ros keyboard teleop: you are the expert',
+            '',
+            '  a / d : action[0] - / +' + ('      w / s : action[1] + / -' if n > 1 else ''),
+            '  space : zero        p : pause/resume sending        q : quit',
+            '',
+            f'  command: [{", ".join(f"{v:+.2f}" for v in self.command)}]   '
+            + (
+                f'sending at {self.params["rate_hz"]:g} Hz'
+                if self.sending
+                else 'PAUSED (the expert declines: no fresh command)'
+            ),
+            '',
+        ]
         request = self.request
         if request and int(request['outcome']) == messages.ADVICE_OUTCOMES['pending']:
             waited = time.monotonic() - self.request_seen
-            lines.append(f"{REVERSE}  >>> THE LEARNER ASKS FOR ADVICE: episode {int(request['episode'])}, "
-                         f"step {int(request['step'])}, {waited:.1f} s of {request['timeout_s']:.1f} s <<<  {RESET}")
+            lines.append(
+                f'{REVERSE}  >>> THE LEARNER ASKS FOR ADVICE: episode {int(request["episode"])}, '
+                f'step {int(request["step"])}, {waited:.1f} s of {request["timeout_s"]:.1f} s <<<  {RESET}'
+            )
         elif request:
-            lines.append(f"  learner: no request pending (last one: {OUTCOME_NAMES.get(int(request['outcome']), '?')})")
+            lines.append(f'  learner: no request pending (last one: {OUTCOME_NAMES.get(int(request["outcome"]), "?")})')
         else:
             lines.append('  learner: no request yet')
         self.out.write(HOME + CLEAR + '\r\n'.join(lines) + '\r\n')
@@ -112,11 +120,11 @@ def main(args=None):
         raise SystemExit(1)
     saved = termios.tcgetattr(fd)
     try:
-        tty.setcbreak(fd)        # keys without Enter, no echo; Ctrl-C still signals
+        tty.setcbreak(fd)  # keys without Enter, no echo; Ctrl-C still signals
         sys.stdout.write(HIDE_CURSOR)
         run_node(lambda: KeyboardTeleop(fd, sys.stdout), args, name='keyboard_teleop')
     finally:
-        termios.tcsetattr(fd, termios.TCSADRAIN, saved)   # the terminal as we found it
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)  # the terminal as we found it
         sys.stdout.write(SHOW_CURSOR + '\n')
         sys.stdout.flush()
 

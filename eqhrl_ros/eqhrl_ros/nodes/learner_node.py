@@ -20,7 +20,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.srv import Advise
@@ -30,33 +30,33 @@ from ..core.envs import success_criterion
 from ..core.experts import Advice
 from ..core.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
 from ..core.records import EpisodeRecord, RunFolder
-from . import messages
+from . import advise_msgs, messages
 from .lifecycle import ExitError, run_node, steady_clock
-from .params import (LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, choices_validator, declare,
-                     reject_unknown_overrides)
+from .params import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, choices_validator, declare, reject_unknown_overrides
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 STATS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 # The latest advice request stays available to a UI that starts later.
-LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 @dataclass
 class PendingAdvice:
     token: int
     proposal: Proposal
-    key: tuple            # (env episode, env step) the advice is for
+    key: tuple  # (env episode, env step) the advice is for
     timer: object
-    sent: float = 0.0     # time.monotonic() when the request went out
+    sent: float = 0.0  # time.monotonic() when the request went out
 
 
 def env_spaces(env_id: str) -> tuple[int, np.ndarray, np.ndarray]:
     """Observation size and action bounds of an env id, from its spec (no episode is run)."""
     env = gym.make(env_id)
     try:
-        return (int(np.prod(env.observation_space.shape)),
-                env.action_space.low.astype(np.float32), env.action_space.high.astype(np.float32))
+        return (
+            int(np.prod(env.observation_space.shape)),
+            env.action_space.low.astype(np.float32),
+            env.action_space.high.astype(np.float32),
+        )
     finally:
         env.close()
 
@@ -68,9 +68,9 @@ EXPERT_NAMES_KEPT = 8
 
 def printable_name(name: str) -> str:
     """``name`` as one safe log token: printable ASCII only, at most EXPERT_NAME_MAX characters."""
-    text = ''.join(c if c.isprintable() and c.isascii() else '?' for c in (name or '')[:EXPERT_NAME_MAX + 1])
+    text = ''.join(c if c.isprintable() and c.isascii() else '?' for c in (name or '')[: EXPERT_NAME_MAX + 1])
     if len(text) > EXPERT_NAME_MAX:
-        text = text[:EXPERT_NAME_MAX - 3] + '...'
+        text = text[: EXPERT_NAME_MAX - 3] + '...'
     return text or '(unnamed)'
 
 
@@ -80,8 +80,10 @@ class LearnerNode(Node):
         reject_unknown_overrides(self, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS)
         values = declare(self, LEARNER_CONFIG_PARAMS)
         self.params = declare(self, LEARNER_NODE_PARAMS)
+        # Check in the on-set callback (a later one may still refuse the change), act in the
+        # post-set one, once every check has passed (ros2/demos set_parameters_callback.py).
         self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
         p = self.params
         if p['torch_threads'] > 0:
             torch.set_num_threads(p['torch_threads'])
@@ -103,34 +105,35 @@ class LearnerNode(Node):
             # from scratch would overwrite the run the person asked to continue.
             load_checkpoint(self.learner, self.checkpoint_path, self.replay_path)
             self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {self.learner.episode}')
-        self.record = EpisodeRecord(self.csv_path, EpisodeSummary.CSV_FIELDS,
-                                    keep_before=self.learner.episode if p['resume'] else None)
+        self.record = EpisodeRecord(
+            self.csv_path, EpisodeSummary.CSV_FIELDS, keep_before=self.learner.episode if p['resume'] else None
+        )
         self.failed_saves = 0
 
         self.action_pub = self.create_publisher(Float32MultiArray, 'action', QOS)
-        self._action_out = messages.action_out(self.learner.action_dim)   # rewritten per step
+        self._action_out = messages.action_out(self.learner.action_dim)  # rewritten per step
         self.stats_pub = self.create_publisher(Float32MultiArray, '~/episode_stats', STATS_QOS)
         self.gate_pub = self.create_publisher(Float32MultiArray, '~/gate_debug', QOS)
-        self.request_pub = self.create_publisher(Float32MultiArray, '~/advice_request', LATCHED_QOS)
+        self.request_pub = self.create_publisher(Float32MultiArray, '~/advice_request', messages.LATCHED_QOS)
         # Observations arrive serialized (raw): see messages.SerializedReader.
         self._observation_reader = messages.SerializedReader(messages.observation_layouts(obs_dim), 'observation')
         self.create_subscription(Float32MultiArray, 'observation', self._on_observation, QOS, raw=True)
         self.advice_client = self.create_client(Advise, 'advise')
 
-        self._lock = threading.RLock()       # callbacks may run on several threads
-        self._state: Optional[np.ndarray] = None   # s_t the last action answered
-        self._key: Optional[tuple] = None          # its (env episode, env step)
+        self._lock = threading.RLock()  # callbacks may run on several threads
+        self._state: Optional[np.ndarray] = None  # s_t the last action answered
+        self._key: Optional[tuple] = None  # its (env episode, env step)
         self._last_action: Optional[np.ndarray] = None
         self._last_advised = False
         self._pending: Optional[PendingAdvice] = None
         self._token = 0
         self.dropped_messages = 0
-        self.stalls = 0                  # times no observation came for stall_timeout_s mid-episode
+        self.stalls = 0  # times no observation came for stall_timeout_s mid-episode
         self._stalled_since: Optional[float] = None
-        self.observation_gaps = 0        # an observation that skipped steps (a message was lost)
-        self.repeated_observations = 0   # the env re-sent an observation (our action did not arrive in time)
-        self.advice_latencies: deque = deque(maxlen=100_000)   # seconds, request to answer
-        self.experts_heard: Counter = Counter()    # expert_name -> advice answers this episode
+        self.observation_gaps = 0  # an observation that skipped steps (a message was lost)
+        self.repeated_observations = 0  # the env re-sent an observation (our action did not arrive in time)
+        self.advice_latencies: deque = deque(maxlen=100_000)  # seconds, request to answer
+        self.experts_heard: Counter = Counter()  # expert_name -> advice answers this episode
         self._advise_servers = 1
         self._servers_checked = 0.0
         self._last_observation_time = time.monotonic()
@@ -141,20 +144,19 @@ class LearnerNode(Node):
         self.done = False
         self.summaries: list[EpisodeSummary] = []
         self.get_logger().info(
-            f"{self.config.mode} on {p['env_id']}: obs {obs_dim}, action {len(low)}, "
-            f"budget {self.config.advising_budget} episodes, output {self.output_dir}")
+            f'{self.config.mode} on {p["env_id"]}: obs {obs_dim}, action {len(low)}, '
+            f'budget {self.config.advising_budget} episodes, output {self.output_dir}'
+        )
 
     # ------------------------------------------------------------------ parameters at run time
 
-    def _on_set_parameters(self, changes):
-        from rcl_interfaces.msg import SetParametersResult
-        for change in changes:
-            if change.name == 'advising_budget':
-                self.learner.gates.advising_budget = int(change.value)
-                self.config.advising_budget = int(change.value)
-            elif change.name in self.params:
-                self.params[change.name] = change.value
-        return SetParametersResult(successful=True)
+    def _after_set_parameters(self, changes) -> None:
+        with self._lock:
+            for change in changes:
+                if change.name == 'advising_budget':
+                    self.learner.set_advising_budget(int(change.value))
+                elif change.name in self.params:
+                    self.params[change.name] = change.value
 
     # ------------------------------------------------------------------ observations
 
@@ -164,16 +166,13 @@ class LearnerNode(Node):
                 return
             self._last_observation_time = time.monotonic()
             if self._stalled_since is not None:
-                self.get_logger().info(f'observations are back after '
-                                       f'{time.monotonic() - self._stalled_since:.1f} s')
+                self.get_logger().info(f'observations are back after {time.monotonic() - self._stalled_since:.1f} s')
                 self._stalled_since = None
             try:
-                env_step = messages.parse_observation(self._observation_reader.values(data),
-                                                      self.learner.obs_dim)
+                env_step = messages.parse_observation(self._observation_reader.values(data), self.learner.obs_dim)
             except messages.MessageError as error:
                 self.dropped_messages += 1
-                self.get_logger().error(f'dropped observation: {error}',
-                                        throttle_duration_sec=5.0)
+                self.get_logger().error(f'dropped observation: {error}', throttle_duration_sec=5.0)
                 return
             key = (env_step.episode, env_step.step)
             if key == self._key:
@@ -188,7 +187,7 @@ class LearnerNode(Node):
 
             if self._follows(key):
                 if self._store(env_step):
-                    return   # the episode ended; the env's reset message starts the next
+                    return  # the episode ended; the env's reset message starts the next
             else:
                 self._start_from(env_step, key)
             if env_step.done:
@@ -207,27 +206,38 @@ class LearnerNode(Node):
         same_episode = self._key is not None and key[0] == self._key[0] and key[1] > self._key[1]
         if env_step.step == 0:
             if self.learner.episode_step > 0:
-                self.get_logger().warn(f'the env started a new episode: abandoning episode '
-                                       f'{self.learner.episode} after {self.learner.episode_step} steps '
-                                       '(no row is written; the index is reused)')
-            self.learner.abandon_episode()   # a fresh start, also of an interrupted mark
+                self.get_logger().warn(
+                    f'the env started a new episode: abandoning episode '
+                    f'{self.learner.episode} after {self.learner.episode_step} steps '
+                    '(no row is written; the index is reused)'
+                )
+            self.learner.abandon_episode()  # a fresh start, also of an interrupted mark
             return
         if same_episode and self.learner.episode_step > 0:
             self.observation_gaps += 1
-            self.get_logger().warn(f'observation {key} does not follow {self._key}: episode '
-                                   f'{self.learner.episode} continues, marked interrupted', throttle_duration_sec=5.0)
+            self.get_logger().warn(
+                f'observation {key} does not follow {self._key}: episode '
+                f'{self.learner.episode} continues, marked interrupted',
+                throttle_duration_sec=5.0,
+            )
         else:
             if self.learner.episode_step > 0:
-                self.get_logger().warn(f'observation {key} is from another env episode than {self._key}: '
-                                       f'abandoning episode {self.learner.episode}', throttle_duration_sec=5.0)
+                self.get_logger().warn(
+                    f'observation {key} is from another env episode than {self._key}: '
+                    f'abandoning episode {self.learner.episode}',
+                    throttle_duration_sec=5.0,
+                )
                 self.learner.abandon_episode()
-            self.get_logger().info(f'joining the env mid-episode at {key}: episode {self.learner.episode} '
-                                   'is marked interrupted', throttle_duration_sec=5.0)
+            self.get_logger().info(
+                f'joining the env mid-episode at {key}: episode {self.learner.episode} is marked interrupted',
+                throttle_duration_sec=5.0,
+            )
         self.learner.mark_interrupted()
 
     def _follows(self, key: tuple) -> bool:
-        return (key[1] > 0 and self._state is not None and self._key is not None
-                and key == (self._key[0], self._key[1] + 1))
+        return (
+            key[1] > 0 and self._state is not None and self._key is not None and key == (self._key[0], self._key[1] + 1)
+        )
 
     def _observe_while_waiting(self, env_step: messages.EnvStep, key: tuple) -> None:
         """A real-time env keeps stepping with the held (previous) action while the person
@@ -238,9 +248,10 @@ class LearnerNode(Node):
         if env_step.done:
             # The episode ends before the answer: the request counts as timed out in it.
             pending = self._take_pending(self._pending.token)
-            self.learner.resolve_advice(pending.proposal, failure='timeout')
-            self.request_pub.publish(messages.advice_request_msg(
-                'failed', pending.proposal.request, self.params['advice_timeout_s']))
+            self.learner.resolve_advice(pending.proposal, failure='timeout')  # acted on already
+            self.request_pub.publish(
+                messages.advice_request_msg('failed', pending.proposal.request, self.params['advice_timeout_s'])
+            )
         self._last_advised = False
         if not self._store(env_step):
             self._state, self._key = env_step.obs, key
@@ -248,8 +259,15 @@ class LearnerNode(Node):
     def _store(self, env_step: messages.EnvStep) -> bool:
         """Store the transition the message completes; returns True when the episode ended."""
         try:
-            summary = self.learner.step(self._state, self._last_action, env_step.reward, env_step.obs,
-                                        env_step.terminated, env_step.truncated, self._last_advised)
+            summary = self.learner.step(
+                self._state,
+                self._last_action,
+                env_step.reward,
+                env_step.obs,
+                env_step.terminated,
+                env_step.truncated,
+                self._last_advised,
+            )
         except ValueError as error:
             self.dropped_messages += 1
             self.get_logger().error(f'transition not stored: {error}', throttle_duration_sec=5.0)
@@ -267,35 +285,26 @@ class LearnerNode(Node):
         self._state, self._key = obs, key
         proposal = self.learner.propose(obs)
         if self.params['publish_gate_debug']:
-            self.gate_pub.publish(messages.gate_msg(self.learner.episode, self.learner.episode_step,
-                                                    proposal.decision))
+            self.gate_pub.publish(messages.gate_msg(self.learner.episode, self.learner.episode_step, proposal.decision))
         if not (proposal.decision.fire and self.params['advice_enabled']):
             self._finish_step(proposal.action, advised=False)
             return
         if not self.advice_client.service_is_ready():
-            action, advised = self.learner.resolve_advice(proposal, failure='unavailable')
-            self._finish_step(action, advised)
+            self._finish_step(*self.learner.resolve_advice(proposal, failure='unavailable').take())
             return
         self._token += 1
         token = self._token
-        request = self._request_msg(proposal)
-        timer = self.create_timer(self.params['advice_timeout_s'], lambda: self._on_advice_timeout(token),
-                                  clock=self._steady)
+        request = advise_msgs.request_msg(proposal.request)
+        timer = self.create_timer(
+            self.params['advice_timeout_s'], lambda: self._on_advice_timeout(token), clock=self._steady
+        )
         self._check_advise_servers()
         self._pending = PendingAdvice(token, proposal, key, timer, time.monotonic())
-        self.request_pub.publish(messages.advice_request_msg('pending', proposal.request,
-                                                             self.params['advice_timeout_s']))
+        self.request_pub.publish(
+            messages.advice_request_msg('pending', proposal.request, self.params['advice_timeout_s'])
+        )
         future = self.advice_client.call_async(request)
         future.add_done_callback(lambda f: self._on_advice_response(token, f))
-
-    @staticmethod
-    def _request_msg(proposal: Proposal) -> Advise.Request:
-        r = proposal.request
-        return Advise.Request(
-            observation=r.observation.tolist(), proposed_action=r.proposed_action.tolist(),
-            action_low=r.action_low.tolist(), action_high=r.action_high.tolist(),
-            discrepancy=float(r.discrepancy), entropy=float(r.entropy),
-            episode=int(r.episode), step=int(r.step))
 
     def _check_advise_servers(self) -> None:
         """Warn when several nodes serve 'advise': rclpy keeps the first answer to a request
@@ -307,27 +316,30 @@ class LearnerNode(Node):
         self._servers_checked = now
         servers = self.count_services(self.advice_client.srv_name)
         if servers > 1 and servers != self._advise_servers:
-            self.get_logger().warn(f"{servers} nodes serve '{self.advice_client.srv_name}': the first answer "
-                                   'to each request is used, the others are dropped')
+            self.get_logger().warn(
+                f"{servers} nodes serve '{self.advice_client.srv_name}': the first answer "
+                'to each request is used, the others are dropped'
+            )
         self._advise_servers = servers
 
     def _take_pending(self, token: int) -> Optional[PendingAdvice]:
         pending = self._pending
         if pending is None or pending.token != token:
-            return None   # already resolved (a late answer after the timeout, or the reverse)
+            return None  # already resolved (a late answer after the timeout, or the reverse)
         self._pending = None
         self.destroy_timer(pending.timer)
         return pending
 
     def _resolve(self, pending: PendingAdvice, advice: Optional[Advice] = None, failure: str = '') -> None:
         """Count the outcome, tell the person's UI, and act."""
-        counts = self.learner.episode_advice
-        given, declined = counts.given, counts.declined
-        action, advised = self.learner.resolve_advice(pending.proposal, advice, failure)
-        outcome = ('given' if counts.given > given else 'declined' if counts.declined > declined else 'failed')
-        self.request_pub.publish(messages.advice_request_msg(outcome, pending.proposal.request,
-                                                             self.params['advice_timeout_s']))
-        self._finish_step(action, advised)
+        resolution = self.learner.resolve_advice(pending.proposal, advice, failure)
+        if resolution.outcome == 'declined' and resolution.detail:
+            # A person's "why not" is worth seeing (a declining controller says why too).
+            self.get_logger().info(f'advice declined: {printable_name(resolution.detail)}', throttle_duration_sec=2.0)
+        self.request_pub.publish(
+            messages.advice_request_msg(resolution.outcome, pending.proposal.request, self.params['advice_timeout_s'])
+        )
+        self._finish_step(*resolution.take())
 
     def _on_advice_timeout(self, token: int) -> None:
         with self._lock:
@@ -355,13 +367,12 @@ class LearnerNode(Node):
                 self.experts_heard['(others)'] += 1
             accept = self.params['accept_expert']
             if accept and response.expert_name != accept:
-                self.get_logger().warn(f"ignored advice from '{name}' "
-                                       f"(accept_expert is '{accept}')", throttle_duration_sec=5.0)
+                self.get_logger().warn(
+                    f"ignored advice from '{name}' (accept_expert is '{accept}')", throttle_duration_sec=5.0
+                )
                 self._resolve(pending, failure='untrusted')
             else:
-                self._resolve(pending, Advice(
-                    np.asarray(response.action, dtype=np.float32) if response.advised else None,
-                    response.reason, name, bool(response.human)))
+                self._resolve(pending, advise_msgs.advice_from_response(response, name))
 
     def _finish_step(self, action: np.ndarray, advised: bool) -> None:
         self._last_action = np.asarray(action, dtype=np.float32)
@@ -389,7 +400,8 @@ class LearnerNode(Node):
             self.get_logger().warn(
                 f'no observation for {silent:.1f} s in episode {self.learner.episode} (step '
                 f'{self.learner.episode_step}): waiting for the env; the episode continues if its next '
-                'step comes, and is abandoned if the env starts a new one')
+                'step comes, and is abandoned if the env starts a new one'
+            )
 
     # ------------------------------------------------------------------ episodes
 
@@ -398,8 +410,10 @@ class LearnerNode(Node):
         self.stats_pub.publish(messages.stats_msg(summary))
         error = self.record.append(summary.csv_row())
         if error is not None:
-            self.get_logger().error(f'{self.csv_path}: {error.strerror or error}; '
-                                    f'{self.record.unwritten_rows} row(s) kept, written with the next one')
+            self.get_logger().error(
+                f'{self.csv_path}: {error.strerror or error}; '
+                f'{self.record.unwritten_rows} row(s) kept, written with the next one'
+            )
         failed = self.learner.advice_total.failed
         failures = ', '.join(f'{k} {v}' for k, v in failed.items() if v)
         experts = ', '.join(f'{name} {n}' for name, n in self.experts_heard.items())
@@ -412,7 +426,8 @@ class LearnerNode(Node):
             f'{"  failed %d (total: %s)" % (summary.advice_failed, failures) if summary.advice_failed else ""}'
             f'  success {int(summary.success)}  steps {summary.total_steps}  alpha {summary.alpha:.3f}'
             f'{"  INTERRUPTED (not seen whole)" if summary.interrupted else ""}'
-            f'{"  answered by: " + experts if experts else ""}')
+            f'{"  answered by: " + experts if experts else ""}'
+        )
         every = self.params['checkpoint_every_episodes']
         limit = self.params['max_episodes']
         if limit and self.learner.episode >= limit:
@@ -439,9 +454,11 @@ class LearnerNode(Node):
             self.save()
         except CheckpointWriteError as error:
             self.failed_saves += 1
-            self.get_logger().error(f'checkpoint not saved at episode {self.learner.episode}: {error} '
-                                    '(training goes on; the previous checkpoint is intact; '
-                                    'the next save tries again)')
+            self.get_logger().error(
+                f'checkpoint not saved at episode {self.learner.episode}: {error} '
+                '(training goes on; the previous checkpoint is intact; '
+                'the next save tries again)'
+            )
             return False
         return True
 
@@ -449,8 +466,10 @@ class LearnerNode(Node):
         with self._lock:
             error = self.record.close()
             if error is not None:
-                raise ExitError(f'{self.csv_path}: {error.strerror or error}: the last '
-                                f'{self.record.unwritten_rows} row(s) could not be written')
+                raise ExitError(
+                    f'{self.csv_path}: {error.strerror or error}: the last '
+                    f'{self.record.unwritten_rows} row(s) could not be written'
+                )
 
 
 def _save_and_close(node: LearnerNode) -> None:
@@ -468,6 +487,7 @@ def _save_and_close(node: LearnerNode) -> None:
 
 def main(args=None):
     run_node(LearnerNode, args, on_exit=_save_and_close, name='learner')
+
 
 if __name__ == '__main__':
     main()

@@ -27,11 +27,12 @@ from rclpy.signals import SignalHandlerOptions
 
 from ..core.errors import CheckpointError
 
+
 # What a node raises when it cannot start as configured: bad parameters, an unknown
 # env id, an unusable checkpoint, policy file or output folder. One clear line, exit code 1.
 def start_up_errors() -> tuple:
     errors = (ValueError, OSError, CheckpointError, rclpy.exceptions.ParameterException)
-    gymnasium = sys.modules.get('gymnasium')    # loaded by the nodes that make envs
+    gymnasium = sys.modules.get('gymnasium')  # loaded by the nodes that make envs
     return errors + ((gymnasium.error.Error,) if gymnasium is not None else ())
 
 
@@ -114,8 +115,11 @@ class StopSignals:
         self.received.append(signum)
         if len(self.received) == 2:
             # os.write, not print: the signal may have landed inside a write to stderr.
-            os.write(2, f'{self.name}: {signal.Signals(signum).name} again: already stopping, '
-                        'finishing the save (SIGKILL aborts it)\n'.encode())
+            os.write(
+                2,
+                f'{self.name}: {signal.Signals(signum).name} again: already stopping, '
+                'finishing the save (SIGKILL aborts it)\n'.encode(),
+            )
 
 
 def init(args=None, name: str = 'node', context=None) -> StopSignals:
@@ -155,8 +159,12 @@ def _spin_executor(executor, context, stop: Optional[StopSignals]) -> None:
         executor.spin_once(timeout_sec=0.1)
 
 
-def run_node(node_class: Callable[[], Node], args=None,
-             on_exit: Optional[Callable[[Node], None]] = None, name: Optional[str] = None) -> None:
+def run_node(
+    node_class: Callable[[], Node],
+    args=None,
+    on_exit: Optional[Callable[[Node], None]] = None,
+    name: Optional[str] = None,
+) -> None:
     """The main() of every node: init, spin until Ctrl-C/SIGTERM, clean up, always.
 
     ``on_exit`` runs before the node is destroyed, also after a signal (the learner
@@ -173,7 +181,7 @@ def run_node(node_class: Callable[[], Node], args=None,
         if node is not None:
             raise
         print(f'{name}: refused to start: {error}', file=sys.stderr)
-        raise SystemExit(1)
+        raise SystemExit(1) from None
     finally:
         status = 0
         if node is not None:

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension, MultiArrayLayout
 
@@ -36,8 +37,11 @@ STATS_FIELDS = EpisodeSummary.CSV_FIELDS
 # learner/advice_request: what the learner is asking a person right now.
 ADVICE_OUTCOMES = {'pending': 0, 'given': 1, 'declined': 2, 'failed': 3}
 ADVICE_REQUEST_TAIL = ('outcome', 'episode', 'step', 'discrepancy', 'entropy', 'timeout_s')
-GATE_FIELDS = ('episode', 'step', 'fire', 'ask', 'respond', 'discrepancy', 'entropy',
-               'd_threshold', 'e_threshold')
+GATE_FIELDS = ('episode', 'step', 'fire', 'ask', 'respond', 'discrepancy', 'entropy', 'd_threshold', 'e_threshold')
+
+
+# learner/advice_request: the latest request stays available to a person's UI that starts later.
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class MessageError(ValueError):
@@ -47,8 +51,7 @@ class MessageError(ValueError):
 @functools.lru_cache(maxsize=256)
 def _layout(dims: tuple[tuple[str, int], ...]) -> MultiArrayLayout:
     # A layout is the same for every message of a topic: built once, shared (never mutated).
-    return MultiArrayLayout(dim=[MultiArrayDimension(label=label, size=size, stride=size)
-                                 for label, size in dims])
+    return MultiArrayLayout(dim=[MultiArrayDimension(label=label, size=size, stride=size) for label, size in dims])
 
 
 def build(fields: Sequence[tuple[str, Sequence[float]]]) -> Float32MultiArray:
@@ -89,7 +92,7 @@ class OutgoingMessage:
         self._cdr_values[:] = probe
         try:
             decoded = deserialize_message(bytes(self._cdr), Float32MultiArray)
-        except Exception:   # the bytes do not even decode: not the encoding assumed here
+        except Exception:  # the bytes do not even decode: not the encoding assumed here
             return False
         return decoded.layout == self.msg.layout and np.array_equal(np.asarray(decoded.data), probe)
 
@@ -98,11 +101,12 @@ class OutgoingMessage:
         returns what to publish: the serialized message (or the message, see above)."""
         head = np.asarray(head, dtype=np.float32).reshape(-1)
         if head.shape[0] != self.head_size or self.head_size + len(tail) != self.size:
-            raise MessageError(f'{head.shape[0]} + {len(tail)} values for a message of '
-                               f'{self.head_size} + {self.size - self.head_size}')
+            raise MessageError(
+                f'{head.shape[0]} + {len(tail)} values for a message of {self.head_size} + {self.size - self.head_size}'
+            )
         values = self._cdr_values if self.serialized else self._msg_values
-        values[:self.head_size] = head
-        values[self.head_size:] = tail
+        values[: self.head_size] = head
+        values[self.head_size :] = tail
         return bytes(self._cdr) if self.serialized else self.msg
 
 
@@ -131,9 +135,11 @@ def check_layout(layout: MultiArrayLayout, allowed: Sequence[Layout], topic: str
     if layout.data_offset == 0 and found in allowed:
         return
     expected = ' or '.join(', '.join(f'{label}:{size}' for label, size in a) for a in allowed)
-    raise MessageError(f"'{topic}': layout [{', '.join(f'{label}:{size}' for label, size in found)}]"
-                       f"{f' with data_offset {layout.data_offset}' if layout.data_offset else ''} "
-                       f'is not [{expected}] (nor unlabelled)')
+    raise MessageError(
+        f"'{topic}': layout [{', '.join(f'{label}:{size}' for label, size in found)}]"
+        f'{f" with data_offset {layout.data_offset}" if layout.data_offset else ""} '
+        f'is not [{expected}] (nor unlabelled)'
+    )
 
 
 class SerializedReader:
@@ -153,8 +159,8 @@ class SerializedReader:
         """``allowed_layouts``: the labelled layouts accepted (see check_layout); empty: any."""
         self._allowed = tuple(allowed_layouts)
         self._topic = topic
-        self._head: Optional[bytes] = None   # leading bytes of the layout last seen
-        self._count = 0                      # and its number of values
+        self._head: Optional[bytes] = None  # leading bytes of the layout last seen
+        self._count = 0  # and its number of values
 
     def values(self, data: bytes) -> np.ndarray:
         """The message's data values (read-only). Raises MessageError on bytes that do not decode
@@ -164,7 +170,7 @@ class SerializedReader:
             return np.frombuffer(data, dtype=np.float32, offset=len(head))
         try:
             msg = deserialize_message(data, Float32MultiArray)
-        except Exception as error:   # rclpy raises RMWError; any failure here is a bad message
+        except Exception as error:  # rclpy raises RMWError; any failure here is a bad message
             raise MessageError(f'not a Float32MultiArray ({len(data)} bytes): {error}') from error
         if self._allowed:
             check_layout(msg.layout, self._allowed, self._topic)
@@ -191,8 +197,16 @@ class EnvStep:
 
 
 def observation_msg(obs, reward: float, terminated: bool, truncated: bool, episode: int, step: int):
-    return build([('obs', obs), ('reward', [reward]), ('terminated', [float(terminated)]),
-                  ('truncated', [float(truncated)]), ('episode', [episode]), ('step', [step])])
+    return build(
+        [
+            ('obs', obs),
+            ('reward', [reward]),
+            ('terminated', [float(terminated)]),
+            ('truncated', [float(truncated)]),
+            ('episode', [episode]),
+            ('step', [step]),
+        ]
+    )
 
 
 def observation_out(obs_dim: int) -> OutgoingMessage:
@@ -212,8 +226,9 @@ def parse_observation(msg, obs_dim: int, topic: str = 'observation') -> EnvStep:
     data = _values(msg)
     expected = obs_dim + len(OBS_TAIL)
     if data.shape[0] != expected:
-        raise MessageError(f"'{topic}': {data.shape[0]} values, expected {expected} "
-                           f"(obs[{obs_dim}] + {', '.join(OBS_TAIL)})")
+        raise MessageError(
+            f"'{topic}': {data.shape[0]} values, expected {expected} (obs[{obs_dim}] + {', '.join(OBS_TAIL)})"
+        )
     if not np.isfinite(data).all():
         bad = [i for i in range(len(data)) if not np.isfinite(data[i])]
         raise MessageError(f"'{topic}': non-finite value(s) at index {bad}")
@@ -241,8 +256,9 @@ def parse_action(msg, action_dim: int, topic: str = 'action'):
         check_layout(msg.layout, action_layouts(action_dim), topic)
     data = _values(msg)
     if data.shape[0] not in (action_dim, action_dim + len(ACTION_TAIL)):
-        raise MessageError(f"'{topic}': {data.shape[0]} values, expected {action_dim} "
-                           f"(or {action_dim + 2} with episode and step)")
+        raise MessageError(
+            f"'{topic}': {data.shape[0]} values, expected {action_dim} (or {action_dim + 2} with episode and step)"
+        )
     if not np.isfinite(data).all():
         raise MessageError(f"'{topic}': non-finite value(s) {data.tolist()}")
     tag = None
@@ -252,9 +268,20 @@ def parse_action(msg, action_dim: int, topic: str = 'action'):
 
 
 def stats_msg(summary) -> Float32MultiArray:
-    values = [summary.episode, summary.episode_return, summary.length, summary.advice_asked,
-              summary.advice_given, summary.advice_human, summary.advice_declined, summary.advice_failed,
-              float(summary.success), summary.total_steps, summary.alpha, float(summary.interrupted)]
+    values = [
+        summary.episode,
+        summary.episode_return,
+        summary.length,
+        summary.advice_asked,
+        summary.advice_given,
+        summary.advice_human,
+        summary.advice_declined,
+        summary.advice_failed,
+        float(summary.success),
+        summary.total_steps,
+        summary.alpha,
+        float(summary.interrupted),
+    ]
     return build(list(zip(STATS_FIELDS, ([v] for v in values))))
 
 
@@ -262,20 +289,37 @@ def parse_fields(msg: Float32MultiArray) -> dict:
     """{label: value or list} from a labelled message (for tests and tools)."""
     out, offset = {}, 0
     for dim in msg.layout.dim:
-        values = list(msg.data[offset:offset + dim.size])
+        values = list(msg.data[offset : offset + dim.size])
         out[dim.label] = values[0] if dim.size == 1 else values
         offset += dim.size
     return out
 
 
 def gate_msg(episode: int, step: int, decision) -> Float32MultiArray:
-    values = [episode, step, float(decision.fire), float(decision.ask), float(decision.respond),
-              decision.discrepancy, decision.entropy, decision.d_threshold, decision.e_threshold]
+    values = [
+        episode,
+        step,
+        float(decision.fire),
+        float(decision.ask),
+        float(decision.respond),
+        decision.discrepancy,
+        decision.entropy,
+        decision.d_threshold,
+        decision.e_threshold,
+    ]
     return build(list(zip(GATE_FIELDS, ([v] for v in values))))
 
 
 def advice_request_msg(outcome: str, request, timeout_s: float) -> Float32MultiArray:
-    return build([('outcome', [ADVICE_OUTCOMES[outcome]]), ('episode', [request.episode]),
-                  ('step', [request.step]), ('discrepancy', [request.discrepancy]),
-                  ('entropy', [request.entropy]), ('timeout_s', [timeout_s]),
-                  ('observation', request.observation), ('proposed_action', request.proposed_action)])
+    return build(
+        [
+            ('outcome', [ADVICE_OUTCOMES[outcome]]),
+            ('episode', [request.episode]),
+            ('step', [request.step]),
+            ('discrepancy', [request.discrepancy]),
+            ('entropy', [request.entropy]),
+            ('timeout_s', [timeout_s]),
+            ('observation', request.observation),
+            ('proposed_action', request.proposed_action),
+        ]
+    )

@@ -11,8 +11,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Optional
 
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 
 from ..core.config import INT_MAX, LearnerConfig, ros_name
@@ -23,14 +22,14 @@ class Param:
     name: str
     default: Any
     description: str
-    range: Optional[tuple] = None      # (low, high) for numbers, inclusive
-    choices: Optional[tuple] = None    # allowed strings
-    dynamic: bool = False              # may change while the node runs
+    range: Optional[tuple] = None  # (low, high) for numbers, inclusive
+    choices: Optional[tuple] = None  # allowed strings
+    dynamic: bool = False  # may change while the node runs
 
     def descriptor(self) -> ParameterDescriptor:
         text = self.description
         if self.choices:
-            text += f" (one of: {', '.join(self.choices)})"
+            text += f' (one of: {", ".join(self.choices)})'
         descriptor = ParameterDescriptor(description=text, read_only=not self.dynamic)
         if self.range is not None:
             low, high = self.range
@@ -38,61 +37,91 @@ class Param:
                 descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=0)]
             elif isinstance(self.default, float):
                 descriptor.floating_point_range = [
-                    FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
+                    FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)
+                ]
         return descriptor
 
 
 # Parameters of the learner that map one-to-one onto core.LearnerConfig fields: derived
 # from the fields' declarations (core/config.py), never written here.
 LEARNER_CONFIG_PARAMS = tuple(
-    Param(ros_name(f), list(f.default) if isinstance(f.default, tuple) else f.default, f.metadata['description'],
-          f.metadata['range'], f.metadata['choices'], f.metadata['dynamic'])
-    for f in dataclasses.fields(LearnerConfig))
+    Param(
+        ros_name(f),
+        list(f.default) if isinstance(f.default, tuple) else f.default,
+        f.metadata['description'],
+        f.metadata['range'],
+        f.metadata['choices'],
+        f.metadata['dynamic'],
+    )
+    for f in dataclasses.fields(LearnerConfig)
+)
 
 LEARNER_NODE_PARAMS = (
     Param('env_id', 'Pendulum-v1', 'Gymnasium env id: sizes, action bounds and the success criterion'),
-    Param('advice_enabled', True, 'Ask the expert when the gates fire (off: the gates are only logged)',
-          dynamic=True),
-    Param('advice_timeout_s', 0.5, 'Seconds to wait for the expert before acting alone', (0.001, 600.0),
-          dynamic=True),
+    Param('advice_enabled', True, 'Ask the expert when the gates fire (off: the gates are only logged)', dynamic=True),
+    Param('advice_timeout_s', 0.5, 'Seconds to wait for the expert before acting alone', (0.001, 600.0), dynamic=True),
     Param('accept_expert', '', 'Accept advice only from this expert name (empty: any)', dynamic=True),
     Param('output_dir', 'runs/learner', 'Folder for episodes.csv, checkpoints and the exported policy'),
-    Param('checkpoint_every_episodes', 10, 'Save a checkpoint every N episodes (0: only on shutdown)',
-          (0, INT_MAX)),
+    Param('checkpoint_every_episodes', 10, 'Save a checkpoint every N episodes (0: only on shutdown)', (0, INT_MAX)),
     Param('save_replay', False, 'Also save the replay memories with each checkpoint (large)'),
     Param('resume', False, 'Resume from output_dir/checkpoint.pt at start-up'),
-    Param('overwrite', False, 'Replace a run already in output_dir (episodes.csv, checkpoint, replay, policy); '
-          'without it (or resume) such a folder is refused'),
+    Param(
+        'overwrite',
+        False,
+        'Replace a run already in output_dir (episodes.csv, checkpoint, replay, policy); '
+        'without it (or resume) such a folder is refused',
+    ),
     Param('max_episodes', 0, 'Stop learning after this many episodes (0: never)', (0, INT_MAX)),
     Param('shutdown_when_done', False, 'Shut the process down once max_episodes is reached'),
-    Param('stall_timeout_s', 5.0, 'Warn when no observation came for this long mid-episode (the env paused, '
-          'died or is starved); the episode continues if its next step comes', (0.1, 86400.0),
-          dynamic=True),
+    Param(
+        'stall_timeout_s',
+        5.0,
+        'Warn when no observation came for this long mid-episode (the env paused, '
+        'died or is starved); the episode continues if its next step comes',
+        (0.1, 86400.0),
+        dynamic=True,
+    ),
     Param('publish_gate_debug', False, 'Publish every gate decision on ~/gate_debug', dynamic=True),
     Param('torch_threads', 0, 'torch intra-op threads (0: torch default)', (0, 256)),
 )
 
 GYM_ENV_PARAMS = (
     Param('env_id', 'Pendulum-v1', 'Gymnasium env id (any Box action space)'),
-    Param('max_episode_steps', 100, 'Steps before truncation (paper: Pendulum 100, LunarLander 600)',
-          (1, INT_MAX)),
+    Param('max_episode_steps', 100, 'Steps before truncation (paper: Pendulum 100, LunarLander 600)', (1, INT_MAX)),
     Param('seed', 42, 'Seed of the first reset', (0, INT_MAX)),
     Param('realtime', False, 'Step at rate_hz holding the last action, instead of lock-step on each action'),
     Param('rate_hz', 20.0, 'Step rate in real-time mode', (0.1, 1000.0)),
-    Param('publish_images', False, 'Publish rendered frames on ~/image (sensor_msgs/Image, rgb8) for a person '
-          'watching in rqt_image_view or rviz'),
+    Param(
+        'publish_images',
+        False,
+        'Publish rendered frames on ~/image (sensor_msgs/Image, rgb8) for a person watching in rqt_image_view or rviz',
+    ),
     Param('image_rate_hz', 10.0, 'Most frames per second on ~/image', (0.1, 120.0)),
-    Param('republish_period_s', 1.0, 'Lock-step: re-send the current observation if no action came for this '
-          'long (a learner that started late or restarted)', (0.01, 3600.0)),
+    Param(
+        'republish_period_s',
+        1.0,
+        'Lock-step: re-send the current observation if no action came for this '
+        'long (a learner that started late or restarted)',
+        (0.01, 3600.0),
+    ),
 )
 
 EXPERT_PARAMS = (
-    Param('backend', 'heuristic', 'Who answers: a built-in controller or an exported policy file',
-          choices=('heuristic', 'policy')),
+    Param(
+        'backend',
+        'heuristic',
+        'Who answers: a built-in controller or an exported policy file',
+        choices=('heuristic', 'policy'),
+    ),
     Param('env_id', 'Pendulum-v1', 'Env the heuristic controller is for'),
     Param('policy_path', '', 'Policy file exported by a learner (backend policy)'),
-    Param('response_delay_s', 0.0, 'Artificial delay before answering (to rehearse a slow expert)',
-          (0.0, 600.0), dynamic=True),
+    Param(
+        'response_delay_s',
+        0.0,
+        'Artificial delay before answering (to rehearse a slow expert)',
+        (0.0, 600.0),
+        dynamic=True,
+    ),
     Param('enabled', True, 'Answer with advice; when false, decline every request', dynamic=True),
 )
 
@@ -103,13 +132,21 @@ def describe(*tables: tuple[Param, ...]) -> str:
     for param in (p for table in tables for p in table):
         bounds = ''
         if param.range is not None:
-            bounds = f' [{param.range[0]:g}, {param.range[1]:g}]' if isinstance(param.default, float) else \
-                f' [{param.range[0]}, {param.range[1]}]'
+            bounds = (
+                f' [{param.range[0]:g}, {param.range[1]:g}]'
+                if isinstance(param.default, float)
+                else f' [{param.range[0]}, {param.range[1]}]'
+            )
         elif param.choices:
-            bounds = f" ({'|'.join(param.choices)})"
-        default = repr(param.default) if isinstance(param.default, str) else str(param.default).lower() \
-            if isinstance(param.default, bool) else str(param.default)
-        lines.append(f"  {param.name}{' *' if param.dynamic else ''} = {default}{bounds}")
+            bounds = f' ({"|".join(param.choices)})'
+        default = (
+            repr(param.default)
+            if isinstance(param.default, str)
+            else str(param.default).lower()
+            if isinstance(param.default, bool)
+            else str(param.default)
+        )
+        lines.append(f'  {param.name}{" *" if param.dynamic else ""} = {default}{bounds}')
         lines.append(f'      {param.description}')
     return '\n'.join(lines)
 
@@ -133,9 +170,9 @@ def choices_validator(params: tuple[Param, ...]):
         for change in changes:
             param = by_name.get(change.name)
             if param and param.choices and change.value not in param.choices:
-                return SetParametersResult(
-                    successful=False, reason=f"'{change.name}' must be one of {param.choices}")
+                return SetParametersResult(successful=False, reason=f"'{change.name}' must be one of {param.choices}")
         return SetParametersResult(successful=True)
+
     return validate
 
 
@@ -150,24 +187,30 @@ def check_section(node_name: str, values: dict, *tables: tuple[Param, ...]) -> N
     by_name = {p.name: p for table in tables for p in table}
     unknown = sorted(set(values) - set(by_name) - set(BUILT_IN))
     if unknown:
-        raise ValueError(f"unknown parameter(s) for node '{node_name}': {', '.join(unknown)}; "
-                         f"known: {', '.join(sorted(by_name))}")
+        raise ValueError(
+            f"unknown parameter(s) for node '{node_name}': {', '.join(unknown)}; known: {', '.join(sorted(by_name))}"
+        )
     for name, value in values.items():
         param = by_name.get(name)
         if param is None:
             continue
         kind = type(param.default)
-        same = (isinstance(value, kind) and not (kind is int and isinstance(value, bool))
-                if kind is not list else isinstance(value, list))
+        same = (
+            isinstance(value, kind) and not (kind is int and isinstance(value, bool))
+            if kind is not list
+            else isinstance(value, list)
+        )
         if not same:
-            raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected a "
-                             f'{kind.__name__} like {param.default!r}')
+            raise ValueError(
+                f"parameter '{name}' of node '{node_name}' is {value!r}; expected a "
+                f'{kind.__name__} like {param.default!r}'
+            )
         if param.range is not None and not param.range[0] <= value <= param.range[1]:
-            raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected "
-                             f'[{param.range[0]}, {param.range[1]}]')
+            raise ValueError(
+                f"parameter '{name}' of node '{node_name}' is {value!r}; expected [{param.range[0]}, {param.range[1]}]"
+            )
         if param.choices and value not in param.choices:
-            raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected one of "
-                             f'{param.choices}')
+            raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected one of {param.choices}")
 
 
 def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
@@ -179,23 +222,32 @@ def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
     # rclpy keeps the overrides from params files and -p arguments here; there is no public accessor.
     unknown = sorted(set(getattr(node, '_parameter_overrides', {})) - known)
     if unknown:
-        raise ValueError(f"unknown parameter(s) for node '{node.get_name()}': {', '.join(unknown)}; "
-                         f"known: {', '.join(sorted(known))}")
+        raise ValueError(
+            f"unknown parameter(s) for node '{node.get_name()}': {', '.join(unknown)}; "
+            f'known: {", ".join(sorted(known))}'
+        )
 
 
 TELEOP_EXPERT_PARAMS = (
     Param('source', 'joy', 'Which teleop input becomes advice', choices=('joy', 'twist', 'array')),
-    Param('axes', [0], 'joy: joystick axis index for each action dimension (teleop_twist_joy style); '
-          'array: command value index for each action dimension', dynamic=True),
-    Param('twist_fields', ['angular.z'], 'twist: Twist field for each action dimension, e.g. linear.x, angular.z',
-          dynamic=True),
+    Param(
+        'axes',
+        [0],
+        'joy: joystick axis index for each action dimension (teleop_twist_joy style); '
+        'array: command value index for each action dimension',
+        dynamic=True,
+    ),
+    Param(
+        'twist_fields',
+        ['angular.z'],
+        'twist: Twist field for each action dimension, e.g. linear.x, angular.z',
+        dynamic=True,
+    ),
     Param('scales', [1.0], 'Scale for each action dimension: action = input * scale + offset', dynamic=True),
     Param('offsets', [0.0], 'Offset for each action dimension', dynamic=True),
-    Param('require_enable_button', True, 'joy: advise only while the enable (deadman) button is held',
-          dynamic=True),
+    Param('require_enable_button', True, 'joy: advise only while the enable (deadman) button is held', dynamic=True),
     Param('enable_button', 0, 'joy: index of the enable (deadman) button', (0, 128), dynamic=True),
-    Param('stale_after_s', 0.5, 'Decline when the latest command is older than this', (0.01, 3600.0),
-          dynamic=True),
+    Param('stale_after_s', 0.5, 'Decline when the latest command is older than this', (0.01, 3600.0), dynamic=True),
 )
 
 KEYBOARD_PARAMS = (

@@ -11,15 +11,15 @@ from __future__ import annotations
 from functools import reduce
 
 from geometry_msgs.msg import Twist
-from rclpy.node import Node
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
 from sensor_msgs.msg import Joy
 from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.srv import Advise
 
 from ..core.teleop import TWIST_FIELDS, TeleopExpert, array_command, joy_command, twist_command
-from .expert_node import request_from_msg
+from .advise_msgs import answer
 from .lifecycle import run_node
 from .params import TELEOP_EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
 
@@ -71,13 +71,28 @@ class TeleopExpertNode(Node):
 
     def _on_joy(self, msg: Joy) -> None:
         p = self.params
-        self.expert.update(joy_command(list(msg.axes), list(msg.buttons), p['axes'], p['scales'], p['offsets'],
-                                       p['require_enable_button'], p['enable_button']))
+        self.expert.update(
+            joy_command(
+                list(msg.axes),
+                list(msg.buttons),
+                p['axes'],
+                p['scales'],
+                p['offsets'],
+                p['require_enable_button'],
+                p['enable_button'],
+            )
+        )
 
     def _on_twist(self, msg: Twist) -> None:
         p = self.params
-        self.expert.update(twist_command(lambda field: float(reduce(getattr, field.split('.'), msg)),
-                                         p['twist_fields'], p['scales'], p['offsets']))
+        self.expert.update(
+            twist_command(
+                lambda field: float(reduce(getattr, field.split('.'), msg)),
+                p['twist_fields'],
+                p['scales'],
+                p['offsets'],
+            )
+        )
 
     def _on_array(self, msg: Float32MultiArray) -> None:
         p = self.params
@@ -88,19 +103,12 @@ class TeleopExpertNode(Node):
             self.get_logger().error(f"'teleop_command': {error}", throttle_duration_sec=5.0)
 
     def _on_request(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
-        advice = self.expert(request_from_msg(request))
-        response.expert_name = advice.expert_name
-        response.advised = advice.advised
-        response.human = advice.human
-        if advice.advised:
-            response.action = advice.action.tolist()
-        else:
-            response.reason = advice.reason
-        return response
+        return answer(self.expert, request, response, self.expert.name, self.get_logger())
 
 
 def main(args=None):
     run_node(TeleopExpertNode, args, name='teleop_expert')
+
 
 if __name__ == '__main__':
     main()

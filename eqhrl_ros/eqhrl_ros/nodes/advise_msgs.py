@@ -1,0 +1,70 @@
+"""Every conversion between the Advise service (eqhrl_interfaces/srv/Advise.srv) and the core's
+AdviceRequest and Advice, in one place: the learner sends and reads, experts read and answer."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from eqhrl_interfaces.srv import Advise
+
+from ..core.experts import Advice, AdviceRequest
+
+
+def request_msg(request: AdviceRequest) -> Advise.Request:
+    """The learner's request as the service carries it."""
+    return Advise.Request(
+        observation=request.observation.tolist(),
+        proposed_action=request.proposed_action.tolist(),
+        action_low=request.action_low.tolist(),
+        action_high=request.action_high.tolist(),
+        discrepancy=float(request.discrepancy),
+        entropy=float(request.entropy),
+        episode=int(request.episode),
+        step=int(request.step),
+    )
+
+
+def request_from_msg(msg: Advise.Request) -> AdviceRequest:
+    """What an expert is asked, as the core's AdviceRequest."""
+
+    def arr(values):
+        return np.asarray(values, dtype=np.float32)
+
+    return AdviceRequest(
+        arr(msg.observation),
+        arr(msg.proposed_action),
+        arr(msg.action_low),
+        arr(msg.action_high),
+        float(msg.discrepancy),
+        float(msg.entropy),
+        int(msg.episode),
+        int(msg.step),
+    )
+
+
+def answer(expert, msg: Advise.Request, response: Advise.Response, name: str, logger) -> Advise.Response:
+    """Ask ``expert`` (a core Expert callable) and fill ``response``. A backend that raises
+    declines this one request with the error as its reason; the service lives on."""
+    try:
+        advice = expert(request_from_msg(msg))
+    except Exception as error:  # a backend bug must not take the service down
+        logger.error(f'expert backend failed: {error!r}', throttle_duration_sec=5.0)
+        advice = Advice.decline(f'expert error: {error}')
+    return fill_response(response, advice, name)
+
+
+def fill_response(response: Advise.Response, advice: Advice, name: str) -> Advise.Response:
+    response.expert_name = name
+    response.advised = advice.advised
+    response.human = bool(advice.human)
+    if advice.advised:
+        response.action = np.asarray(advice.action, dtype=np.float32).tolist()
+    else:
+        response.reason = advice.reason or 'declined'
+    return response
+
+
+def advice_from_response(response: Advise.Response, name: str) -> Advice:
+    """The answer as the core's Advice; ``name`` is the expert's name as the learner shows it."""
+    action = np.asarray(response.action, dtype=np.float32) if response.advised else None
+    return Advice(action, response.reason, name, bool(response.human))
