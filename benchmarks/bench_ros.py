@@ -41,7 +41,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from eqhrl_ros.nodes.expert_node import ExpertNode  # noqa: E402
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode  # noqa: E402
 from eqhrl_ros.nodes.learner_node import LearnerNode  # noqa: E402
-from eqhrl_ros.nodes.lifecycle import make_executor  # noqa: E402
+from eqhrl_ros.nodes.spinning import make_executor  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_learner import OursLoop  # noqa: E402

@@ -75,3 +75,22 @@ def learner_args(out, extra=()):
         'checkpoint_every_episodes:=1',
         *extra,
     ]
+
+
+def fail_writes(monkeypatch, to: str, error=28) -> None:
+    """Make every os.write to a file whose name contains ``to`` fail as a full disk does
+    (ENOSPC), as the OS would say it: the seam is the OS call, not our code's internals."""
+    import os
+
+    real = os.write
+
+    def write(fd, data):
+        try:
+            name = os.readlink(f'/proc/self/fd/{fd}')
+        except OSError:
+            name = ''
+        if to in name:
+            raise OSError(error, os.strerror(error))
+        return real(fd, data)
+
+    monkeypatch.setattr(os, 'write', write)

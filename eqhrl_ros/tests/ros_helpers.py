@@ -12,7 +12,7 @@ from std_msgs.msg import Float32MultiArray
 from eqhrl_interfaces.srv import Advise
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
-from eqhrl_ros.nodes.lifecycle import make_executor
+from eqhrl_ros.nodes.spinning import make_executor
 
 PARAMS_DIR = Path(__file__).resolve().parents[1] / 'params'
 

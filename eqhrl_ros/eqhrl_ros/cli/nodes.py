@@ -42,7 +42,7 @@ NODES = {
         "Serves advise with a person's command (joy, cmd_vel or teleop_command).",
     ),
     'keyboard_teleop': NodeProgram(
-        'keyboard_teleop',
+        'keyboard_teleop_node',
         ('KEYBOARD_PARAMS',),
         'A terminal teleop for teleop_expert (source: array); needs a terminal.',
     ),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 from typing import Iterable
@@ -37,17 +38,30 @@ class FifoQueue:
 
 @dataclass(frozen=True)
 class GateDecision:
-    """What the gates said at one step, and why. ``fire`` means: ask the expert now."""
+    """What the gates said at one step. ``fire`` means: ask the expert now."""
 
     fire: bool
-    reason: str
-    within_budget: bool
+    within_budget: bool  # Eq. 7 (and a mode that asks at all)
+    queues_ready: bool = False  # each queue holds queue_length earlier values (dynamic thresholds)
     ask: bool = False  # Eq. 10 left (or D(s) > fixed threshold)
     respond: bool = False  # Eq. 10 right (or E(s) < fixed threshold)
     discrepancy: float = float('nan')  # D(s), Eq. 8; NaN when not evaluated
     entropy: float = float('nan')  # E(s), Eq. 9; NaN when not evaluated
     d_threshold: float = float('nan')  # max(D_queue) before the push, or the fixed threshold
     e_threshold: float = float('nan')  # min(E_queue) before the push, or the fixed threshold
+
+    @property
+    def reason(self) -> str:
+        """Why the gates fired or not, in words (made only when someone reads it)."""
+        if not self.within_budget:
+            return 'outside the advising budget (Eq. 7), or mode sac'
+        if not self.queues_ready:
+            return 'queues filling'
+        if self.fire:
+            return 'D(s) > threshold' + ('' if math.isnan(self.entropy) else ' and E(s) < threshold')
+        if not self.ask:
+            return 'D(s) <= threshold: the critics agree'
+        return 'E(s) >= threshold: the policy is not sure'
 
 
 class AdvisingGates:
@@ -93,11 +107,9 @@ class AdvisingGates:
 
     def decide(self, episode: int, discrepancy: float | None = None, entropy: float | None = None) -> GateDecision:
         if self.mode == 'sac':
-            return GateDecision(False, 'mode sac never asks', within_budget=False)
+            return GateDecision(False, within_budget=False)
         if not eq.early_advising(episode, self.advising_budget):
-            return GateDecision(
-                False, f'episode {episode} is past the advising budget ({self.advising_budget})', within_budget=False
-            )
+            return GateDecision(False, within_budget=False)
         if discrepancy is None or (self.uses_entropy and entropy is None):
             raise ValueError('D(s) (and E(s) in eqsac mode) are needed inside the budget')
 
@@ -120,19 +132,10 @@ class AdvisingGates:
             if self.uses_entropy:
                 self.e_queue.push(entropy)
 
-        fire = ask and respond
-        if not (d_ready and e_ready):
-            reason = f'queues filling ({len(self.d_queue)}/{self.d_queue.length})'
-        elif fire:
-            reason = 'D(s) > threshold and E(s) < threshold' if self.uses_entropy else 'D(s) > threshold'
-        elif not ask:
-            reason = 'D(s) <= threshold: the critics agree'
-        else:
-            reason = 'E(s) >= threshold: the policy is not sure'
         return GateDecision(
-            fire=fire,
-            reason=reason,
+            fire=ask and respond,
             within_budget=True,
+            queues_ready=d_ready and e_ready,
             ask=ask,
             respond=respond if self.uses_entropy else False,
             discrepancy=float(discrepancy),

@@ -26,6 +26,19 @@ def make_env(env_id: str, max_episode_steps: int | None = None, render_mode: str
     return env
 
 
+def env_spaces(env_id: str) -> tuple[int, np.ndarray, np.ndarray]:
+    """Observation size and action bounds of an env id, from its spec (no episode is run)."""
+    env = gym.make(env_id)
+    try:
+        return (
+            int(np.prod(env.observation_space.shape)),
+            env.action_space.low.astype(np.float32),
+            env.action_space.high.astype(np.float32),
+        )
+    finally:
+        env.close()
+
+
 class ActionScaler:
     """Affine map between the policy's box [-1, 1]^m and the env's [low, high]."""
 
@@ -55,8 +68,6 @@ class ActionScaler:
 class SuccessCriterion:
     """Per-episode success, fed every step. Subclasses define it per env."""
 
-    description = 'none defined: never a success'
-
     def reset(self) -> None:
         pass
 
@@ -72,7 +83,6 @@ class ReturnAtLeast(SuccessCriterion):
 
     def __init__(self, threshold: float):
         self.threshold = threshold
-        self.description = f'episode return >= {threshold:g}'
 
     def success(self, episode_return: float) -> bool:
         return episode_return >= self.threshold
@@ -85,10 +95,6 @@ class PendulumUpright(SuccessCriterion):
     def __init__(self, max_angle_deg: float = 18.0, hold_steps: int = 10):
         self.min_cos = math.cos(math.radians(max_angle_deg))
         self.hold_steps = hold_steps
-        self.description = (
-            f'upright (|theta| <= {max_angle_deg:g} deg, cos(theta) >= {self.min_cos:.3f}) '
-            f'for the final {hold_steps} steps of the episode'
-        )
         self.reset()
 
     def reset(self) -> None:

@@ -134,3 +134,20 @@ def heuristic_expert(env_id: str):
         f'no heuristic expert for {env_id!r}; built in: Pendulum-v1, '
         'LunarLanderContinuous-v3 (use the policy backend for other envs)'
     )
+
+
+EXPERT_BACKENDS = ('heuristic', 'policy')
+
+
+def make_expert(backend: str, env_id: str, policy_path: str = ''):
+    """The expert a backend name stands for: the env's built-in controller, or a policy file
+    exported by a learner (checkpoint.PolicyExpert). ValueError names what is missing."""
+    if backend == 'policy':
+        if not policy_path:
+            raise ValueError("backend 'policy' needs a policy file (policy_path is empty)")
+        from .checkpoint import PolicyExpert  # torch: only when a policy answers
+
+        return PolicyExpert(policy_path, name=f'policy:{policy_path}')
+    if backend == 'heuristic':
+        return heuristic_expert(env_id)
+    raise ValueError(f'expert backend {backend!r} is not one of {EXPERT_BACKENDS}')

@@ -97,8 +97,8 @@ class AdviceCounts:
 def adam(params, lr: float, state: dict | None = None) -> torch.optim.Adam:
     """Adam with its fused kernel: one pass over all of a network's tensors per step.
 
-    On CPU the default Adam loops over tensors with several small ops each; fused
-    is about 3x faster at Table 1's sizes (docs/profile.md). Same maths. A loaded
+    On CPU the default Adam loops over tensors with several small ops each; the fused
+    kernel is several times faster at Table 1's sizes (docs/performance.md). Same maths. A loaded
     ``state`` keeps its moments and step counts but not its implementation flags.
     """
     optimizer = torch.optim.Adam(params, lr=lr, fused=True)
@@ -186,8 +186,8 @@ class EQSACLearner:
         self.log_alpha = torch.tensor(math.log(cfg.initial_alpha), requires_grad=True)
         self.target_entropy = -float(self.action_dim)  # Table 1: target alpha = -action dim
         # The optimisers are made at the first update: torch imports its compiler
-        # (torch._dynamo, ~1.4 s here) when the first one is made, which would otherwise
-        # delay the first env step by that much.
+        # (torch._dynamo, over a second: docs/performance.md) when the first one is made,
+        # which would otherwise delay the first env step by that much.
         self._optimizers_made = False
 
         # One random stream per purpose, so that e.g. estimating E(s) never shifts

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -18,9 +16,8 @@ LOG_STD_MAX = 2.0
 class _NumpyTanh(torch.autograd.Function):
     """tanh on numpy's SIMD kernel, with torch's tanh gradient 1 - tanh(x)^2.
 
-    Why: this torch CPU build runs tanh element by element; on a 256x256 batch it
-    took 170 us against numpy's 30 us for the same values (to 1 ulp), and the
-    actor's two hidden tanh layers were ~5% of a training step (docs/profile.md).
+    Why: this torch CPU build runs tanh element by element, several times slower than
+    numpy's kernel on a batch, for the same values to 1 ulp (docs/performance.md).
     """
 
     @staticmethod
@@ -95,6 +92,11 @@ class SquashedGaussianActor(nn.Module):
         log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (torch.tanh(raw_log_std) + 1.0)
         return mean, log_std
 
+    def linear_layers(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """(weight [out, in], bias [out]) of each layer in order, the heads last (mean rows
+        first, then log-std): the parameters themselves, for readers that rebuild the maths."""
+        return [(layer.weight, layer.bias) for layer in (*self._hidden, self.heads)]
+
 
 class TwinCritic(nn.Module):
     """Q_theta1 and Q_theta2: two independent ReLU MLPs Q(s, a), evaluated as one batched network.
@@ -102,8 +104,8 @@ class TwinCritic(nn.Module):
     Each layer stores both critics' weights stacked on a leading axis of size 2 and
     runs them with one batched matmul (torch.baddbmm): same maths as two separate
     MLPs, half the kernel launches. The last layer (width -> 1) is a dot product per
-    row, computed as multiply-and-sum: as a batched matmul with one output column,
-    its forward and backward took 350 us against 120 us. ``forward`` returns
+    row, computed as multiply-and-sum: faster than a batched matmul with one output
+    column (docs/performance.md). ``forward`` returns
     (Q1, Q2), each of shape [batch].
     """
 
@@ -132,6 +134,7 @@ class TwinCritic(nn.Module):
         q = (x * last_weight.transpose(1, 2)).sum(-1) + last_bias.squeeze(-1)
         return q[0], q[1]
 
-
-def count_parameters(module: nn.Module) -> int:
-    return sum(math.prod(p.shape) for p in module.parameters())
+    def linear_layers(self, k: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Critic k's (0 or 1) layers as an ordinary MLP: (weight [in, out], bias [out]) for
+        h @ weight + bias, ReLU between layers, the last giving Q. Views of the parameters."""
+        return [(weight[k], bias[k, 0]) for weight, bias in zip(self.weights, self.biases)]

@@ -96,10 +96,6 @@ class TeleopExpert:
         self._command = command
         self._stamp = self._clock()
 
-    @property
-    def command(self) -> Optional[Command]:
-        return self._command
-
     def __call__(self, request: AdviceRequest) -> Advice:
         command = self._command
         if command is None:

@@ -8,11 +8,10 @@ from rclpy.node import Node
 
 from eqhrl_interfaces.srv import Advise
 
-from ..core.checkpoint import PolicyExpert
-from ..core.experts import Advice, heuristic_expert
+from ..core.experts import Advice, make_expert
 from .advise_msgs import answer, fill_response
-from .lifecycle import run_node
 from .params import EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .spinning import run_node
 
 
 class ExpertNode(Node):
@@ -22,18 +21,11 @@ class ExpertNode(Node):
         reject_unknown_overrides(self, EXPERT_PARAMS)
         self.params = declare(self, EXPERT_PARAMS)
         self.add_on_set_parameters_callback(choices_validator(EXPERT_PARAMS))
-        self.backend = backend or self._make_backend()
+        p = self.params
+        self.backend = backend or make_expert(p['backend'], p['env_id'], p['policy_path'])
         self.requests = 0
         self.create_service(Advise, 'advise', self._on_request)
         self.get_logger().info(f"serving 'advise' with {getattr(self.backend, 'name', type(self.backend).__name__)}")
-
-    def _make_backend(self):
-        p = self.params
-        if p['backend'] == 'policy':
-            if not p['policy_path']:
-                raise ValueError("parameter 'policy_path' is empty; backend 'policy' needs a policy file")
-            return PolicyExpert(p['policy_path'], name=f'policy:{p["policy_path"]}')
-        return heuristic_expert(p['env_id'])
 
     def _on_request(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
         self.requests += 1

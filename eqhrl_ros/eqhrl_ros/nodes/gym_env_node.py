@@ -18,8 +18,8 @@ from std_msgs.msg import Float32MultiArray
 
 from ..core.envs import make_env
 from . import messages
-from .lifecycle import run_node, seconds_since_process_start, steady_clock
 from .params import GYM_ENV_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .spinning import run_node, seconds_since_process_start, steady_clock
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 

@@ -16,7 +16,6 @@ from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Optional
 
-import gymnasium as gym
 import numpy as np
 import torch
 from rclpy.node import Node
@@ -26,13 +25,13 @@ from std_msgs.msg import Float32MultiArray
 from eqhrl_interfaces.srv import Advise
 
 from ..core.checkpoint import CheckpointWriteError, export_policy, load_checkpoint, save_checkpoint
-from ..core.envs import success_criterion
+from ..core.envs import env_spaces, success_criterion
 from ..core.experts import Advice
 from ..core.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
 from ..core.records import EpisodeRecord, RunFolder
 from . import advise_msgs, messages
-from .lifecycle import ExitError, run_node, steady_clock
 from .params import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .spinning import ExitError, run_node, steady_clock
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 STATS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -46,19 +45,6 @@ class PendingAdvice:
     key: tuple  # (env episode, env step) the advice is for
     timer: object
     sent: float = 0.0  # time.monotonic() when the request went out
-
-
-def env_spaces(env_id: str) -> tuple[int, np.ndarray, np.ndarray]:
-    """Observation size and action bounds of an env id, from its spec (no episode is run)."""
-    env = gym.make(env_id)
-    try:
-        return (
-            int(np.prod(env.observation_space.shape)),
-            env.action_space.low.astype(np.float32),
-            env.action_space.high.astype(np.float32),
-        )
-    finally:
-        env.close()
 
 
 # Expert names come from other nodes: cap them before they reach a log line or a count.

@@ -146,7 +146,7 @@ class SerializedReader:
     """The values of serialized Float32MultiArray messages, from a raw subscription.
 
     Why: rclpy builds a Python message (a layout object, an object per labelled field)
-    for every message it delivers, about 20 us a message on a 2-core machine. A
+    for every message it delivers (tens of microseconds: docs/performance.md). A
     subscription with ``raw=True`` delivers the CDR bytes instead. The first message is
     deserialized in full; the bytes before its values (layout, data offset, value count)
     are kept. A later message that starts with the same bytes has the same layout and

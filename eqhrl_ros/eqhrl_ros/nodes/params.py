@@ -15,6 +15,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 
 from ..core.config import INT_MAX, LearnerConfig, ros_name
+from ..core.experts import EXPERT_BACKENDS
 
 
 @dataclass(frozen=True)
@@ -111,7 +112,7 @@ EXPERT_PARAMS = (
         'backend',
         'heuristic',
         'Who answers: a built-in controller or an exported policy file',
-        choices=('heuristic', 'policy'),
+        choices=EXPERT_BACKENDS,
     ),
     Param('env_id', 'Pendulum-v1', 'Env the heuristic controller is for'),
     Param('policy_path', '', 'Policy file exported by a learner (backend policy)'),

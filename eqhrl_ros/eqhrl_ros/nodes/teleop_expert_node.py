@@ -20,8 +20,8 @@ from eqhrl_interfaces.srv import Advise
 
 from ..core.teleop import TWIST_FIELDS, TeleopExpert, array_command, joy_command, twist_command
 from .advise_msgs import answer
-from .lifecycle import run_node
 from .params import TELEOP_EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .spinning import run_node
 
 
 class TeleopExpertNode(Node):

@@ -30,8 +30,9 @@ from pathlib import Path
 
 import yaml
 
-from .core.config import MODES as ALGORITHMS
-from .paths import params_file
+from ..core.config import MODES as ALGORITHMS
+from ..core.experts import EXPERT_BACKENDS
+from ..paths import params_file
 
 COLUMNS = ('algorithm', 'seed', 'episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')
 
@@ -49,7 +50,7 @@ class Settings:
 
 def load_settings(args) -> Settings:
     """The params file's sections, refused as the nodes would refuse them (a typo included)."""
-    from .nodes.params import EXPERT_PARAMS, GYM_ENV_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
+    from ..nodes.params import EXPERT_PARAMS, GYM_ENV_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
 
     path = params_file(args.params)
     data = yaml.safe_load(path.read_text())
@@ -74,8 +75,8 @@ def load_settings(args) -> Settings:
 
 
 def learner_config(settings: Settings, algorithm: str, seed: int):
-    from .core import LearnerConfig
-    from .nodes.params import LEARNER_NODE_PARAMS
+    from ..core import LearnerConfig
+    from ..nodes.params import LEARNER_NODE_PARAMS
 
     return LearnerConfig.from_params(
         settings.learner, node_keys=[p.name for p in LEARNER_NODE_PARAMS], mode=algorithm, seed=seed
@@ -83,13 +84,11 @@ def learner_config(settings: Settings, algorithm: str, seed: int):
 
 
 def make_expert(settings: Settings):
-    from .core import PolicyExpert, heuristic_expert
+    from ..core.experts import make_expert as expert_for
 
     if settings.expert_backend == 'none':
         return None
-    if settings.expert_backend == 'policy':
-        return PolicyExpert(settings.policy_path)
-    return heuristic_expert(settings.env_id)
+    return expert_for(settings.expert_backend, settings.env_id, settings.policy_path)
 
 
 def run_dir(output: Path, algorithm: str, seed: int) -> Path:
@@ -99,7 +98,8 @@ def run_dir(output: Path, algorithm: str, seed: int) -> Path:
 def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Path, progress) -> None:
     import torch
 
-    from .core import EpisodeSummary, EQSACLearner, make_env, success_criterion, train
+    from ..core import EpisodeSummary, EQSACLearner, make_env, success_criterion, train
+    from ..core.records import EpisodeRecord
 
     torch.set_num_threads(1)  # one process per core
     env = make_env(settings.env_id, settings.max_episode_steps)
@@ -110,17 +110,19 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
         learner_config(settings, algorithm, seed),
         success_criterion(settings.env_id),
     )
-    with (directory / 'episodes.csv').open('w', newline='') as f:
-        writer = csv.writer(f)
-        writer.writerow(EpisodeSummary.CSV_FIELDS)
+    record = EpisodeRecord(directory / 'episodes.csv', EpisodeSummary.CSV_FIELDS)  # the learner node's record
 
-        def on_episode(summary):
-            writer.writerow(summary.csv_row())
-            f.flush()
-            progress.put((algorithm, seed, summary.episode, summary.episode_return))
+    def on_episode(summary):
+        error = record.append(summary.csv_row())
+        if error is not None:
+            raise error  # the run fails; running the command again redoes it
+        progress.put((algorithm, seed, summary.episode, summary.episode_return))
 
+    try:
         train(env, learner, settings.episodes, make_expert(settings), seed=seed, on_episode=on_episode)
-    env.close()
+    finally:
+        record.close()
+        env.close()
 
 
 def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress) -> None:
@@ -221,7 +223,7 @@ def parse_args(argv=None):
     parser.add_argument('--episodes', type=int, help='episodes per run (default: max_episodes of the file)')
     parser.add_argument('--max-steps', type=int, help='steps per episode (default: from the file)')
     parser.add_argument('--budget', type=int, help='early-advising budget in episodes')
-    parser.add_argument('--expert', choices=('heuristic', 'policy', 'none'), help='expert backend')
+    parser.add_argument('--expert', choices=(*EXPERT_BACKENDS, 'none'), help='expert backend')
     parser.add_argument('--policy-path', help='policy file for --expert policy')
     parser.add_argument('--output', required=True, help='output folder')
     parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1, help='parallel runs')

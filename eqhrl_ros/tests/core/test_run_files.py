@@ -17,6 +17,8 @@ from eqhrl_ros.core.checkpoint import CheckpointError, CheckpointWriteError, loa
 from eqhrl_ros.core.learner import EQSACLearner, LearnerConfig
 from eqhrl_ros.core.records import EpisodeRecord, RunFolder, RunFolderError
 
+from process_helpers import fail_writes
+
 
 def small_learner(seed=0, **overrides):
     config = LearnerConfig(
@@ -73,16 +75,7 @@ def test_a_failed_checkpoint_write_leaves_the_pair_untouched(tmp_path, monkeypat
     save_checkpoint(learner, tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     train_steps(learner, 5)
-    real = ckpt._write_file
-    calls = []
-
-    def write_then_fail(data, tmp):
-        calls.append(tmp)
-        if len(calls) == 2:  # the replay went fine, the checkpoint did not
-            raise OSError(errno.ENOSPC, 'No space left on device')
-        real(data, tmp)
-
-    monkeypatch.setattr(ckpt, '_write_file', write_then_fail)
+    fail_writes(monkeypatch, to='.checkpoint.pt.')  # the replay's write goes fine, the checkpoint's does not
     with pytest.raises(CheckpointWriteError, match='No space left on device'):
         save_checkpoint(learner, tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

@@ -21,8 +21,8 @@ from rclpy.node import Node
 from std_msgs.msg import Float32MultiArray
 
 from . import messages
-from .lifecycle import run_node
 from .params import KEYBOARD_PARAMS, declare, reject_unknown_overrides
+from .spinning import run_node
 
 KEYS = {'a': (0, -1), 'd': (0, +1), 'w': (1, +1), 's': (1, -1)}
 CLEAR, HOME, REVERSE, RESET = '\x1b[2J', '\x1b[H', '\x1b[7m', '\x1b[0m'

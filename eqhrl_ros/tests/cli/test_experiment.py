@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from eqhrl_ros import experiment, report
+from eqhrl_ros.cli import experiment, report
 
 
 def read(path):

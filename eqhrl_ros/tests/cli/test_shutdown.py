@@ -9,11 +9,10 @@ import time
 import pytest
 import torch
 
-from eqhrl_ros.core import checkpoint as ckpt
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
 
-from process_helpers import BIN, learner_args, read_rows, start, stop, wait_for
+from process_helpers import BIN, fail_writes, learner_args, read_rows, start, stop, wait_for
 from ros_helpers import params, small_learner_params
 
 EXECUTABLES = (
@@ -172,17 +171,14 @@ def test_a_periodic_save_that_fails_keeps_the_previous_checkpoint_and_tries_agai
     )
     assert harness.spin_until(lambda: learner.learner.episode >= 2, timeout=60)
     saved = (tmp_path / 'checkpoint.pt').read_bytes()
-    real = ckpt._write_file
-
-    def full_disk(data, tmp):
-        raise OSError(28, 'No space left on device')
-
-    monkeypatch.setattr(ckpt, '_write_file', full_disk)
-    assert harness.spin_until(lambda: learner.failed_saves >= 2, timeout=60)
+    with monkeypatch.context() as patch:
+        fail_writes(patch, to=str(tmp_path))  # the disk is full: no save, no CSV row can be written
+        assert harness.spin_until(lambda: learner.failed_saves >= 2, timeout=60)
+        assert learner.record.unwritten_rows >= 2  # kept for later, not lost
     assert (tmp_path / 'checkpoint.pt').read_bytes() == saved and not list(tmp_path.glob('.*.tmp'))
-    monkeypatch.setattr(ckpt, '_write_file', real)
     assert harness.spin_until(lambda: learner.done, timeout=60)
     assert torch.load(tmp_path / 'checkpoint.pt', weights_only=True)['counters']['episode'] == 6
+    assert [int(r['episode']) for r in read_rows(tmp_path / 'episodes.csv')] == list(range(6))
 
 
 @pytest.mark.slow

@@ -80,7 +80,7 @@ def test_a_late_subscriber_gets_the_observation_when_it_connects(harness, ros_co
 def test_executor_kinds():
     from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 
-    from eqhrl_ros.nodes.lifecycle import make_executor
+    from eqhrl_ros.nodes.spinning import make_executor
 
     context = rclpy.Context()
     rclpy.init(context=context)

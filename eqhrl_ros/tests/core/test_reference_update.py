@@ -15,15 +15,16 @@ import torch
 import torch.nn.functional as F
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig
+from eqhrl_ros.core.networks import LOG_STD_MAX, LOG_STD_MIN
 
 
-def actor_forward(p, obs):
-    """p: the actor's state_dict. Tanh hidden layers, then the mean and log-std heads."""
+def actor_forward(layers, obs):
+    """layers: the actor's (weight, bias) pairs. Tanh hidden layers, then the mean and log-std heads."""
     h = obs
-    for i in (0, 2):
-        h = torch.tanh(F.linear(h, p[f'body.{i}.weight'], p[f'body.{i}.bias']))
-    mean, raw = F.linear(h, p['heads.weight'], p['heads.bias']).chunk(2, dim=-1)
-    return mean, -5.0 + 3.5 * (torch.tanh(raw) + 1.0)
+    for weight, bias in layers[:-1]:
+        h = torch.tanh(F.linear(h, weight, bias))
+    mean, raw = F.linear(h, *layers[-1]).chunk(2, dim=-1)
+    return mean, LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (torch.tanh(raw) + 1.0)
 
 
 def sample(mean, log_std, noise):
@@ -33,14 +34,19 @@ def sample(mean, log_std, noise):
     return a, (normal.log_prob(u) - torch.log(1 - a.pow(2) + 1e-12)).sum(-1)
 
 
-def critic_forward(p, obs, action, k):
-    """Critic k (0 or 1) of a TwinCritic state_dict, as an ordinary ReLU MLP."""
+def critic_forward(critics, obs, action, k):
+    """Critic k (0 or 1): its (weight, bias) pairs as an ordinary ReLU MLP."""
     h = torch.cat([obs, action], -1)
-    for i in range(3):
-        h = h @ p[f'weights.{i}'][k] + p[f'biases.{i}'][k]
-        if i < 2:
+    layers = critics[k]
+    for i, (weight, bias) in enumerate(layers):
+        h = h @ weight + bias
+        if i < len(layers) - 1:
             h = torch.relu(h)
     return h.squeeze(-1)
+
+
+def parameters(critics):
+    return [t for critic in critics for layer in critic for t in layer]
 
 
 def reference_update(ref, learner, gamma=0.99, tau=0.005):
@@ -77,19 +83,19 @@ def reference_update(ref, learner, gamma=0.99, tau=0.005):
     q = torch.min(critic_forward(ref['critic'], batch.obs, a, 0), critic_forward(ref['critic'], batch.obs, a, 1))
     actor_loss = (alpha * logp - q).mean()
     ref['actor_opt'].zero_grad()
-    actor_loss.backward(inputs=list(ref['actor'].values()))
+    actor_loss.backward(inputs=[t for layer in ref['actor'] for t in layer])
     ref['actor_opt'].step()
     alpha_loss = -(ref['log_alpha'].exp() * (logp.detach() - learner.action_dim)).mean()
     ref['alpha_opt'].zero_grad()
     alpha_loss.backward()
     ref['alpha_opt'].step()
     with torch.no_grad():
-        for name, value in ref['target'].items():
-            value.mul_(1 - tau).add_(tau * ref['critic'][name])
+        for value, online in zip(parameters(ref['target']), parameters(ref['critic'])):
+            value.mul_(1 - tau).add_(tau * online)
 
 
-def leaves(state_dict):
-    return {k: v.detach().clone().requires_grad_(True) for k, v in state_dict.items()}
+def leaves(layers, grad=True):
+    return [tuple(t.detach().clone().requires_grad_(grad) for t in layer) for layer in layers]
 
 
 def test_optimised_update_matches_the_plain_reference():
@@ -106,16 +112,16 @@ def test_optimised_update_matches_the_plain_reference():
 
     cfg = learner.config
     ref = {
-        'actor': leaves(learner.actor.state_dict()),
-        'critic': leaves(learner.critic.state_dict()),
-        'target': {k: v.clone() for k, v in learner.critic_target.state_dict().items()},
+        'actor': leaves(learner.actor.linear_layers()),
+        'critic': [leaves(learner.critic.linear_layers(k)) for k in (0, 1)],
+        'target': [leaves(learner.critic_target.linear_layers(k), grad=False) for k in (0, 1)],
         'log_alpha': learner.log_alpha.detach().clone().requires_grad_(True),
         'rng': {name: torch.Generator() for name in learner.rng},
     }
     for name, gen in learner.rng.items():
         ref['rng'][name].set_state(gen.get_state())
-    ref['actor_opt'] = torch.optim.Adam(ref['actor'].values(), lr=cfg.actor_lr, foreach=False)
-    ref['critic_opt'] = torch.optim.Adam(ref['critic'].values(), lr=cfg.critic_lr, foreach=False)
+    ref['actor_opt'] = torch.optim.Adam([t for layer in ref['actor'] for t in layer], lr=cfg.actor_lr, foreach=False)
+    ref['critic_opt'] = torch.optim.Adam(parameters(ref['critic']), lr=cfg.critic_lr, foreach=False)
     ref['alpha_opt'] = torch.optim.Adam([ref['log_alpha']], lr=cfg.alpha_lr, foreach=False)
 
     replay_state = learner.replay.state_dict()  # sampling must not change the buffers
@@ -123,18 +129,19 @@ def test_optimised_update_matches_the_plain_reference():
         reference_update(ref, learner)
         learner.update()
 
-    for name, value in learner.actor.state_dict().items():
-        torch.testing.assert_close(value, ref['actor'][name].detach(), rtol=1e-4, atol=1e-5, msg=name)
-    for name, value in learner.critic.state_dict().items():
-        torch.testing.assert_close(value, ref['critic'][name].detach(), rtol=1e-4, atol=1e-5, msg=name)
-    for name, value in learner.critic_target.state_dict().items():
-        torch.testing.assert_close(value, ref['target'][name], rtol=1e-4, atol=1e-5, msg=name)
+    def close(ours, reference, what):
+        for i, (a, b) in enumerate(zip(ours, reference)):
+            torch.testing.assert_close(a.detach(), b.detach(), rtol=1e-4, atol=1e-5, msg=f'{what} tensor {i}')
+
+    close(
+        [t for layer in learner.actor.linear_layers() for t in layer],
+        [t for layer in ref['actor'] for t in layer],
+        'actor',
+    )
+    close(parameters([learner.critic.linear_layers(k) for k in (0, 1)]), parameters(ref['critic']), 'critic')
+    close(parameters([learner.critic_target.linear_layers(k) for k in (0, 1)]), parameters(ref['target']), 'target')
     assert math.isclose(float(learner.log_alpha.detach()), float(ref['log_alpha'].detach()), rel_tol=1e-5)
     # The weights moved: a no-op update would not pass for the wrong reason.
-    assert not torch.allclose(
-        ref['critic']['weights.1'],
-        leaves(
-            EQSACLearner(3, [-2.0], [2.0], LearnerConfig(mode='eqsac', hidden=(64, 64), seed=5)).critic.state_dict()
-        )['weights.1'],
-    )
+    untrained = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(mode='eqsac', hidden=(64, 64), seed=5))
+    assert not torch.allclose(ref['critic'][0][1][0], untrained.critic.linear_layers(0)[1][0])
     torch.testing.assert_close(learner.replay.state_dict()['obs'], replay_state['obs'])

@@ -20,8 +20,8 @@ import os
 import sys
 import time
 
-from .core.config import MODES
-from .nodes.lifecycle import EXECUTORS
+from ..core.config import MODES
+from ..nodes.spinning import EXECUTORS
 
 DISCOVERY = ('off', 'localhost', 'subnet')
 
@@ -100,20 +100,21 @@ def run(args):
     """
     # Set before the ROS context exists: rcl reads the discovery range when it is created.
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery.upper()
+    import rclpy
     from rclpy.parameter import Parameter
 
-    from .nodes import lifecycle
-    from .nodes.expert_node import ExpertNode
-    from .nodes.gym_env_node import GymEnvNode
-    from .nodes.learner_node import LearnerNode, _save_and_close
-    from .nodes.teleop_expert_node import TeleopExpertNode
-    from .paths import params_file
+    from ..nodes import spinning
+    from ..nodes.expert_node import ExpertNode
+    from ..nodes.gym_env_node import GymEnvNode
+    from ..nodes.learner_node import LearnerNode, _save_and_close
+    from ..nodes.teleop_expert_node import TeleopExpertNode
+    from ..paths import params_file
 
     try:
         path = params_file(args.params)
     except FileNotFoundError as error:
         raise StartUpRefused(str(error)) from error
-    stop = lifecycle.init(['--ros-args', '--params-file', str(path)], 'eqhrl-train')
+    stop = spinning.init(['--ros-args', '--params-file', str(path)], 'eqhrl-train')
     nodes = []
     learner = None
     try:
@@ -128,9 +129,9 @@ def run(args):
                 nodes.append(TeleopExpertNode())
             learner = LearnerNode(parameter_overrides=learner_overrides(args))
             nodes.append(learner)
-        except lifecycle.start_up_errors() as error:
+        except spinning.start_up_errors() as error:
             raise StartUpRefused(str(error)) from error
-        executor = lifecycle.make_executor(args.executor)
+        executor = spinning.make_executor(args.executor)
         for node in nodes:
             executor.add_node(node)
         learner.get_logger().info(
@@ -138,7 +139,7 @@ def run(args):
             + (' (no node outside this process can reach this run; see --discovery)' if args.discovery == 'off' else '')
         )
         start = time.monotonic()
-        lifecycle.spin(executor, stop)  # returns at max_episodes (the learner shuts the context down) or on a signal
+        spinning.spin(executor, stop)  # returns at max_episodes (the learner shuts the context down) or on a signal
         if not learner.done:
             print('\ninterrupted: saving a checkpoint', file=sys.stderr)
         learner.wall_time_s = time.monotonic() - start
@@ -150,13 +151,13 @@ def run(args):
         finally:
             for node in nodes:
                 node.destroy_node()
-            lifecycle.rclpy.try_shutdown()
+            rclpy.try_shutdown()
             stop.finished()
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    from .nodes.lifecycle import ExitError
+    from ..nodes.spinning import ExitError
 
     try:
         learner = run(args)

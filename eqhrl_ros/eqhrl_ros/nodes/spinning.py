@@ -50,7 +50,7 @@ def make_executor(kind: Optional[str] = None, context=None):
     'single' (rclpy's SingleThreadedExecutor) takes messages through a wait set, so what
     waits to be processed is bounded by each subscription's QoS depth: a flood of
     messages cannot grow the process's memory. 'events' (rclpy.experimental's
-    EventsExecutor) steps the env about 3.5x as fast through the topics with updates off,
+    EventsExecutor) steps the env several times as fast through the topics with updates off,
     but queues one event per arriving message without a limit, so a flood grows memory
     until it stops (benchmarks/flood.py); use it only on a closed graph. Where an rclpy
     lacks it, 'single' is used. 'multi' is the MultiThreadedExecutor; the nodes are safe

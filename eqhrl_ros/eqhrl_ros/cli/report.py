@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .core.config import MODES
-from .plots import smooth
+from ..core.config import MODES
+from ..plots import smooth
 
 ORDER = MODES  # the algorithms in the order tables and figures show them
 LABELS = {'sac': 'SAC', 'qasac': 'QASAC', 'eqsac': 'EQSAC'}

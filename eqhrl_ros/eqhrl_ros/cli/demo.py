@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import bringup
-from .plots import plot_training, read_episodes
+from ..plots import plot_training, read_episodes
+from . import train
 
 
 def main(argv=None) -> int:
@@ -20,7 +20,7 @@ def main(argv=None) -> int:
     parser.add_argument('--params', default='demo', help='params file (name or path)')
     args = parser.parse_args(argv)
 
-    status = bringup.main(['--params', args.params, '--output', args.output, '--overwrite'])
+    status = train.main(['--params', args.params, '--output', args.output, '--overwrite'])
     if status != 0:
         return status
     output = Path(args.output)
