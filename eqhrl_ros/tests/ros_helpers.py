@@ -10,6 +10,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.srv import Advise
+from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
 from eqhrl_ros.nodes.spinning import make_executor
@@ -81,14 +82,22 @@ class Probe:
         self.node.create_subscription(Float32MultiArray, 'learner/episode_stats', self.stats.append, 100)
         self.node.create_subscription(Float32MultiArray, 'learner/gate_debug', self.gates.append, 1000)
         self.action_pub = self.node.create_publisher(Float32MultiArray, 'action', 10)
+        self.actions = []
+        self.node.create_subscription(Float32MultiArray, 'action', self.actions.append, 50)
+
+    def acted_on(self) -> list:
+        """The (episode, step) each action on 'action' answers (tagged actions only)."""
+        fields = (messages.parse_fields(m) for m in self.actions)
+        return [(int(f['episode']), int(f['step'])) for f in fields if 'step' in f]
 
 
 def observation_publisher(harness):
-    """A publisher on 'observation' that a learner already in ``harness`` has matched."""
+    """A publisher on 'observation' that a learner already in ``harness`` has matched, and the
+    Probe that sees the learner's answers on 'action'."""
     probe = Probe(harness)
     publisher = probe.node.create_publisher(Float32MultiArray, 'observation', 10)
     assert harness.spin_until(lambda: publisher.get_subscription_count() > 0)
-    return publisher
+    return publisher, probe
 
 
 class StubExpert:

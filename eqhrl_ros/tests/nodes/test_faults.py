@@ -103,7 +103,7 @@ def test_env_that_dies_mid_episode_and_restarts(harness, ros_context, tmp_path):
 
 def test_bad_observations_are_dropped_and_never_stored(harness, ros_context, tmp_path):
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
-    publisher = observation_publisher(harness)
+    publisher, probe = observation_publisher(harness)
     publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], 0.0, False, False, 0, 0))  # good
     publisher.publish(messages.build([('obs', [0.1, 0.2]), ('tail', [0, 0, 0, 0, 1])]))  # too short
     publisher.publish(messages.observation_msg([0.1, np.nan, 0.3], -1.0, False, False, 0, 1))
@@ -270,14 +270,14 @@ def test_a_paused_env_continues_its_episode_and_no_row_is_corrupted(tmp_path):
     assert [int(r['total_steps']) for r in rows] == [40 * (i + 1) for i in range(len(rows))]
 
 
-def publish_steps(harness, publisher, learner, steps, obs_dim=3):
+def publish_steps(harness, publisher, probe, learner, steps, obs_dim=3):
     """Publish observations (episode 0, the given steps) one at a time, as a lock-step env would."""
     for step in steps:
         done = step == steps[-1]
         before = learner.learner.total_steps + learner.learner.episode
         publisher.publish(messages.observation_msg([0.1, 0.2, 0.3 + step], -1.0, False, done, 0, step))
         harness.spin_until(
-            lambda: learner.learner.total_steps + learner.learner.episode > before or learner._key == (0, step),
+            lambda: learner.learner.total_steps + learner.learner.episode > before or (0, step) in probe.acted_on(),
             timeout=5,
         )
 
@@ -286,8 +286,8 @@ def test_a_lost_observation_marks_the_episode_interrupted(harness, ros_context, 
     learner = harness.add(
         LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, mode='sac'))
     )
-    publisher = observation_publisher(harness)
-    publish_steps(harness, publisher, learner, [0, 1, 2, 4, 5, 6])  # step 3 never arrives
+    publisher, probe = observation_publisher(harness)
+    publish_steps(harness, publisher, probe, learner, [0, 1, 2, 4, 5, 6])  # step 3 never arrives
     assert harness.spin_until(lambda: len(learner.summaries) == 1)
     summary = learner.summaries[0]
     assert summary.interrupted and not summary.success
@@ -300,8 +300,8 @@ def test_a_learner_that_joins_mid_episode_marks_it_interrupted(harness, ros_cont
     learner = harness.add(
         LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, mode='sac'))
     )
-    publisher = observation_publisher(harness)
-    publish_steps(harness, publisher, learner, [7, 8, 9])
+    publisher, probe = observation_publisher(harness)
+    publish_steps(harness, publisher, probe, learner, [7, 8, 9])
     assert harness.spin_until(lambda: len(learner.summaries) == 1)
     assert learner.summaries[0].interrupted and learner.summaries[0].length == 2
 
@@ -328,7 +328,7 @@ def test_advice_timeout_and_stall_warning_do_not_depend_on_ros_time(harness, ros
 
 def test_a_relabelled_message_is_refused_not_read_by_position(harness, ros_context, tmp_path):
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
-    publisher = observation_publisher(harness)
+    publisher, probe = observation_publisher(harness)
     # Right size, but 'step' and 'episode' swapped, and another with obs of the wrong size.
     swapped = messages.build(
         [
@@ -353,9 +353,10 @@ def test_a_relabelled_message_is_refused_not_read_by_position(harness, ros_conte
     publisher.publish(swapped)
     publisher.publish(resized)
     assert harness.spin_until(lambda: learner.dropped_messages == 2)
-    assert learner._key is None and learner.learner.total_steps == 0
+    harness.spin_until(lambda: False, timeout=0.3)
+    assert probe.acted_on() == [] and learner.learner.total_steps == 0
     publisher.publish(Float32MultiArray(data=[0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0]))  # unlabelled: by position
-    assert harness.spin_until(lambda: learner._key == (0, 0))
+    assert harness.spin_until(lambda: probe.acted_on() == [(0, 0)])
 
 
 def test_check_layout_accepts_ours_and_unlabelled_only():
@@ -397,7 +398,7 @@ def test_a_flood_leaves_no_backlog_with_the_default_executor(harness, ros_contex
     # flat; an executor that queues one event per arriving message (the EventsExecutor,
     # +14 MB here) grows without bound under a flood.
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
-    publisher = observation_publisher(harness)
+    publisher, probe = observation_publisher(harness)
     harness.spin_until(lambda: False, timeout=0.5)
     bad = serialize_message(Float32MultiArray(data=[0.5] * 3))
     gc.collect()
@@ -411,7 +412,7 @@ def test_a_flood_leaves_no_backlog_with_the_default_executor(harness, ros_contex
     assert grown < 5.0, f'{grown:.1f} MB held for 100,000 messages'
     assert 0 < learner.dropped_messages <= 50
     publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], 0.0, False, False, 0, 0))
-    assert harness.spin_until(lambda: learner._key == (0, 0), timeout=2.0)  # back at once
+    assert harness.spin_until(lambda: (0, 0) in probe.acted_on(), timeout=2.0)  # back at once
 
 
 def test_env_throttles_its_rejection_log(harness, ros_context, capfd):
