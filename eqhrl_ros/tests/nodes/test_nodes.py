@@ -228,6 +228,12 @@ def test_run_time_parameters_are_range_checked_and_applied(harness, ros_context,
     assert learner.set_parameters(params(advising_budget=7))[0].successful
     assert learner.learner.gates.advising_budget == 7
     assert not learner.set_parameters(params(seed=3))[0].successful  # read-only while running
+    # A change that a later check refuses is never applied: checks run on-set, changes post-set.
+    from rcl_interfaces.msg import SetParametersResult
+
+    learner.add_on_set_parameters_callback(lambda changes: SetParametersResult(successful=False, reason='veto'))
+    assert not learner.set_parameters(params(advising_budget=9))[0].successful
+    assert learner.learner.gates.advising_budget == 7 and learner.learner.config.advising_budget == 7
 
 
 def test_realtime_env_steps_at_its_rate_holding_the_last_action(harness, ros_context):
