@@ -35,7 +35,6 @@ from .spinning import ExitError, run_node, steady_clock
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 STATS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-# The latest advice request stays available to a UI that starts later.
 
 
 @dataclass
