@@ -1,0 +1,77 @@
+"""The figures docs/results.md quotes beyond eqhrl-report's tables, from the raw CSVs.
+
+    .venv/bin/python tools/results_checks.py
+
+Prints, for Pendulum: same-seed differences from SAC over episodes 100-199 (mean over the
+seeds with a 95 % percentile-bootstrap interval over seeds: 10,000 resamples, numpy's
+default generator seeded 0), advice given per seed, and whether episodes 30-49 are
+identical across algorithms; for LunarLander: QASAC minus SAC over episodes 50-69 per seed,
+and successful episodes per run (all, and in the last 10).
+"""
+
+from __future__ import annotations
+
+import csv
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).resolve().parents[1] / 'docs' / 'results'
+
+
+def load(env: str) -> dict:
+    runs = defaultdict(dict)
+    with (RESULTS / env / 'episodes.csv').open(newline='') as f:
+        for row in csv.DictReader(f):
+            runs[(row['algorithm'], int(row['seed']))][int(row['episode'])] = row
+    return runs
+
+
+def mean_return(run: dict, episodes: range) -> float:
+    return float(np.mean([float(run[e]['return']) for e in episodes]))
+
+
+def bootstrap(values, rng, resamples=10_000) -> tuple[float, float]:
+    values = np.asarray(values)
+    means = values[rng.integers(0, len(values), (resamples, len(values)))].mean(1)
+    low, high = np.percentile(means, [2.5, 97.5])
+    return float(low), float(high)
+
+
+def main() -> None:
+    rng = np.random.default_rng(0)
+    pendulum = load('pendulum')
+    seeds = sorted({seed for _, seed in pendulum})
+    for algorithm in ('qasac', 'eqsac'):
+        diffs = [
+            mean_return(pendulum[(algorithm, s)], range(100, 200)) - mean_return(pendulum[('sac', s)], range(100, 200))
+            for s in seeds
+        ]
+        low, high = bootstrap(diffs, rng)
+        print(
+            f'Pendulum {algorithm} - sac, episodes 100-199: {np.mean(diffs):+.1f} [{low:+.1f}, {high:+.1f}] '
+            f'(per seed {", ".join(f"{d:+.1f}" for d in diffs)})'
+        )
+        given = [sum(int(r['advice_given']) for r in pendulum[(algorithm, s)].values()) for s in seeds]
+        print(f'Pendulum {algorithm} advice given per seed: {given}')
+    identical = all(
+        len({pendulum[(a, s)][e]['return'] for a in ('sac', 'qasac', 'eqsac')}) == 1
+        for s in seeds
+        for e in range(30, 50)
+    )
+    print(f'Pendulum episodes 30-49 identical across algorithms for every seed: {identical}')
+
+    lunar = load('lunar_lander')
+    for s in sorted({seed for _, seed in lunar}):
+        lead = mean_return(lunar[('qasac', s)], range(50, 70)) - mean_return(lunar[('sac', s)], range(50, 70))
+        print(f'LunarLander seed {s}: qasac - sac, episodes 50-69: {lead:+.0f}')
+        for algorithm in ('sac', 'qasac', 'eqsac'):
+            run = lunar[(algorithm, s)]
+            wins = [e for e, r in run.items() if r['success'] == '1']
+            last = max(run) - 9
+            print(f'  {algorithm}: {len(wins)} successful episodes, {sum(e >= last for e in wins)} in the last 10')
+
+
+if __name__ == '__main__':
+    main()
