@@ -115,7 +115,10 @@ class GymEnvNode(Node):
         self._step(action)
 
     def _realtime_tick(self) -> None:
-        self._step(self._held_action)
+        # The clock starts when the first subscriber (the learner, a person's viewer) has
+        # connected: stepping for nobody would only cut the first episode short.
+        if self._subscribers_seen or self.steps_taken:
+            self._step(self._held_action)
 
     def _publish_image(self) -> None:
         if self.image_pub.get_subscription_count() == 0:
@@ -141,7 +144,8 @@ class GymEnvNode(Node):
         # spinning began read 0.
         joined = info.current_count > self._subscribers_seen
         self._subscribers_seen = info.current_count
-        if joined and not self.params['realtime'] and self._last_msg is not None:
+        first_in_real_time = self.params['realtime'] and self.steps_taken == 0
+        if joined and (not self.params['realtime'] or first_in_real_time) and self._last_msg is not None:
             self._publish()
 
     def _republish_if_idle(self) -> None:

@@ -90,7 +90,12 @@ GYM_ENV_PARAMS = (
     Param('env_id', 'Pendulum-v1', 'Gymnasium env id (any Box action space)'),
     Param('max_episode_steps', 100, 'Steps before truncation (paper: Pendulum 100, LunarLander 600)', (1, INT_MAX)),
     Param('seed', 42, 'Seed of the first reset', (0, INT_MAX)),
-    Param('realtime', False, 'Step at rate_hz holding the last action, instead of lock-step on each action'),
+    Param(
+        'realtime',
+        False,
+        'Step at rate_hz holding the last action, instead of lock-step on each action; the clock starts '
+        'when the first subscriber of observation connects',
+    ),
     Param('rate_hz', 20.0, 'Step rate in real-time mode', (0.1, 1000.0)),
     Param(
         'publish_images',

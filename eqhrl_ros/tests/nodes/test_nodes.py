@@ -283,7 +283,8 @@ def test_realtime_env_with_a_slow_expert_keeps_every_transition(harness, ros_con
     # Only a request still open when its episode ends times out (1 s timeout, 0.15 s answers).
     assert totals.failed['timeout'] <= 3
     assert learner.observation_gaps == 0
-    # A real-time env does not wait for a learner that starts late: episode 0 may miss its
-    # first steps; the later ones are complete, every step stored.
-    assert [s.length for s in learner.summaries][1:] == [40, 40]
-    assert len(learner.learner.replay) == learner.learner.total_steps >= 115
+    # A real-time env starts its clock when its first subscriber connects: every episode,
+    # the first included, is seen whole and every step is stored.
+    assert [s.length for s in learner.summaries] == [40, 40, 40]
+    assert not any(s.interrupted for s in learner.summaries)
+    assert len(learner.learner.replay) == learner.learner.total_steps == 120
