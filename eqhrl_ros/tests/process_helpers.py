@@ -37,6 +37,10 @@ def output(process) -> str:
 
 
 def stop(process, sig=signal.SIGINT, timeout=30) -> str:
+    """Signal, wait (kill after ``timeout``), return the log. Safe to call twice (a failing
+    assertion's message may stop a process that a finally clause stops again)."""
+    if getattr(process, 'final_output', None) is not None:
+        return process.final_output
     if process.poll() is None:
         process.send_signal(sig)
         try:
@@ -46,6 +50,7 @@ def stop(process, sig=signal.SIGINT, timeout=30) -> str:
             process.wait()
     text = output(process)
     process.log.close()
+    process.final_output = text
     return text
 
 
