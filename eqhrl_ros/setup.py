@@ -28,6 +28,7 @@ setup(
             'expert = eqhrl_ros.cli.nodes:expert',
             'teleop_expert = eqhrl_ros.cli.nodes:teleop_expert',
             'keyboard_teleop = eqhrl_ros.cli.nodes:keyboard_teleop',
+            'double_integrator_env = eqhrl_ros.cli.nodes:double_integrator_env',
             'eqhrl-train = eqhrl_ros.cli.train:main',
             'eqhrl-demo = eqhrl_ros.cli.demo:main',
             'eqhrl-experiment = eqhrl_ros.cli.experiment:main',

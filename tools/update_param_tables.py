@@ -7,6 +7,7 @@ tests/test_docs.py fails when a declared parameter is missing from the README.
 
 from pathlib import Path
 
+from eqhrl_ros.nodes.double_integrator_env_node import PARAMETERS as DOUBLE_INTEGRATOR_PARAMETERS
 from eqhrl_ros.nodes.params import (
     EXPERT_PARAMS,
     GYM_ENV_PARAMS,
@@ -14,6 +15,7 @@ from eqhrl_ros.nodes.params import (
     LEARNER_CONFIG_PARAMS,
     LEARNER_NODE_PARAMS,
     TELEOP_EXPERT_PARAMS,
+    Param,
 )
 
 README = Path(__file__).resolve().parents[1] / 'eqhrl_ros' / 'README.md'
@@ -34,7 +36,7 @@ def table(title, params) -> str:
         allowed = (
             ', '.join(p.choices) if p.choices else (f'{number(p.range[0])} … {number(p.range[1])}' if p.range else '')
         )
-        default = f'`{p.default}`' if p.default != '' else '`""`'
+        default = 'unset' if p.default is None else f'`{p.default}`' if p.default != '' else '`""`'
         lines.append(f'| `{p.name}` | {default} | {allowed} | {"yes" if p.dynamic else ""} | {p.description} |')
     return '\n'.join(lines)
 
@@ -50,6 +52,10 @@ def main():
             table('learner: node', LEARNER_NODE_PARAMS),
             table('teleop_expert', TELEOP_EXPERT_PARAMS),
             table('keyboard_teleop', KEYBOARD_PARAMS),
+            table(
+                'double_integrator_env (the example; its own PARAMETERS)',
+                [Param(n, d, text, r) for n, d, text, r in DOUBLE_INTEGRATOR_PARAMETERS],
+            ),
         ]
     )
     README.write_text(text[:start] + tables + '\n\n' + text[end:])

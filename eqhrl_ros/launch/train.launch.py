@@ -3,6 +3,8 @@
 ros2 launch eqhrl_ros train.launch.py env:=pendulum
 ros2 launch eqhrl_ros train.launch.py env:=lunar_lander mode:=qasac
 ros2 launch eqhrl_ros train.launch.py params_file:=/path/to/my.yaml
+ros2 launch eqhrl_ros train.launch.py env:=double_integrator env_node:=double_integrator_env
+ros2 launch eqhrl_ros train.launch.py params_file:=/path/to/my.yaml env_node:=none   (your own env node)
 """
 
 import os
@@ -13,6 +15,8 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+ENV_NODES = ('gym_env', 'double_integrator_env', 'none')
+
 
 def _nodes(context):
     env = LaunchConfiguration('env').perform(context)
@@ -20,9 +24,16 @@ def _nodes(context):
         get_package_share_directory('eqhrl_ros'), 'params', f'{env}.yaml'
     )
     mode = LaunchConfiguration('mode').perform(context)
+    env_node = LaunchConfiguration('env_node').perform(context)
+    if env_node not in ENV_NODES:
+        raise ValueError(f'env_node:={env_node} is not one of {", ".join(ENV_NODES)}')
     learner_params = [params_file] + ([{'mode': mode}] if mode else [])
-    return [
-        Node(package='eqhrl_ros', executable='gym_env', name='gym_env', parameters=[params_file], output='screen'),
+    env = (
+        [Node(package='eqhrl_ros', executable=env_node, name=env_node, parameters=[params_file], output='screen')]
+        if env_node != 'none'
+        else []  # your own env node, started apart: the others take the spaces from its env_info
+    )
+    return env + [
         Node(package='eqhrl_ros', executable='expert', name='expert', parameters=[params_file], output='screen'),
         Node(
             package='eqhrl_ros',
@@ -39,11 +50,19 @@ def generate_launch_description():
     return LaunchDescription(
         [
             DeclareLaunchArgument(
-                'env', default_value='pendulum', description='params file name: pendulum or lunar_lander'
+                'env',
+                default_value='pendulum',
+                description='params file name: pendulum, lunar_lander, demo or double_integrator',
             ),
             DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
             DeclareLaunchArgument(
                 'mode', default_value='', description='sac, qasac or eqsac (overrides the params file)'
+            ),
+            DeclareLaunchArgument(
+                'env_node',
+                default_value='gym_env',
+                description='env node to start: gym_env, double_integrator_env (the example env), '
+                'or none (your own, started apart)',
             ),
             OpaqueFunction(function=_nodes),
         ]

@@ -9,6 +9,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float32MultiArray
 
+from eqhrl_interfaces.msg import EpisodeStats, GateDecision
 from eqhrl_interfaces.srv import Advise
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
@@ -79,8 +80,8 @@ class Probe:
         self.node = harness.add(rclpy.create_node(name, context=harness.context))
         self.observations, self.stats, self.gates = [], [], []
         self.node.create_subscription(Float32MultiArray, 'observation', self.observations.append, 50)
-        self.node.create_subscription(Float32MultiArray, 'learner/episode_stats', self.stats.append, 100)
-        self.node.create_subscription(Float32MultiArray, 'learner/gate_debug', self.gates.append, 1000)
+        self.node.create_subscription(EpisodeStats, 'learner/episode_stats', self.stats.append, 100)
+        self.node.create_subscription(GateDecision, 'learner/gate_debug', self.gates.append, 1000)
         self.action_pub = self.node.create_publisher(Float32MultiArray, 'action', 10)
         self.actions = []
         self.node.create_subscription(Float32MultiArray, 'action', self.actions.append, 50)

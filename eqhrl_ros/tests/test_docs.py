@@ -33,6 +33,35 @@ def test_parameter_is_in_the_readme_table(param):
     assert f'| `{param.name}` |' in README
 
 
+def test_the_example_env_parameters_have_their_table():
+    from eqhrl_ros.nodes.double_integrator_env_node import PARAMETERS
+
+    table = README[README.index('#### double_integrator_env') :]
+    for name, default, _, _ in PARAMETERS:
+        assert f'| `{name}` | `{default}` |' in table, name
+
+
 def test_message_fields_are_documented():
-    for field in (*messages.OBS_TAIL, *messages.STATS_FIELDS, *messages.GATE_FIELDS, *messages.ADVICE_REQUEST_TAIL):
+    for field in (*messages.OBS_TAIL, messages.OBS_SUCCESS, *messages.ACTION_TAIL):
         assert f'`{field}`' in README, field
+
+
+INTERFACES = Path(__file__).resolve().parents[2] / 'eqhrl_interfaces'
+
+
+@pytest.mark.parametrize('path', sorted(INTERFACES.glob('*/*.msg')) + sorted(INTERFACES.glob('*/*.srv')), ids=str)
+def test_every_interface_field_has_a_comment_and_the_readme_links_the_type(path):
+    """A field's meaning lives beside it in the .msg/.srv file (one home); the README links there."""
+    lines = path.read_text().splitlines()
+    for index, line in enumerate(lines):
+        text = line.split('#')[0].strip()
+        if not text or text == '---' or '=' in text:
+            continue  # blank, comment, separator or constant
+        # Documented: a comment on its line, or just above it or above its group of fields
+        # (consecutive field lines with no blank line between).
+        above = index - 1
+        while above >= 0 and lines[above].strip() and not lines[above].strip().startswith('#'):
+            above -= 1
+        documented = '#' in line or (above >= 0 and lines[above].strip().startswith('#'))
+        assert documented, f'{path.name}: field without a comment: {line!r}'
+    assert f'{path.parent.name}/{path.name}' in README, f'the README does not link {path.name}'

@@ -13,6 +13,11 @@ finished runs are skipped, unfinished ones start over.
 
 --through-ros runs each seed through the three ROS nodes (eqhrl-train) instead of
 the in-process core: same algorithm, same CSV, numbers equal up to scheduling.
+--env-node COMMAND (with --through-ros) starts your own env node for each run instead of
+gym_env, in the run's private ROS domain:
+
+    eqhrl-experiment --params double_integrator --through-ros --output runs/di \
+        --env-node "double_integrator_env --ros-args -p seed:={seed}"
 """
 
 from __future__ import annotations
@@ -22,6 +27,9 @@ import csv
 import multiprocessing as mp
 import os
 import queue
+import shlex
+import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -46,30 +54,43 @@ class Settings:
     expert_backend: str = 'heuristic'
     policy_path: str = ''
     params_path: str = ''
+    env_node: str = ''  # a command that starts the user's env node (--env-node), or ''
 
 
 def load_settings(args) -> Settings:
     """The params file's sections, refused as the nodes would refuse them (a typo included)."""
-    from ..nodes.params import EXPERT_PARAMS, GYM_ENV_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
+    from ..nodes.params import (
+        EXPERT_PARAMS,
+        GYM_ENV_PARAMS,
+        LEARNER_CONFIG_PARAMS,
+        LEARNER_NODE_PARAMS,
+        check_section,
+        file_section,
+    )
 
     path = params_file(args.params)
-    data = yaml.safe_load(path.read_text())
-    learner = dict(data.get('learner', {}).get('ros__parameters', {}))
-    env = data.get('gym_env', {}).get('ros__parameters', {})
-    expert = data.get('expert', {}).get('ros__parameters', {})
+    data = yaml.safe_load(path.read_text()) or {}
+    learner = file_section(data, 'learner')
+    env = file_section(data, 'gym_env')
+    expert = file_section(data, 'expert')
     check_section('learner', learner, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS)
     check_section('gym_env', env, GYM_ENV_PARAMS)
     check_section('expert', expert, EXPERT_PARAMS)
     if args.budget is not None:
         learner['advising_budget'] = args.budget
+    if args.env_node:
+        if not args.through_ros:
+            raise ValueError('--env-node runs an env node, so it needs --through-ros')
+        env_node_command(args.env_node, 0, 1)  # refuses an empty command or a program not found
     settings = Settings(
-        env_id=args.env or learner.get('env_id') or env.get('env_id', 'Pendulum-v1'),
+        env_id=args.env or learner.get('env_id') or env.get('env_id') or ('' if args.env_node else 'Pendulum-v1'),
         learner=learner,
         max_episode_steps=args.max_steps or int(env.get('max_episode_steps', 100)),
         episodes=args.episodes or int(learner.get('max_episodes', 0)) or 200,
         expert_backend=args.expert or expert.get('backend', 'heuristic'),
         policy_path=args.policy_path or expert.get('policy_path', ''),
         params_path=str(path),
+        env_node=args.env_node or '',
     )
     return settings
 
@@ -95,7 +116,7 @@ def run_dir(output: Path, algorithm: str, seed: int) -> Path:
     return output / algorithm / f'seed{seed}'
 
 
-def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Path, progress) -> None:
+def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id=None) -> None:
     import torch
 
     from ..core import EpisodeSummary, EQSACLearner, make_env, success_criterion, train
@@ -125,7 +146,7 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
         env.close()
 
 
-def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress) -> None:
+def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id: int) -> None:
     command = [
         str(Path(sys.prefix) / 'bin' / 'eqhrl-train'),
         '--params',
@@ -146,19 +167,58 @@ def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Pa
         command += ['--budget', str(settings.learner['advising_budget'])]
     if settings.expert_backend == 'none':
         command += ['--expert-node', 'none']
+    if settings.env_node:
+        command += ['--env-node', 'none', '--discovery', 'localhost']
     env = dict(os.environ, OMP_NUM_THREADS='1')
     # A private domain per run, so that parallel runs never exchange messages.
-    env['ROS_DOMAIN_ID'] = str(1 + (os.getpid() + seed * 7 + ALGORITHMS.index(algorithm)) % 100)
+    env['ROS_DOMAIN_ID'] = str(domain_id)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env_node = None
     with (directory / 'train.log').open('w') as log:
-        process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
-        seen = 0
-        while process.poll() is None:
-            time.sleep(1.0)
-            seen = _report_new_rows(directory / 'episodes.csv', seen, algorithm, seed, progress)
-        _report_new_rows(directory / 'episodes.csv', seen, algorithm, seed, progress)
+        if settings.env_node:
+            with (directory / 'env_node.log').open('w') as env_log:
+                env_node = subprocess.Popen(
+                    env_node_command(settings.env_node, seed, settings.max_episode_steps),
+                    stdout=env_log,
+                    stderr=subprocess.STDOUT,
+                    env=env,
+                )
+        try:
+            process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
+            seen = 0
+            while process.poll() is None:
+                time.sleep(1.0)
+                seen = _report_new_rows(directory / 'episodes.csv', seen, algorithm, seed, progress)
+                if env_node is not None and env_node.poll() is not None:
+                    process.send_signal(signal.SIGINT)  # the env is gone: stop and save
+                    process.wait()
+                    raise RuntimeError(
+                        f'the env node exited ({env_node.returncode}) for {algorithm} seed {seed}; '
+                        f'see {directory / "env_node.log"}'
+                    )
+            _report_new_rows(directory / 'episodes.csv', seen, algorithm, seed, progress)
+        finally:
+            if env_node is not None and env_node.poll() is None:
+                env_node.send_signal(signal.SIGINT)
+                try:
+                    env_node.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    env_node.kill()
+                    env_node.wait()
     if process.returncode != 0:
         raise RuntimeError(f'eqhrl-train failed for {algorithm} seed {seed}; see {directory / "train.log"}')
+
+
+def env_node_command(template: str, seed: int, max_steps: int) -> list:
+    """The user's env node command with {seed} and {max_steps} filled in. A program that is not
+    on PATH but in this environment's bin (the package's own nodes, in a venv) is found there."""
+    words = shlex.split(template.format(seed=seed, max_steps=max_steps))
+    if not words:
+        raise ValueError('--env-node is empty')
+    found = shutil.which(words[0]) or shutil.which(words[0], path=str(Path(sys.prefix) / 'bin'))
+    if found is None:
+        raise ValueError(f'--env-node: {words[0]!r} is neither on PATH nor in {Path(sys.prefix) / "bin"}')
+    return [found, *words[1:]]
 
 
 def _report_new_rows(path: Path, seen: int, algorithm: str, seed: int, progress) -> int:
@@ -171,11 +231,17 @@ def _report_new_rows(path: Path, seen: int, algorithm: str, seed: int, progress)
     return len(rows)
 
 
-def _worker(settings, algorithm, seed, directory, through_ros, progress) -> tuple:
+def domain_ids(count: int) -> list:
+    """A ROS domain per run, distinct among the runs of one experiment (at most 100 at a
+    time), offset by this process's id so that two experiments on one machine rarely meet."""
+    return [1 + (os.getpid() + index) % 100 for index in range(count)]
+
+
+def _worker(settings, algorithm, seed, directory, through_ros, progress, domain_id) -> tuple:
     directory.mkdir(parents=True, exist_ok=True)
     (directory / 'DONE').unlink(missing_ok=True)
     start = time.monotonic()
-    (run_through_ros if through_ros else run_in_process)(settings, algorithm, seed, directory, progress)
+    (run_through_ros if through_ros else run_in_process)(settings, algorithm, seed, directory, progress, domain_id)
     elapsed = time.monotonic() - start
     (directory / 'DONE').write_text(f'{elapsed:.1f}\n')
     return algorithm, seed, elapsed
@@ -228,6 +294,13 @@ def parse_args(argv=None):
     parser.add_argument('--output', required=True, help='output folder')
     parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1, help='parallel runs')
     parser.add_argument('--through-ros', action='store_true', help='run through the ROS nodes')
+    parser.add_argument(
+        '--env-node',
+        metavar='COMMAND',
+        help='with --through-ros: start this command as the env node of each run instead of gym_env, '
+        'e.g. "ros2 run my_pkg my_env --ros-args -p seed:={seed}" ({seed} and {max_steps} are filled in); '
+        'the learner and expert take the spaces from its env_info',
+    )
     return parser.parse_args(argv)
 
 
@@ -259,7 +332,7 @@ def main(argv=None) -> int:
     todo = [(a, s) for a in args.algorithms for s in args.seeds if not (run_dir(output, a, s) / 'DONE').exists()]
     skipped = len(args.algorithms) * len(args.seeds) - len(todo)
     print(
-        f'{settings.env_id}: {len(todo)} runs to do ({skipped} finished already), '
+        f'{settings.env_id or settings.env_node}: {len(todo)} runs to do ({skipped} finished already), '
         f'{settings.episodes} episodes x {settings.max_episode_steps} steps, {args.jobs} in parallel, '
         f'{"through ROS" if args.through_ros else "in-process"}',
         flush=True,
@@ -273,8 +346,8 @@ def main(argv=None) -> int:
     try:
         with context.Pool(max(1, min(args.jobs, len(todo) or 1))) as pool:
             results = [
-                pool.apply_async(_worker, (settings, a, s, run_dir(output, a, s), args.through_ros, progress))
-                for a, s in todo
+                pool.apply_async(_worker, (settings, a, s, run_dir(output, a, s), args.through_ros, progress, domain))
+                for (a, s), domain in zip(todo, domain_ids(len(todo)))
             ]
             while finished < len(results):
                 try:

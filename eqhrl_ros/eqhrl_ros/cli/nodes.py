@@ -46,6 +46,12 @@ NODES = {
         ('KEYBOARD_PARAMS',),
         'A terminal teleop for teleop_expert (source: array); needs a terminal.',
     ),
+    # An example written as a user would write an env node: its parameters are its own PARAMETERS.
+    'double_integrator_env': NodeProgram(
+        'double_integrator_env_node',
+        (),
+        "An example env node that is not gymnasium: a point mass to bring to rest (x'' = u).",
+    ),
 }
 
 
@@ -54,6 +60,9 @@ def help_text(name: str) -> str:
 
     program = NODES[name]
     tables = [getattr(params, table) for table in program.params]
+    if not tables:  # the node's own PARAMETERS: (name, default, description, range)
+        module = importlib.import_module(f'eqhrl_ros.nodes.{program.module}')
+        tables = [tuple(params.Param(n, d, text, r) for n, d, text, r in module.PARAMETERS)]
     return (
         f'usage: {name} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r FROM:=TO ...]]\n\n'
         f'{program.summary}\n\n'
@@ -98,3 +107,7 @@ def teleop_expert() -> int:
 
 def keyboard_teleop() -> int:
     return run('keyboard_teleop')
+
+
+def double_integrator_env() -> int:
+    return run('double_integrator_env')

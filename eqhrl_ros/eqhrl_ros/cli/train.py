@@ -2,6 +2,8 @@
 
     eqhrl-train --params pendulum --output runs/pendulum_eqsac [--mode qasac] [--episodes 50]
     eqhrl-train --params teleop_pendulum --expert-node teleop     (a person advises)
+    eqhrl-train --params double_integrator --env-node double_integrator_env --output runs/di
+    eqhrl-train --params my.yaml --env-node none    (your own env node, started apart)
 
 The three nodes are the same classes `ros2 run` starts; here one executor spins
 them together. Ctrl-C saves a checkpoint; --resume continues from it. An output
@@ -9,8 +11,8 @@ folder that holds a run is refused unless --resume or --overwrite is given.
 
 Discovery: with the built-in expert the run is private to this process (ROS
 discovery off), so two runs on one machine never exchange messages. A person's
-expert (--expert-node teleop) or your own (none) must reach the nodes from outside,
-so those runs use this machine's discovery (localhost). --discovery chooses.
+expert (--expert-node teleop), your own expert or env node (none) must reach the nodes
+from outside, so those runs use this machine's discovery (localhost). --discovery chooses.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from ..core.config import MODES
 from ..nodes.spinning import EXECUTORS
 
 DISCOVERY = ('off', 'localhost', 'subnet')
+ENV_NODES = ('gym_env', 'double_integrator_env', 'none')
 
 
 class StartUpRefused(Exception):
@@ -53,6 +56,14 @@ def parse_args(argv=None) -> argparse.Namespace:
         '(a person advises, e.g. with keyboard_teleop), or none',
     )
     parser.add_argument(
+        '--env-node',
+        choices=ENV_NODES,
+        default='gym_env',
+        help='which env node to start: gym_env (a gymnasium env), double_integrator_env (the example '
+        'env that is not gymnasium), or none (your own env node, started apart; the learner takes '
+        'the spaces from its env_info or from the spaces parameters)',
+    )
+    parser.add_argument(
         '--executor',
         choices=EXECUTORS,
         default=None,
@@ -68,7 +79,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     args = parser.parse_args(argv)
     if args.discovery is None:
-        args.discovery = 'off' if args.expert_node == 'expert' else 'localhost'
+        args.discovery = 'off' if args.expert_node == 'expert' and args.env_node != 'none' else 'localhost'
     return args
 
 
@@ -122,7 +133,12 @@ def run(args):
             env_overrides = [Parameter('seed', value=args.seed)] if args.seed is not None else []
             if args.max_steps is not None:
                 env_overrides.append(Parameter('max_episode_steps', value=args.max_steps))
-            nodes.append(GymEnvNode(parameter_overrides=env_overrides))
+            if args.env_node == 'gym_env':
+                nodes.append(GymEnvNode(parameter_overrides=env_overrides))
+            elif args.env_node == 'double_integrator_env':
+                from ..nodes.double_integrator_env_node import DoubleIntegratorEnv
+
+                nodes.append(DoubleIntegratorEnv(parameter_overrides=env_overrides))
             if args.expert_node == 'expert':
                 nodes.append(ExpertNode())
             elif args.expert_node == 'teleop':
@@ -140,6 +156,9 @@ def run(args):
         )
         start = time.monotonic()
         spinning.spin(executor, stop)  # returns at max_episodes (the learner shuts the context down) or on a signal
+        refused = [node.exit_error for node in nodes if getattr(node, 'exit_error', None)]
+        if refused:
+            raise StartUpRefused(refused[0])  # e.g. the env's env_info disagrees with a node
         if not learner.done:
             print('\ninterrupted: saving a checkpoint', file=sys.stderr)
         learner.wall_time_s = time.monotonic() - start
@@ -167,7 +186,8 @@ def main(argv=None) -> int:
     except StartUpRefused as error:
         print(f'eqhrl-train: refused to start: {error}', file=sys.stderr)
         return 1
-    print(f'done: {learner.learner.episode} episodes in {learner.wall_time_s:.0f} s, results in {learner.output_dir}')
+    episodes = learner.learner.episode if learner.learner is not None else 0
+    print(f'done: {episodes} episodes in {learner.wall_time_s:.0f} s, results in {learner.output_dir}')
     return 0
 
 

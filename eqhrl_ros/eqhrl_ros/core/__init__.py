@@ -7,7 +7,8 @@
 - learner.py     EQSACLearner: SAC, QASAC and EQSAC (Algorithm 1)
 - experts.py     the expert interface and built-in controllers
 - checkpoint.py  safe checkpoints and exported policies
-- envs.py        env construction, action scaling, success per env
+- env_spec.py    EnvSpec: an env's spaces, pace and success rule, whoever announces it
+- envs.py        gymnasium envs: construction, their EnvSpec, action scaling
 - training.py    the in-process training loop
 - summary.py     one episode's statistics (the record's fields)
 - records.py     a run's folder: episodes.csv and where saves go
@@ -29,6 +30,8 @@ _HOME = {
     'ActionScaler': 'envs',
     'make_env': 'envs',
     'success_criterion': 'envs',
+    'EnvSpec': 'env_spec',
+    'gym_spec': 'envs',
     'Advice': 'experts',
     'AdviceRequest': 'experts',
     'heuristic_expert': 'experts',

@@ -201,6 +201,15 @@ def save_checkpoint(learner, path, replay_path=None) -> None:
         _replace(tmp, target)
 
 
+def check_checkpoint_file(path) -> None:
+    """Refuse at once, without unpickling, a checkpoint that is missing or not one (before a
+    learner exists to load it into: a node still waiting for the env's spaces)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f'{path}: no such file')
+    _check_zip(path, CHECKPOINT_FORMAT, None)
+
+
 def load_checkpoint(learner, path, replay_path=None) -> None:
     """Restore a learner. Raises CheckpointError and leaves the learner unchanged on any problem."""
     state = _safe_load(path, CHECKPOINT_FORMAT, checkpoint_size_limit(learner))
@@ -263,6 +272,7 @@ class PolicyExpert:
             raise CheckpointError(f'{path}: the policy holds non-finite weights (NaN or inf)')
         self.actor.eval()
         self.name = name
+        self.observation_size, self.action_size = self.obs_dim, self.scaler.dim
 
     @torch.no_grad()
     def action(self, obs) -> np.ndarray:

@@ -1,11 +1,12 @@
-"""Environment helpers: construction, action scaling and the per-env definition of success."""
+"""gymnasium envs: construction, their EnvSpec, action scaling and their built-in success rules."""
 
 from __future__ import annotations
 
-import math
-
 import gymnasium as gym
 import numpy as np
+
+from . import env_spec
+from .env_spec import EnvSpec, SuccessCriterion, builtin_success
 
 # Table 2 and Table 3 of the paper.
 PAPER_MAX_EPISODE_STEPS = {'Pendulum-v1': 100, 'LunarLanderContinuous-v3': 600}
@@ -26,17 +27,29 @@ def make_env(env_id: str, max_episode_steps: int | None = None, render_mode: str
     return env
 
 
-def env_spaces(env_id: str) -> tuple[int, np.ndarray, np.ndarray]:
-    """Observation size and action bounds of an env id, from its spec (no episode is run)."""
-    env = gym.make(env_id)
+def gym_spec(env_id: str, max_episode_steps: int | None = None, env: gym.Env | None = None, **pace) -> EnvSpec:
+    """The EnvSpec of a gymnasium id (no episode is run): sizes, bounds, episode length and
+    the built-in success rule. ``env``: an env already made for the id; ``pace``: realtime, rate_hz."""
+    made = env is None
+    if made:
+        env = make_env(env_id, max_episode_steps)
     try:
-        return (
+        rule, threshold = builtin_success(env_id)
+        limit = env.spec.max_episode_steps if env.spec is not None else None
+        return EnvSpec(
+            env_id,
             int(np.prod(env.observation_space.shape)),
-            env.action_space.low.astype(np.float32),
-            env.action_space.high.astype(np.float32),
+            env.action_space.low,
+            env.action_space.high,
+            max_episode_steps=int(max_episode_steps or limit or 0),
+            success_rule=rule,
+            success_threshold=threshold,
+            source=f'env_id {env_id}',
+            **pace,
         )
     finally:
-        env.close()
+        if made:
+            env.close()
 
 
 class ActionScaler:
@@ -65,51 +78,6 @@ class ActionScaler:
         return ((np.asarray(action, dtype=np.float32) - self.center) / self.scale).astype(np.float32)
 
 
-class SuccessCriterion:
-    """Per-episode success, fed every step. Subclasses define it per env."""
-
-    def reset(self) -> None:
-        pass
-
-    def update(self, obs: np.ndarray, reward: float) -> None:
-        pass
-
-    def success(self, episode_return: float) -> bool:
-        return False
-
-
-class ReturnAtLeast(SuccessCriterion):
-    """Success when the episode's return reaches a threshold (LunarLander: 200, the env's solved line)."""
-
-    def __init__(self, threshold: float):
-        self.threshold = threshold
-
-    def success(self, episode_return: float) -> bool:
-        return episode_return >= self.threshold
-
-
-class PendulumUpright(SuccessCriterion):
-    """Success when the pendulum ends the episode balanced: its last ``hold_steps``
-    observations all have cos(theta) >= cos(max_angle) (theta = 0 is upright)."""
-
-    def __init__(self, max_angle_deg: float = 18.0, hold_steps: int = 10):
-        self.min_cos = math.cos(math.radians(max_angle_deg))
-        self.hold_steps = hold_steps
-        self.reset()
-
-    def reset(self) -> None:
-        self._upright_run = 0
-
-    def update(self, obs: np.ndarray, reward: float) -> None:
-        self._upright_run = self._upright_run + 1 if obs[0] >= self.min_cos else 0
-
-    def success(self, episode_return: float) -> bool:
-        return self._upright_run >= self.hold_steps
-
-
 def success_criterion(env_id: str) -> SuccessCriterion:
-    if env_id.startswith('Pendulum'):
-        return PendulumUpright()
-    if env_id.startswith('LunarLander'):
-        return ReturnAtLeast(200.0)
-    return SuccessCriterion()
+    """The built-in success rule of a gymnasium env (env_spec.builtin_success)."""
+    return env_spec.success_criterion(*builtin_success(env_id))

@@ -77,6 +77,8 @@ class PendulumSwingUpExpert:
     value m*g*l/2; near the top a PD law holds the pendulum up.
     """
 
+    observation_size = 3  # the spaces it is written for (checked against the env's)
+    action_size = 1
     g: float = 10.0
     m: float = 1.0
     l: float = 1.0
@@ -109,6 +111,7 @@ class LunarLanderExpert:
     """LunarLanderContinuous-v3: gymnasium's stock heuristic controller."""
 
     name = 'lunar_lander_heuristic'
+    observation_size, action_size = 8, 2
 
     def __init__(self):
         from gymnasium.envs.box2d.lunar_lander import heuristic
@@ -124,16 +127,54 @@ class LunarLanderExpert:
         return Advice(self.action(request.observation), expert_name=self.name)
 
 
-def heuristic_expert(env_id: str):
+@dataclass
+class DoubleIntegratorExpert:
+    """The example env double_integrator (x'' = u, u in [-1, 1]): a PD law u = -kp x - kd v,
+    critically damped for kp = 1, kd = 2 (both closed-loop poles at -1)."""
+
+    observation_size = 2
+    action_size = 1
+    kp: float = 1.0
+    kd: float = 2.0
+    name: str = 'double_integrator_pd'
+
+    def action(self, obs: np.ndarray) -> np.ndarray:
+        x, v = float(obs[0]), float(obs[1])
+        return np.array([np.clip(-self.kp * x - self.kd * v, -1.0, 1.0)], dtype=np.float32)
+
+    def __call__(self, request: AdviceRequest) -> Advice:
+        return Advice(self.action(request.observation), expert_name=self.name)
+
+
+# Env names (a gymnasium id's prefix, or an env node's EnvInfo.name) and their controllers.
+HEURISTICS = {
+    'Pendulum': PendulumSwingUpExpert,
+    'LunarLander': LunarLanderExpert,
+    'double_integrator': DoubleIntegratorExpert,
+}
+
+
+def heuristic_expert(env_name: str):
     """The built-in controller for an env, or a ValueError naming the ones that exist."""
-    if env_id.startswith('Pendulum'):
-        return PendulumSwingUpExpert()
-    if env_id.startswith('LunarLander'):
-        return LunarLanderExpert()
+    for prefix, controller in HEURISTICS.items():
+        if env_name.startswith(prefix):
+            return controller()
     raise ValueError(
-        f'no heuristic expert for {env_id!r}; built in: Pendulum-v1, '
-        'LunarLanderContinuous-v3 (use the policy backend for other envs)'
+        f'no heuristic expert for {env_name!r}; built in: Pendulum-v1, LunarLanderContinuous-v3, '
+        'double_integrator (use the policy backend for other envs)'
     )
+
+
+def expert_disagreements(expert, observation_size: int, action_size: int) -> list[str]:
+    """Where an expert written for given spaces (its observation_size and action_size, if it
+    says) cannot answer for an env with these sizes."""
+    found = []
+    own_obs, own_action = getattr(expert, 'observation_size', None), getattr(expert, 'action_size', None)
+    if own_obs is not None and own_obs != observation_size:
+        found.append(f'it reads {own_obs} observation values, the env has {observation_size}')
+    if own_action is not None and own_action != action_size:
+        found.append(f'it gives {own_action} action values, the env takes {action_size}')
+    return found
 
 
 EXPERT_BACKENDS = ('heuristic', 'policy')

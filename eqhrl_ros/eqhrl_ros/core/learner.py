@@ -28,7 +28,8 @@ import torch
 from . import equations as eq
 from .advising import AdvisingGates, GateDecision
 from .config import LearnerConfig, check_value
-from .envs import ActionScaler, SuccessCriterion
+from .env_spec import SuccessCriterion
+from .envs import ActionScaler
 from .experts import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
 from .networks import SquashedGaussianActor, TwinCritic
 from .replay import Batch, ReplayBuffer
@@ -310,12 +311,22 @@ class EQSACLearner:
     # ------------------------------------------------------------------ storing and learning
 
     def step(
-        self, obs, action, reward: float, next_obs, terminated: bool, truncated: bool, advised: bool = False
+        self,
+        obs,
+        action,
+        reward: float,
+        next_obs,
+        terminated: bool,
+        truncated: bool,
+        advised: bool = False,
+        success: Optional[bool] = None,
     ) -> Optional[EpisodeSummary]:
         """Store (s_t, a_t, r_t, s_{t+1}) in D, and in D_advising when advised; update.
 
         Returns the episode's summary when this transition ended it. A non-finite or
-        wrongly sized transition raises ValueError and changes nothing.
+        wrongly sized transition raises ValueError and changes nothing. ``success``: the
+        env's own verdict, where it reports one; the last one given in an episode decides
+        its success over the learner's criterion.
         """
         normalized = np.clip(self.scaler.to_normalized(action), -1.0, 1.0)
         self.replay.add(obs, normalized, reward, next_obs, terminated)
@@ -326,6 +337,8 @@ class EQSACLearner:
         self.episode_step += 1
         self.total_steps += 1
         self.success.update(np.asarray(next_obs, dtype=np.float32), float(reward))
+        if success is not None:
+            self._reported_success = bool(success)
 
         if len(self.replay) >= self.config.learning_starts:
             for _ in range(self.config.updates_per_step):
@@ -444,6 +457,7 @@ class EQSACLearner:
         self.episode_interrupted = False
         self._episode_return = 0.0
         self._episode_advice = AdviceCounts()
+        self._reported_success: Optional[bool] = None
         self.success.reset()
 
     def end_episode(self) -> EpisodeSummary:
@@ -458,7 +472,10 @@ class EQSACLearner:
             advice_human=counts.human,
             advice_declined=counts.declined,
             advice_failed=counts.failed_total,
-            success=bool(self.success.success(self._episode_return)) and not self.episode_interrupted,
+            success=bool(
+                self.success.success(self._episode_return) if self._reported_success is None else self._reported_success
+            )
+            and not self.episode_interrupted,
             total_steps=self.total_steps,
             alpha=self.alpha,
             interrupted=self.episode_interrupted,

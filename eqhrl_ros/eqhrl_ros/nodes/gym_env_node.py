@@ -1,8 +1,9 @@
 """gym_env: a gymnasium env behind Float32MultiArray topics.
 
-Publishes ``observation`` (obs, reward, flags, episode, step in one message) and
-steps when an action arrives on ``action``: lock-step by default, or at a fixed
-rate holding the last action (``realtime``), for people watching.
+Announces itself on the latched ``env_info`` (eqhrl_interfaces/msg/EnvInfo), publishes
+``observation`` (obs, reward, flags, episode, step in one message) and steps when an
+action arrives on ``action``: lock-step by default, or at a fixed rate holding the last
+action (``realtime``), for people watching.
 """
 
 from __future__ import annotations
@@ -16,8 +17,11 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_msgs.msg import Float32MultiArray
 
-from ..core.envs import make_env
-from . import messages
+from eqhrl_interfaces.msg import EnvInfo
+
+from ..core.env_spec import spec_from_parameters
+from ..core.envs import gym_spec, make_env
+from . import env_info, messages
 from .params import GYM_ENV_PARAMS, choices_validator, declare, reject_unknown_overrides
 from .spinning import run_node, seconds_since_process_start, steady_clock
 
@@ -34,8 +38,18 @@ class GymEnvNode(Node):
         self.env = make_env(
             p['env_id'], p['max_episode_steps'], render_mode='rgb_array' if p['publish_images'] else None
         )
-        self.action_dim = int(np.prod(self.env.action_space.shape))
-        self.obs_dim = int(np.prod(self.env.observation_space.shape))
+        self.spec = gym_spec(
+            p['env_id'],
+            p['max_episode_steps'],
+            env=self.env,
+            realtime=p['realtime'],
+            rate_hz=p['rate_hz'] if p['realtime'] else 0.0,
+        )
+        given = spec_from_parameters(p['observation_size'], p['action_low'], p['action_high'])
+        if given is not None and self.spec.disagreements(given):
+            raise ValueError(f'{p["env_id"]} has {"; ".join(given.disagreements(self.spec))} (parameters)')
+        self.action_dim = self.spec.action_size
+        self.obs_dim = self.spec.observation_size
         self.episode = 0
         self.step_index = 0
         self.steps_taken = 0
@@ -57,6 +71,9 @@ class GymEnvNode(Node):
         # Actions arrive serialized (raw): see messages.SerializedReader.
         self._action_reader = messages.SerializedReader(messages.action_layouts(self.action_dim), 'action')
         self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS, raw=True)
+        # Latched: nodes that start later still learn the spaces from it.
+        self.env_info_pub = self.create_publisher(EnvInfo, env_info.TOPIC, env_info.ENV_INFO_QOS)
+        self.env_info_pub.publish(env_info.env_info_msg(self.spec))
         self._reset(seed=p['seed'])
         # The steady clock: the env's pace and its re-sends must not stop with ROS time
         # (use_sim_time with no /clock). Frames are stamped with the node's clock.

@@ -20,11 +20,16 @@ import numpy as np
 from rclpy.node import Node
 from std_msgs.msg import Float32MultiArray
 
+from eqhrl_interfaces.msg import AdviceRequest
+
+from ..core.env_spec import EnvSpec
 from . import messages
+from .env_info import EnvInfoWatcher, configured_spec
 from .params import KEYBOARD_PARAMS, declare, reject_unknown_overrides
 from .spinning import run_node
 
 KEYS = {'a': (0, -1), 'd': (0, +1), 'w': (1, +1), 's': (1, -1)}
+AXIS_KEYS = ('a/d', 'w/s')  # one pair of keys per action dimension
 CLEAR, HOME, REVERSE, RESET = '\x1b[2J', '\x1b[H', '\x1b[7m', '\x1b[0m'
 HIDE_CURSOR, SHOW_CURSOR = '\x1b[?25l', '\x1b[?25h'
 OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
@@ -36,25 +41,35 @@ class KeyboardTeleop(Node):
         reject_unknown_overrides(self, KEYBOARD_PARAMS)
         self.params = declare(self, KEYBOARD_PARAMS)
         self.fd, self.out = fd, out
+        # The action size: the dimensions parameter, else from env_id or the env's env_info.
         self.command = np.zeros(self.params['dimensions'], dtype=np.float32)
         self.sending = True
         self.quit = False
         self.request = None  # the latest advice_request fields
         self.request_seen = 0.0
         self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
-        self.create_subscription(Float32MultiArray, 'learner/advice_request', self._on_request, messages.LATCHED_QOS)
+        self.create_subscription(AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS)
+        self.env_info = EnvInfoWatcher(self, configured_spec(self.params), self._on_env)
         self.create_timer(1.0 / self.params['rate_hz'], self._publish)
         self.create_timer(0.02, self._read_keys)
         self.create_timer(0.2, self.draw)
         self.draw()
 
-    def _on_request(self, msg: Float32MultiArray) -> None:
-        self.request = messages.parse_fields(msg)
+    def _on_env(self, spec: EnvSpec) -> None:
+        dimensions = self.params['dimensions']
+        if dimensions > spec.action_size:
+            raise ValueError(f'dimensions is {dimensions}, env {spec.name!r} takes {spec.action_size} action value(s)')
+        if dimensions == 0:
+            self.command = np.zeros(min(spec.action_size, len(AXIS_KEYS)), dtype=np.float32)
+            self.draw()
+
+    def _on_request(self, msg: AdviceRequest) -> None:
+        self.request = msg
         self.request_seen = time.monotonic()
         self.draw()
 
     def _publish(self) -> None:
-        if self.sending:
+        if self.sending and len(self.command):
             self.publisher.publish(messages.build([('command', self.command)]))
 
     def _read_keys(self) -> None:
@@ -99,14 +114,16 @@ class KeyboardTeleop(Node):
             '',
         ]
         request = self.request
-        if request and int(request['outcome']) == messages.ADVICE_OUTCOMES['pending']:
+        if not n:
+            lines.append('  waiting for env_info from the env (or set the dimensions parameter)')
+        elif request and request.outcome == AdviceRequest.PENDING:
             waited = time.monotonic() - self.request_seen
             lines.append(
-                f'{REVERSE}  >>> THE LEARNER ASKS FOR ADVICE: episode {int(request["episode"])}, '
-                f'step {int(request["step"])}, {waited:.1f} s of {request["timeout_s"]:.1f} s <<<  {RESET}'
+                f'{REVERSE}  >>> THE LEARNER ASKS FOR ADVICE: episode {request.episode}, '
+                f'step {request.step}, {waited:.1f} s of {request.timeout_s:.1f} s <<<  {RESET}'
             )
         elif request:
-            lines.append(f'  learner: no request pending (last one: {OUTCOME_NAMES.get(int(request["outcome"]), "?")})')
+            lines.append(f'  learner: no request pending (last one: {OUTCOME_NAMES.get(request.outcome, "?")})')
         else:
             lines.append('  learner: no request yet')
         self.out.write(HOME + CLEAR + '\r\n'.join(lines) + '\r\n')

@@ -22,14 +22,22 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32MultiArray
 
+from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 from eqhrl_interfaces.srv import Advise
 
-from ..core.checkpoint import CheckpointWriteError, export_policy, load_checkpoint, save_checkpoint
-from ..core.envs import env_spaces, success_criterion
+from ..core.checkpoint import (
+    CheckpointWriteError,
+    check_checkpoint_file,
+    export_policy,
+    load_checkpoint,
+    save_checkpoint,
+)
+from ..core.env_spec import EnvSpec
 from ..core.experts import Advice
 from ..core.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
 from ..core.records import EpisodeRecord, RunFolder
 from . import advise_msgs, messages
+from .env_info import EnvInfoWatcher, configured_spec
 from .params import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, choices_validator, declare, reject_unknown_overrides
 from .spinning import ExitError, run_node, steady_clock
 
@@ -74,8 +82,6 @@ class LearnerNode(Node):
             torch.set_num_threads(p['torch_threads'])
 
         self.config = LearnerConfig.from_params(values)
-        obs_dim, low, high = env_spaces(p['env_id'])
-        self.learner = EQSACLearner(obs_dim, low, high, self.config, success_criterion(p['env_id']))
         # Refuses, with one line, a folder that is a file, cannot be written, or holds a run
         # that neither resume nor overwrite was asked for.
         self.run_folder = RunFolder(p['output_dir'], resume=p['resume'], overwrite=p['overwrite'])
@@ -86,23 +92,22 @@ class LearnerNode(Node):
         for tmp in self.run_folder.removed_temporaries:
             self.get_logger().info(f'removed {tmp}, left by a save that was interrupted')
         if p['resume']:
-            # A bad checkpoint stops start-up with CheckpointError: silently starting
-            # from scratch would overwrite the run the person asked to continue.
-            load_checkpoint(self.learner, self.checkpoint_path, self.replay_path)
-            self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {self.learner.episode}')
-        self.record = EpisodeRecord(
-            self.csv_path, EpisodeSummary.CSV_FIELDS, keep_before=self.learner.episode if p['resume'] else None
-        )
+            # A missing or corrupt checkpoint is refused now, not after waiting for the env.
+            check_checkpoint_file(self.checkpoint_path)
+        # Made once the env's spaces are known (_configure): at once from env_id or the spaces
+        # parameters, else from the env's env_info.
+        self.learner: Optional[EQSACLearner] = None
+        self.record: Optional[EpisodeRecord] = None
+        self.spec = None
         self.failed_saves = 0
 
         self.action_pub = self.create_publisher(Float32MultiArray, 'action', QOS)
-        self._action_out = messages.action_out(self.learner.action_dim)  # rewritten per step
-        self.stats_pub = self.create_publisher(Float32MultiArray, '~/episode_stats', STATS_QOS)
-        self.gate_pub = self.create_publisher(Float32MultiArray, '~/gate_debug', QOS)
-        self.request_pub = self.create_publisher(Float32MultiArray, '~/advice_request', messages.LATCHED_QOS)
+        self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', STATS_QOS)
+        self.gate_pub = self.create_publisher(GateDecision, '~/gate_debug', QOS)
+        self.request_pub = self.create_publisher(AdviceRequest, '~/advice_request', messages.LATCHED_QOS)
         # Observations arrive serialized (raw): see messages.SerializedReader.
-        self._observation_reader = messages.SerializedReader(messages.observation_layouts(obs_dim), 'observation')
         self.create_subscription(Float32MultiArray, 'observation', self._on_observation, QOS, raw=True)
+        self.early_observations = 0  # observations before the spaces were known (ignored)
         self.advice_client = self.create_client(Advise, 'advise')
 
         self._lock = threading.RLock()  # callbacks may run on several threads
@@ -128,8 +133,33 @@ class LearnerNode(Node):
         self.create_timer(0.25, self._check_stall, clock=self._steady)
         self.done = False
         self.summaries: list[EpisodeSummary] = []
+        self.env_info = EnvInfoWatcher(self, configured_spec(p), self._configure)
+
+    def _configure(self, spec: EnvSpec) -> None:
+        """Build the learner for the env's spaces; with resume, load the checkpoint. From
+        __init__ its errors refuse the start; from env_info they stop the node (exit 1)."""
+        learner = EQSACLearner(
+            spec.observation_size, spec.action_low, spec.action_high, self.config, spec.success_criterion()
+        )
+        if self.params['resume']:
+            # A bad checkpoint stops start-up with CheckpointError: silently starting
+            # from scratch would overwrite the run the person asked to continue.
+            load_checkpoint(learner, self.checkpoint_path, self.replay_path)
+            self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')
+        with self._lock:
+            self.record = EpisodeRecord(
+                self.csv_path,
+                EpisodeSummary.CSV_FIELDS,
+                keep_before=learner.episode if self.params['resume'] else None,
+            )
+            self._action_out = messages.action_out(learner.action_dim)  # rewritten per step
+            self._observation_reader = messages.SerializedReader(
+                messages.observation_layouts(spec.observation_size), 'observation'
+            )
+            self.spec, self.learner = spec, learner
         self.get_logger().info(
-            f'{self.config.mode} on {p["env_id"]}: obs {obs_dim}, action {len(low)}, '
+            f'{self.config.mode} on {spec.name or "(unnamed env)"} ({spec.source}): obs {spec.observation_size}, '
+            f'action {spec.action_size}, success {spec.success_rule}, '
             f'budget {self.config.advising_budget} episodes, output {self.output_dir}'
         )
 
@@ -139,7 +169,10 @@ class LearnerNode(Node):
         with self._lock:
             for change in changes:
                 if change.name == 'advising_budget':
-                    self.learner.set_advising_budget(int(change.value))
+                    if self.learner is not None:
+                        self.learner.set_advising_budget(int(change.value))
+                    else:
+                        self.config.advising_budget = int(change.value)
                 elif change.name in self.params:
                     self.params[change.name] = change.value
 
@@ -148,6 +181,9 @@ class LearnerNode(Node):
     def _on_observation(self, data: bytes) -> None:
         with self._lock:
             if self.done:
+                return
+            if self.learner is None:
+                self.early_observations += 1  # the env re-sends it; acted on once the spaces are known
                 return
             self._last_observation_time = time.monotonic()
             if self._stalled_since is not None:
@@ -235,7 +271,9 @@ class LearnerNode(Node):
             pending = self._take_pending(self._pending.token)
             self.learner.resolve_advice(pending.proposal, failure='timeout')  # acted on already
             self.request_pub.publish(
-                messages.advice_request_msg('failed', pending.proposal.request, self.params['advice_timeout_s'])
+                messages.advice_request_msg(
+                    'failed', pending.proposal.request, self.params['advice_timeout_s'], 'timeout'
+                )
             )
         self._last_advised = False
         if not self._store(env_step):
@@ -252,6 +290,7 @@ class LearnerNode(Node):
                 env_step.terminated,
                 env_step.truncated,
                 self._last_advised,
+                env_step.success,
             )
         except ValueError as error:
             self.dropped_messages += 1
@@ -322,7 +361,9 @@ class LearnerNode(Node):
             # A person's "why not" is worth seeing (a declining controller says why too).
             self.get_logger().info(f'advice declined: {printable_name(resolution.detail)}', throttle_duration_sec=2.0)
         self.request_pub.publish(
-            messages.advice_request_msg(resolution.outcome, pending.proposal.request, self.params['advice_timeout_s'])
+            messages.advice_request_msg(
+                resolution.outcome, pending.proposal.request, self.params['advice_timeout_s'], resolution.detail
+            )
         )
         self._finish_step(*resolution.take())
 
@@ -428,6 +469,8 @@ class LearnerNode(Node):
         """Checkpoint (with the replay memories if asked) and exported policy, written whole
         and renamed into place. Raises CheckpointWriteError; the previous files stay intact."""
         with self._lock:
+            if self.learner is None:
+                return  # the env's spaces never came: nothing learned, nothing to save
             save_checkpoint(self.learner, self.checkpoint_path, self.replay_path)
             export_policy(self.learner, self.run_folder.policy)
             self.record.flush()
@@ -449,6 +492,8 @@ class LearnerNode(Node):
 
     def close(self) -> None:
         with self._lock:
+            if self.record is None:
+                return
             error = self.record.close()
             if error is not None:
                 raise ExitError(

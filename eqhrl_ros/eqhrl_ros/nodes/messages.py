@@ -2,16 +2,18 @@
 
 Each message labels its fields in ``layout.dim`` (label, size; stride = size), in order:
 
-- observation (env -> learner):  obs[n], reward, terminated, truncated, episode, step
+- observation (env -> learner):  obs[n], reward, terminated, truncated, episode, step[, success]
   One message carries a whole step, so observation, reward and flags are never
   paired across topics. step == 0 marks the first observation of an episode.
+  success is optional: an env that judges success itself appends it (1.0 on the final
+  step of a successful episode), and the learner then takes its verdict.
 - action (learner -> env):       action[m], episode, step
   episode and step name the observation the action answers; the env ignores a
   tagged action for another step. A bare action[m] (no tag) is accepted too.
-- episode_stats (learner):       see STATS_FIELDS.
-- gate_debug (learner):          see GATE_FIELDS.
-- advice_request (learner):      outcome, episode, step, discrepancy, entropy, timeout_s,
-  observation[n], proposed_action[m]; outcome 0 while the learner waits (see ADVICE_OUTCOMES).
+
+The learner's own topics have message types with named fields (eqhrl_interfaces/msg):
+episode_stats (EpisodeStats), gate_debug (GateDecision), advice_request (AdviceRequest);
+they are built here too.
 
 Episode and step are float32: exact up to 16,777,216.
 """
@@ -19,6 +21,7 @@ Episode and step are float32: exact up to 16,777,216.
 from __future__ import annotations
 
 import array
+import dataclasses
 import functools
 from dataclasses import dataclass
 from typing import Optional, Sequence
@@ -28,16 +31,20 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension, MultiArrayLayout
 
+from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
+
 from ..core.summary import EpisodeSummary
 
 OBS_TAIL = ('reward', 'terminated', 'truncated', 'episode', 'step')
+OBS_SUCCESS = 'success'  # the optional last field of an observation
 ACTION_TAIL = ('episode', 'step')
-# The per-episode record's fields, in the CSV's order (one home: EpisodeSummary).
-STATS_FIELDS = EpisodeSummary.CSV_FIELDS
-# learner/advice_request: what the learner is asking a person right now.
-ADVICE_OUTCOMES = {'pending': 0, 'given': 1, 'declined': 2, 'failed': 3}
-ADVICE_REQUEST_TAIL = ('outcome', 'episode', 'step', 'discrepancy', 'entropy', 'timeout_s')
-GATE_FIELDS = ('episode', 'step', 'fire', 'ask', 'respond', 'discrepancy', 'entropy', 'd_threshold', 'e_threshold')
+# learner/advice_request: the outcome names and their AdviceRequest constants.
+ADVICE_OUTCOMES = {
+    'pending': AdviceRequest.PENDING,
+    'given': AdviceRequest.GIVEN,
+    'declined': AdviceRequest.DECLINED,
+    'failed': AdviceRequest.FAILED,
+}
 
 
 # learner/advice_request: the latest request stays available to a person's UI that starts later.
@@ -114,8 +121,10 @@ Layout = tuple  # ((label, size), ...)
 
 
 def observation_layouts(obs_dim: int) -> tuple[Layout, ...]:
-    """The labelled layout an observation message may have (a bare array is read by position)."""
-    return ((('obs', obs_dim), *((label, 1) for label in OBS_TAIL)),)
+    """The labelled layouts an observation message may have: without and with the optional
+    success field (a bare array is read by position)."""
+    plain = (('obs', obs_dim), *((label, 1) for label in OBS_TAIL))
+    return (plain, (*plain, (OBS_SUCCESS, 1)))
 
 
 def action_layouts(action_dim: int) -> tuple[Layout, ...]:
@@ -190,28 +199,32 @@ class EnvStep:
     truncated: bool
     episode: int
     step: int
+    success: Optional[bool] = None  # the env's verdict, where it reports one
 
     @property
     def done(self) -> bool:
         return self.terminated or self.truncated
 
 
-def observation_msg(obs, reward: float, terminated: bool, truncated: bool, episode: int, step: int):
-    return build(
-        [
-            ('obs', obs),
-            ('reward', [reward]),
-            ('terminated', [float(terminated)]),
-            ('truncated', [float(truncated)]),
-            ('episode', [episode]),
-            ('step', [step]),
-        ]
-    )
+def observation_msg(
+    obs, reward: float, terminated: bool, truncated: bool, episode: int, step: int, success: Optional[bool] = None
+):
+    fields = [
+        ('obs', obs),
+        ('reward', [reward]),
+        ('terminated', [float(terminated)]),
+        ('truncated', [float(truncated)]),
+        ('episode', [episode]),
+        ('step', [step]),
+    ]
+    if success is not None:
+        fields.append((OBS_SUCCESS, [float(success)]))
+    return build(fields)
 
 
-def observation_out(obs_dim: int) -> OutgoingMessage:
-    """The env's observation message, refilled each step with ``fill(obs, *OBS_TAIL values)``."""
-    return OutgoingMessage((('obs', obs_dim), *((label, 1) for label in OBS_TAIL)))
+def observation_out(obs_dim: int, with_success: bool = False) -> OutgoingMessage:
+    """The env's observation message, refilled each step with ``fill(obs, *OBS_TAIL values[, success])``."""
+    return OutgoingMessage(observation_layouts(obs_dim)[int(with_success)])
 
 
 def _values(msg) -> np.ndarray:
@@ -225,16 +238,18 @@ def parse_observation(msg, obs_dim: int, topic: str = 'observation') -> EnvStep:
         check_layout(msg.layout, observation_layouts(obs_dim), topic)
     data = _values(msg)
     expected = obs_dim + len(OBS_TAIL)
-    if data.shape[0] != expected:
+    if data.shape[0] not in (expected, expected + 1):
         raise MessageError(
-            f"'{topic}': {data.shape[0]} values, expected {expected} (obs[{obs_dim}] + {', '.join(OBS_TAIL)})"
+            f"'{topic}': {data.shape[0]} values, expected {expected} (obs[{obs_dim}] + {', '.join(OBS_TAIL)}) "
+            f'or {expected + 1} (+ {OBS_SUCCESS})'
         )
     if not np.isfinite(data).all():
         bad = [i for i in range(len(data)) if not np.isfinite(data[i])]
         raise MessageError(f"'{topic}': non-finite value(s) at index {bad}")
     obs = data[:obs_dim].copy()
-    reward, terminated, truncated, episode, step = data[obs_dim:].tolist()
-    return EnvStep(obs, float(reward), terminated > 0.5, truncated > 0.5, int(episode), int(step))
+    reward, terminated, truncated, episode, step = data[obs_dim:expected].tolist()
+    success = bool(data[expected] > 0.5) if data.shape[0] > expected else None
+    return EnvStep(obs, float(reward), terminated > 0.5, truncated > 0.5, int(episode), int(step), success)
 
 
 def action_msg(action, episode: Optional[int] = None, step: Optional[int] = None):
@@ -267,22 +282,9 @@ def parse_action(msg, action_dim: int, topic: str = 'action'):
     return data[:action_dim].copy(), tag
 
 
-def stats_msg(summary) -> Float32MultiArray:
-    values = [
-        summary.episode,
-        summary.episode_return,
-        summary.length,
-        summary.advice_asked,
-        summary.advice_given,
-        summary.advice_human,
-        summary.advice_declined,
-        summary.advice_failed,
-        float(summary.success),
-        summary.total_steps,
-        summary.alpha,
-        float(summary.interrupted),
-    ]
-    return build(list(zip(STATS_FIELDS, ([v] for v in values))))
+def stats_msg(summary: EpisodeSummary) -> EpisodeStats:
+    """learner/episode_stats: the summary's fields by name (EpisodeStats mirrors EpisodeSummary)."""
+    return EpisodeStats(**dataclasses.asdict(summary))
 
 
 def parse_fields(msg: Float32MultiArray) -> dict:
@@ -295,31 +297,30 @@ def parse_fields(msg: Float32MultiArray) -> dict:
     return out
 
 
-def gate_msg(episode: int, step: int, decision) -> Float32MultiArray:
-    values = [
-        episode,
-        step,
-        float(decision.fire),
-        float(decision.ask),
-        float(decision.respond),
-        decision.discrepancy,
-        decision.entropy,
-        decision.d_threshold,
-        decision.e_threshold,
-    ]
-    return build(list(zip(GATE_FIELDS, ([v] for v in values))))
+def gate_msg(episode: int, step: int, decision) -> GateDecision:
+    return GateDecision(
+        episode=int(episode),
+        step=int(step),
+        fire=bool(decision.fire),
+        ask=bool(decision.ask),
+        respond=bool(decision.respond),
+        discrepancy=float(decision.discrepancy),
+        entropy=float(decision.entropy),
+        d_threshold=float(decision.d_threshold),
+        e_threshold=float(decision.e_threshold),
+    )
 
 
-def advice_request_msg(outcome: str, request, timeout_s: float) -> Float32MultiArray:
-    return build(
-        [
-            ('outcome', [ADVICE_OUTCOMES[outcome]]),
-            ('episode', [request.episode]),
-            ('step', [request.step]),
-            ('discrepancy', [request.discrepancy]),
-            ('entropy', [request.entropy]),
-            ('timeout_s', [timeout_s]),
-            ('observation', request.observation),
-            ('proposed_action', request.proposed_action),
-        ]
+def advice_request_msg(outcome: str, request, timeout_s: float, detail: str = '') -> AdviceRequest:
+    """learner/advice_request: ``request`` (core AdviceRequest) and what came of it so far."""
+    return AdviceRequest(
+        outcome=ADVICE_OUTCOMES[outcome],
+        detail=detail,
+        episode=int(request.episode),
+        step=int(request.step),
+        discrepancy=float(request.discrepancy),
+        entropy=float(request.entropy),
+        timeout_s=float(timeout_s),
+        observation=np.asarray(request.observation, dtype=np.float32).tolist(),
+        proposed_action=np.asarray(request.proposed_action, dtype=np.float32).tolist(),
     )

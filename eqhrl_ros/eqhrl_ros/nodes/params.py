@@ -13,6 +13,7 @@ from typing import Any, Optional
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from ..core.config import INT_MAX, LearnerConfig, ros_name
 from ..core.experts import EXPERT_BACKENDS
@@ -26,6 +27,10 @@ class Param:
     range: Optional[tuple] = None  # (low, high) for numbers, inclusive
     choices: Optional[tuple] = None  # allowed strings
     dynamic: bool = False  # may change while the node runs
+    # For a parameter with no default (default None): its type, e.g. 'double_array'. rclpy
+    # declares it typed and unset (an empty list would be typed as bytes); its value is None
+    # until a params file or -p sets it.
+    kind: Optional[str] = None
 
     def descriptor(self) -> ParameterDescriptor:
         text = self.description
@@ -57,8 +62,44 @@ LEARNER_CONFIG_PARAMS = tuple(
     for f in dataclasses.fields(LearnerConfig)
 )
 
+# The env's spaces, for an env node that publishes no env_info. Every node accepts them, so
+# that a params file's shared `/**:` section can set them for all nodes at once.
+SPACE_PARAMS = (
+    Param(
+        'observation_size',
+        0,
+        'Observation size, for an env node that publishes no env_info (0: from env_id or env_info); '
+        'with action_low and action_high',
+        (0, INT_MAX),
+    ),
+    Param(
+        'action_low',
+        None,
+        'Action lower bounds in env units, one per dimension (unset: from env_id or env_info)',
+        kind='double_array',
+    ),
+    Param(
+        'action_high',
+        None,
+        'Action upper bounds in env units, one per dimension (unset: from env_id or env_info)',
+        kind='double_array',
+    ),
+)
+# env_id and the spaces: what every node but gym_env accepts about the env.
+ENV_PARAMS = (
+    Param(
+        'env_id',
+        '',
+        'Gymnasium env id, a shortcut for its spaces and success rule (empty: from env_info, or the spaces '
+        'given as parameters)',
+    ),
+    *SPACE_PARAMS,
+)
+# What a params file's shared `/**:` section may set: every node accepts these.
+SHARED_PARAM_NAMES = ('env_id', *(p.name for p in SPACE_PARAMS), 'use_sim_time')
+
 LEARNER_NODE_PARAMS = (
-    Param('env_id', 'Pendulum-v1', 'Gymnasium env id: sizes, action bounds and the success criterion'),
+    *ENV_PARAMS,
     Param('advice_enabled', True, 'Ask the expert when the gates fire (off: the gates are only logged)', dynamic=True),
     Param('advice_timeout_s', 0.5, 'Seconds to wait for the expert before acting alone', (0.001, 600.0), dynamic=True),
     Param('accept_expert', '', 'Accept advice only from this expert name (empty: any)', dynamic=True),
@@ -88,6 +129,7 @@ LEARNER_NODE_PARAMS = (
 
 GYM_ENV_PARAMS = (
     Param('env_id', 'Pendulum-v1', 'Gymnasium env id (any Box action space)'),
+    *SPACE_PARAMS,
     Param('max_episode_steps', 100, 'Steps before truncation (paper: Pendulum 100, LunarLander 600)', (1, INT_MAX)),
     Param('seed', 42, 'Seed of the first reset', (0, INT_MAX)),
     Param(
@@ -119,7 +161,13 @@ EXPERT_PARAMS = (
         'Who answers: a built-in controller or an exported policy file',
         choices=EXPERT_BACKENDS,
     ),
-    Param('env_id', 'Pendulum-v1', 'Env the heuristic controller is for'),
+    Param(
+        'env_id',
+        '',
+        "Env name the heuristic controller is for: a gymnasium id or an env node's name, e.g. "
+        'double_integrator (empty: the name in env_info)',
+    ),
+    *SPACE_PARAMS,
     Param('policy_path', '', 'Policy file exported by a learner (backend policy)'),
     Param(
         'response_delay_s',
@@ -146,7 +194,9 @@ def describe(*tables: tuple[Param, ...]) -> str:
         elif param.choices:
             bounds = f' ({"|".join(param.choices)})'
         default = (
-            repr(param.default)
+            '(unset)'
+            if param.default is None
+            else repr(param.default)
             if isinstance(param.default, str)
             else str(param.default).lower()
             if isinstance(param.default, bool)
@@ -157,11 +207,17 @@ def describe(*tables: tuple[Param, ...]) -> str:
     return '\n'.join(lines)
 
 
+UNSET_KINDS = {'double_array': Parameter.Type.DOUBLE_ARRAY}
+
+
 def declare(node: Node, params: tuple[Param, ...]) -> dict:
     """Declare every parameter; return {name: value}. Bad values raise with the name in the message."""
     values = {}
     for param in params:
-        value = node.declare_parameter(param.name, param.default, param.descriptor()).value
+        default = UNSET_KINDS[param.kind] if param.default is None else param.default
+        value = node.declare_parameter(param.name, default, param.descriptor()).value
+        if param.kind == 'double_array' and value is not None:
+            value = [float(v) for v in value]
         if param.choices and value not in param.choices:
             raise ValueError(f"parameter '{param.name}' is {value!r}; expected one of {param.choices}")
         values[param.name] = value
@@ -200,6 +256,14 @@ def check_section(node_name: str, values: dict, *tables: tuple[Param, ...]) -> N
         param = by_name.get(name)
         if param is None:
             continue
+        if param.kind == 'double_array':
+            if not (
+                isinstance(value, list)
+                and value
+                and all(isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool)) for v in value)
+            ):
+                raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected a list of numbers")
+            continue
         kind = type(param.default)
         same = (
             isinstance(value, kind) and not (kind is int and isinstance(value, bool))
@@ -219,6 +283,27 @@ def check_section(node_name: str, values: dict, *tables: tuple[Param, ...]) -> N
             raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected one of {param.choices}")
 
 
+def file_section(data: dict, node_name: str) -> dict:
+    """A node's parameters from a parsed params file, as rcl gives them to the node: its own
+    section and the shared `/**` section, applied in the order they appear in the file (a key
+    in both takes the value of the later one)."""
+
+    def values(key):
+        return dict((data.get(key) or {}).get('ros__parameters') or {})
+
+    unknown = sorted(set(values('/**')) - set(SHARED_PARAM_NAMES))
+    if unknown:
+        raise ValueError(
+            f"the shared '/**' section holds {', '.join(unknown)}, which not every node accepts; "
+            f"shared keys: {', '.join(SHARED_PARAM_NAMES)} (put the others in the node's own section)"
+        )
+    merged = {}
+    for key in data:  # the file's order (yaml keeps it)
+        if key in ('/**', node_name, f'/{node_name}'):
+            merged.update(values(key))
+    return merged
+
+
 def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
     """Refuse parameters given for this node that it does not declare (a typo in a params file).
 
@@ -235,6 +320,7 @@ def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
 
 
 TELEOP_EXPERT_PARAMS = (
+    *ENV_PARAMS,
     Param('source', 'joy', 'Which teleop input becomes advice', choices=('joy', 'twist', 'array')),
     Param(
         'axes',
@@ -257,7 +343,14 @@ TELEOP_EXPERT_PARAMS = (
 )
 
 KEYBOARD_PARAMS = (
-    Param('dimensions', 1, 'Action dimensions to command (Pendulum 1, LunarLander 2)', (1, 2)),
+    *ENV_PARAMS,
+    Param(
+        'dimensions',
+        0,
+        'Action dimensions to command (Pendulum 1, LunarLander 2; 0: the action size from env_id or env_info, '
+        'at most 2)',
+        (0, 2),
+    ),
     Param('step', 0.25, 'Change per key press, in [-1, 1] units', (0.01, 1.0)),
     Param('rate_hz', 10.0, 'Publishing rate of teleop_command', (0.5, 100.0)),
 )

@@ -40,6 +40,16 @@ class ExitError(RuntimeError):
     """The node stopped but could not finish cleanly (e.g. its last save failed): one line, exit 1."""
 
 
+def stop_with_error(node: Node, message: str) -> None:
+    """A running node that cannot go on as configured (e.g. the env's env_info disagrees with
+    it): log one error line and stop spinning; run_node then exits with code 1. The message is
+    kept as ``node.exit_error`` (the first one, if several come)."""
+    node.get_logger().error(message)
+    if getattr(node, 'exit_error', None) is None:
+        node.exit_error = message
+    node.context.try_shutdown()
+
+
 EXECUTORS = ('single', 'events', 'multi')
 DEFAULT_EXECUTOR = 'single'
 
@@ -185,6 +195,8 @@ def run_node(
     finally:
         status = 0
         if node is not None:
+            if getattr(node, 'exit_error', None):
+                status = 1  # the node stopped itself with an error line (stop_with_error)
             if on_exit is not None:
                 try:
                     on_exit(node)

@@ -18,8 +18,10 @@ from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.srv import Advise
 
+from ..core.env_spec import EnvSpec
 from ..core.teleop import TWIST_FIELDS, TeleopExpert, array_command, joy_command, twist_command
 from .advise_msgs import answer
+from .env_info import EnvInfoWatcher, configured_spec
 from .params import TELEOP_EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
 from .spinning import run_node
 
@@ -44,6 +46,16 @@ class TeleopExpertNode(Node):
         self.create_service(Advise, 'advise', self._on_request)
         topic = {'joy': 'joy', 'twist': 'cmd_vel', 'array': 'teleop_command'}[source]
         self.get_logger().info(f"advising from '{topic}' ({source}); scales {self.params['scales']}")
+        self.env_info = EnvInfoWatcher(self, configured_spec(self.params), self._check_action_size)
+
+    def _check_action_size(self, spec: EnvSpec) -> None:
+        """The mapping gives one value per entry of scales: the env must take as many."""
+        n = len(self.params['scales'])
+        if n != spec.action_size:
+            raise ValueError(
+                f"the mapping gives {n} action value(s) (parameter 'scales'), env {spec.name!r} takes "
+                f'{spec.action_size}: set scales, offsets and axes (or twist_fields) for {spec.action_size}'
+            )
 
     def _check_mapping(self, p) -> None:
         n = len(p['scales'])

@@ -1,12 +1,14 @@
 """The env, learner and expert nodes, spun by rclpy executors in the test process."""
 
 import csv
+import dataclasses
 import time
 
 import numpy as np
 import pytest
 import rclpy
 
+from eqhrl_ros.core.summary import EpisodeSummary
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
@@ -104,8 +106,7 @@ def test_learner_asks_exactly_when_gates_fire_and_only_inside_budget(harness, ro
     finally:
         expert.close()
     assert harness.spin_until(lambda: len(probe.stats) == 4)
-    gates = [messages.parse_fields(m) for m in probe.gates]
-    fired = [(int(g['episode']), int(g['step'])) for g in gates if g['fire'] > 0.5]
+    fired = [(g.episode, g.step) for g in probe.gates if g.fire]
     assert fired, 'the gates never fired in the budget episodes'
     assert [(r[0], r[1]) for r in expert.requests] == fired
     assert all(episode < 2 for episode, _ in fired)  # advising_budget = 2
@@ -158,12 +159,14 @@ def test_three_nodes_run_and_resume_from_checkpoint(harness, ros_context, tmp_pa
     learner, probe = run_learner(harness, ros_context, tmp_path, episodes=3)
     assert harness.spin_until(lambda: len(probe.stats) == 3)
     rows = read_csv(tmp_path / 'episodes.csv')
-    stats = [messages.parse_fields(m) for m in probe.stats]
     assert [int(r['episode']) for r in rows] == [0, 1, 2]
-    for row, stat in zip(rows, stats):
-        assert int(row['episode']) == int(stat['episode']) and int(row['length']) == int(stat['length']) == 25
-        assert float(row['return']) == pytest.approx(stat['return'], rel=1e-5)
-        assert int(row['advice_given']) == int(stat['advice_given'])
+    # learner/episode_stats (EpisodeStats) carries each row's numbers, field by field.
+    fields = [f.name for f in dataclasses.fields(EpisodeSummary)]
+    assert len(fields) == len(EpisodeSummary.CSV_FIELDS)
+    for row, stat in zip(rows, probe.stats, strict=True):
+        assert stat.length == 25
+        for field, column in zip(fields, EpisodeSummary.CSV_FIELDS):
+            assert float(getattr(stat, field)) == pytest.approx(float(row[column]), rel=1e-5, abs=1e-6), field
     assert sum(int(r['advice_given']) for r in rows) > 0  # the heuristic expert answered
     assert (tmp_path / 'checkpoint.pt').exists() and (tmp_path / 'policy.pt').exists()
     steps_before = learner.learner.total_steps
@@ -250,11 +253,16 @@ def test_realtime_env_steps_at_its_rate_holding_the_last_action(harness, ros_con
     assert 10.0 < rate < 80.0, rate  # 50 Hz asked; wide bounds for a loaded machine
 
 
-def test_launch_file_is_valid_python_naming_the_three_executables():
+def test_launch_file_is_valid_python_naming_the_executables():
     source = (PARAMS_DIR.parent / 'launch' / 'train.launch.py').read_text()
     compile(source, 'train.launch.py', 'exec')
-    for executable in ('gym_env', 'expert', 'learner'):
+    for executable in ('expert', 'learner'):
         assert f"executable='{executable}'" in source
+    assert 'executable=env_node' in source
+    # The env nodes it may start are eqhrl-train's (checked here: the launch file imports nothing of ours).
+    from eqhrl_ros.cli.train import ENV_NODES
+
+    assert f'ENV_NODES = {ENV_NODES!r}' in source
 
 
 def test_realtime_env_with_a_slow_expert_keeps_every_transition(harness, ros_context, tmp_path):

@@ -16,6 +16,7 @@ from geometry_msgs.msg import Twist
 from sensor_msgs.msg import Image, Joy
 from std_msgs.msg import Float32MultiArray
 
+from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
 from eqhrl_interfaces.srv import Advise
 from eqhrl_ros.core.experts import AdviceRequest
 from eqhrl_ros.core.teleop import TeleopExpert, array_command, joy_command, twist_command
@@ -201,7 +202,7 @@ def test_advice_from_a_person_is_marked_in_stats_and_csv(harness, ros_context, t
     requests = []
     from eqhrl_ros.nodes.messages import LATCHED_QOS as LATCHED
 
-    probe.create_subscription(Float32MultiArray, 'learner/advice_request', requests.append, LATCHED)
+    probe.create_subscription(AdviceRequestMsg, 'learner/advice_request', requests.append, LATCHED)
     assert harness.spin_until(lambda: command_pub.get_subscription_count() > 0)
     command_pub.publish(messages.build([('command', [0.5])]))
     harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
@@ -216,8 +217,8 @@ def test_advice_from_a_person_is_marked_in_stats_and_csv(harness, ros_context, t
     with open(tmp_path / 'episodes.csv', newline='') as f:
         rows = list(csv.DictReader(f))
     assert sum(int(r['advice_human']) for r in rows) == totals.human
-    outcomes = [int(messages.parse_fields(m)['outcome']) for m in requests]
-    assert messages.ADVICE_OUTCOMES['pending'] in outcomes and messages.ADVICE_OUTCOMES['given'] in outcomes
+    outcomes = [m.outcome for m in requests]
+    assert AdviceRequestMsg.PENDING in outcomes and AdviceRequestMsg.GIVEN in outcomes
 
 
 # ------------------------------------------------------------------ keyboard_teleop, for real, in tmux
@@ -278,7 +279,7 @@ def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
     probe.create_subscription(Float32MultiArray, 'teleop_command', commands.append, 50)
     from eqhrl_ros.nodes.messages import LATCHED_QOS as LATCHED
 
-    request_pub = probe.create_publisher(Float32MultiArray, 'learner/advice_request', LATCHED)
+    request_pub = probe.create_publisher(AdviceRequestMsg, 'learner/advice_request', LATCHED)
     ask = AdviceRequest(
         np.zeros(3, np.float32),
         np.zeros(2, np.float32),

@@ -1,0 +1,185 @@
+"""What a learner needs to know about an env, whoever provides it: EnvSpec, and success.
+
+An env node announces an EnvSpec (as eqhrl_interfaces/msg/EnvInfo on `env_info`); a
+gymnasium id gives one too (envs.gym_spec); a user may give the spaces as parameters.
+No gymnasium and no torch here, so that light nodes (a teleop) can read it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Optional
+
+import numpy as np
+
+# How success is judged (EnvInfo.success_rule; the message's SUCCESS_* constants are checked
+# against this tuple by the tests).
+SUCCESS_RULES = ('none', 'reported', 'return_at_least', 'pendulum_upright')
+
+
+def builtin_success(name: str) -> tuple[str, float]:
+    """The built-in success rule of a gymnasium env: Pendulum ends balanced; LunarLander
+    reaches 200, the env's solved line. Any other env: none (an env node may report it)."""
+    if name.startswith('Pendulum'):
+        return 'pendulum_upright', 0.0
+    if name.startswith('LunarLander'):
+        return 'return_at_least', 200.0
+    return 'none', 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class EnvSpec:
+    """An env's interface: observation size, action bounds, pace and success rule."""
+
+    name: str
+    observation_size: int
+    action_low: np.ndarray
+    action_high: np.ndarray
+    observation_labels: tuple = ()
+    action_labels: tuple = ()
+    max_episode_steps: int = 0  # 0: no limit
+    realtime: bool = False
+    rate_hz: float = 0.0
+    success_rule: str = 'none'
+    success_threshold: float = 0.0
+    source: str = field(default='', compare=False)  # where it came from, for messages
+
+    def __post_init__(self):
+        low = np.asarray(self.action_low, dtype=np.float32).reshape(-1)
+        high = np.asarray(self.action_high, dtype=np.float32).reshape(-1)
+        object.__setattr__(self, 'action_low', low)
+        object.__setattr__(self, 'action_high', high)
+        object.__setattr__(self, 'observation_labels', tuple(self.observation_labels))
+        object.__setattr__(self, 'action_labels', tuple(self.action_labels))
+        where = f' ({self.source})' if self.source else ''
+        if self.observation_size < 1:
+            raise ValueError(f'observation size must be >= 1, got {self.observation_size}{where}')
+        if low.shape != high.shape or low.size == 0:
+            raise ValueError(
+                f'action_low has {low.size} values and action_high {high.size}; '
+                f'they must have one per action dimension{where}'
+            )
+        if not (np.isfinite(low).all() and np.isfinite(high).all()) or (high <= low).any():
+            raise ValueError(
+                f'action bounds must be finite with high > low in every dimension: '
+                f'low {low.tolist()}, high {high.tolist()}{where}'
+            )
+        for kind, labels, size in (
+            ('observation', self.observation_labels, self.observation_size),
+            ('action', self.action_labels, low.size),
+        ):
+            if labels and len(labels) != size:
+                raise ValueError(f'{len(labels)} {kind} labels for {size} {kind} values{where}')
+        if self.success_rule not in SUCCESS_RULES:
+            raise ValueError(f'success rule {self.success_rule!r} is not one of {SUCCESS_RULES}{where}')
+        if not math.isfinite(self.success_threshold):
+            raise ValueError(f'success threshold must be finite{where}')
+
+    def __eq__(self, other) -> bool:
+        # Field by field (the bounds are arrays); where the spec came from is not part of it.
+        if not isinstance(other, EnvSpec):
+            return NotImplemented
+        return all(np.array_equal(getattr(self, f.name), getattr(other, f.name)) for f in fields(self) if f.compare)
+
+    __hash__ = None
+
+    @property
+    def action_size(self) -> int:
+        return int(self.action_low.size)
+
+    def disagreements(self, other: 'EnvSpec') -> list[str]:
+        """What ``other`` (e.g. the env's announcement) says differently about the spaces:
+        observation size, action size and bounds. Empty when a learner built for one can
+        act in the other."""
+        found = []
+        if other.observation_size != self.observation_size:
+            found.append(f'observation size {other.observation_size}, not {self.observation_size}')
+        if other.action_size != self.action_size:
+            found.append(f'action size {other.action_size}, not {self.action_size}')
+        elif not (
+            np.allclose(other.action_low, self.action_low, rtol=1e-6, atol=1e-6)
+            and np.allclose(other.action_high, self.action_high, rtol=1e-6, atol=1e-6)
+        ):
+            found.append(
+                f'action bounds [{other.action_low.tolist()}, {other.action_high.tolist()}], '
+                f'not [{self.action_low.tolist()}, {self.action_high.tolist()}]'
+            )
+        return found
+
+    def success_criterion(self) -> 'SuccessCriterion':
+        return success_criterion(self.success_rule, self.success_threshold)
+
+
+class SuccessCriterion:
+    """Per-episode success, fed every step. Subclasses define it per rule ('none': never)."""
+
+    def reset(self) -> None:
+        pass
+
+    def update(self, obs: np.ndarray, reward: float) -> None:
+        pass
+
+    def success(self, episode_return: float) -> bool:
+        return False
+
+
+class ReturnAtLeast(SuccessCriterion):
+    """Success when the episode's return reaches a threshold (LunarLander: 200, the env's solved line)."""
+
+    def __init__(self, threshold: float):
+        self.threshold = threshold
+
+    def success(self, episode_return: float) -> bool:
+        return episode_return >= self.threshold
+
+
+class PendulumUpright(SuccessCriterion):
+    """Success when the pendulum ends the episode balanced: its last ``hold_steps``
+    observations all have cos(theta) >= cos(max_angle) (theta = 0 is upright)."""
+
+    def __init__(self, max_angle_deg: float = 18.0, hold_steps: int = 10):
+        self.min_cos = math.cos(math.radians(max_angle_deg))
+        self.hold_steps = hold_steps
+        self.reset()
+
+    def reset(self) -> None:
+        self._upright_run = 0
+
+    def update(self, obs: np.ndarray, reward: float) -> None:
+        self._upright_run = self._upright_run + 1 if obs[0] >= self.min_cos else 0
+
+    def success(self, episode_return: float) -> bool:
+        return self._upright_run >= self.hold_steps
+
+
+def success_criterion(rule: str, threshold: float = 0.0) -> SuccessCriterion:
+    """The criterion a rule names. 'reported' judges nothing itself: the env's observation
+    messages carry the verdict, which the learner takes over any criterion (EQSACLearner.step)."""
+    if rule == 'pendulum_upright':
+        return PendulumUpright()
+    if rule == 'return_at_least':
+        return ReturnAtLeast(threshold)
+    if rule in ('none', 'reported'):
+        return SuccessCriterion()
+    raise ValueError(f'success rule {rule!r} is not one of {SUCCESS_RULES}')
+
+
+def spec_from_parameters(
+    observation_size: int, action_low, action_high, name: str = '', source: str = 'parameters'
+) -> Optional[EnvSpec]:
+    """The spaces given as node parameters: all three or none (None). ValueError otherwise."""
+    given = {
+        'observation_size': observation_size > 0,
+        'action_low': action_low is not None and len(action_low) > 0,
+        'action_high': action_high is not None and len(action_high) > 0,
+    }
+    if not any(given.values()):
+        return None
+    if not all(given.values()):
+        missing = [k for k, v in given.items() if not v]
+        raise ValueError(
+            f'observation_size, action_low and action_high go together: {", ".join(missing)} '
+            f'{"is" if len(missing) == 1 else "are"} missing'
+        )
+    return EnvSpec(name, int(observation_size), action_low, action_high, source=source)

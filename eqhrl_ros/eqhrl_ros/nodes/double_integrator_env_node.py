@@ -1,0 +1,189 @@
+"""double_integrator_env: an example env node that is not gymnasium. Copy it for your own robot.
+
+A point mass on a line: state [x, v], force u in [-1, 1], x'' = u. The task is to bring it
+to rest at x = 0: reward -(x^2 + 0.1 v^2 + 0.01 u^2) per step, 100 steps of 0.1 s. A PD law
+(the expert's heuristic backend for this env) scores about -4; pushing at random about -580.
+
+The node speaks the protocol of the package README ("Connect your own robot or simulator")
+with nothing but rclpy, numpy, std_msgs and eqhrl_interfaces:
+- it announces itself once on the latched ``env_info`` (eqhrl_interfaces/msg/EnvInfo);
+- it publishes each step on ``observation``: obs[2], reward, terminated, truncated, episode,
+  step, success (a std_msgs/Float32MultiArray, labelled);
+- it steps when an action comes on ``action`` (lock-step), or at ``rate_hz`` with the latest
+  action (``realtime``), where an action older than ``action_timeout_s`` is replaced by zero
+  force (the deadman a real robot needs).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float32MultiArray, MultiArrayDimension, MultiArrayLayout
+
+from eqhrl_interfaces.msg import EnvInfo
+
+NAME = 'double_integrator'  # the expert's heuristic backend has a PD controller for this name
+OBS_LABELS = ('x', 'v')
+ACTION_LABELS = ('force',)
+ACTION_LOW, ACTION_HIGH = -1.0, 1.0
+
+
+# The node's parameters: name, default, description, (low, high) or None.
+PARAMETERS = (
+    ('max_episode_steps', 100, 'Steps before truncation', (1, 2**31 - 1)),
+    ('seed', 0, 'Seed of the start states', (0, 2**31 - 1)),
+    ('dt', 0.1, 'Integration step in seconds', (0.001, 10.0)),
+    ('realtime', False, 'Step at rate_hz with the latest action (false: lock-step, one step per action)', None),
+    ('rate_hz', 10.0, 'Real-time step rate', (0.1, 1000.0)),
+    ('action_timeout_s', 0.5, 'Real-time deadman: zero force when the latest action is older than this', (0.01, 60.0)),
+    ('republish_period_s', 0.5, 'Lock-step: re-send the observation when no action came for this long', (0.01, 60.0)),
+)
+
+
+class DoubleIntegrator:
+    """The dynamics, with no ROS in them: x'' = u, semi-implicit Euler with step dt."""
+
+    def __init__(self, dt: float = 0.1, seed: int = 0):
+        self.dt = dt
+        self.rng = np.random.default_rng(seed)
+        self.x = self.v = 0.0
+
+    def reset(self) -> np.ndarray:
+        self.x, self.v = self.rng.uniform(-1.0, 1.0), self.rng.uniform(-0.5, 0.5)
+        return np.array([self.x, self.v], dtype=np.float32)
+
+    def step(self, u: float) -> tuple[np.ndarray, float]:
+        u = float(np.clip(u, ACTION_LOW, ACTION_HIGH))  # the action limits, whatever arrives
+        self.v += u * self.dt
+        self.x += self.v * self.dt
+        reward = -(self.x**2 + 0.1 * self.v**2 + 0.01 * u**2)
+        return np.array([self.x, self.v], dtype=np.float32), reward
+
+    def at_rest(self) -> bool:
+        return abs(self.x) < 0.25 and abs(self.v) < 0.25
+
+
+def layout(*fields: tuple[str, int]) -> MultiArrayLayout:
+    return MultiArrayLayout(dim=[MultiArrayDimension(label=label, size=size, stride=size) for label, size in fields])
+
+
+OBSERVATION_LAYOUT = layout(
+    ('obs', 2), ('reward', 1), ('terminated', 1), ('truncated', 1), ('episode', 1), ('step', 1), ('success', 1)
+)
+
+
+class DoubleIntegratorEnv(Node):
+    def __init__(self, **kwargs):
+        super().__init__('double_integrator_env', **kwargs)
+
+        values = {}
+        for name, default, description, bounds in PARAMETERS:
+            descriptor = ParameterDescriptor(description=description, read_only=True)
+            if isinstance(default, float) and bounds:
+                descriptor.floating_point_range = [FloatingPointRange(from_value=bounds[0], to_value=bounds[1])]
+            elif isinstance(default, int) and not isinstance(default, bool) and bounds:
+                descriptor.integer_range = [IntegerRange(from_value=bounds[0], to_value=bounds[1])]
+            values[name] = self.declare_parameter(name, default, descriptor).value
+        self.max_steps = values['max_episode_steps']
+        self.realtime, self.rate_hz = values['realtime'], values['rate_hz']
+        self.action_timeout_s = values['action_timeout_s']
+        self.republish_period_s = values['republish_period_s']
+        self.system = DoubleIntegrator(values['dt'], values['seed'])
+        self.episode, self.step_index = 0, 0
+        self.action, self.action_time = 0.0, 0.0
+        self.rejected_actions = 0
+
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+        )
+        self.info_pub = self.create_publisher(EnvInfo, 'env_info', latched)
+        self.observation_pub = self.create_publisher(Float32MultiArray, 'observation', qos)
+        self.create_subscription(Float32MultiArray, 'action', self._on_action, qos)
+        self.info_pub.publish(
+            EnvInfo(
+                name=NAME,
+                observation_size=2,
+                observation_labels=list(OBS_LABELS),
+                action_size=1,
+                action_labels=list(ACTION_LABELS),
+                action_low=[ACTION_LOW],
+                action_high=[ACTION_HIGH],
+                max_episode_steps=self.max_steps,
+                realtime=self.realtime,
+                rate_hz=self.rate_hz if self.realtime else 0.0,
+                success_rule=EnvInfo.SUCCESS_REPORTED,  # the last field of each observation
+            )
+        )
+        self._reset()
+        if self.realtime:
+            self.create_timer(1.0 / self.rate_hz, self._tick)
+        else:
+            self.create_timer(self.republish_period_s / 2, self._republish_if_idle)
+        self.get_logger().info(f'{NAME}: {"real-time at %g Hz" % self.rate_hz if self.realtime else "lock-step"}')
+
+    def _publish(self, obs, reward: float, terminated: bool, truncated: bool, success: bool) -> None:
+        values = [*obs, reward, float(terminated), float(truncated), self.episode, self.step_index, float(success)]
+        self.last_msg = Float32MultiArray(layout=OBSERVATION_LAYOUT, data=[float(v) for v in values])
+        self.observation_pub.publish(self.last_msg)
+        self.last_publish = time.monotonic()
+
+    def _reset(self) -> None:
+        self.step_index = 0
+        self._publish(self.system.reset(), 0.0, False, False, False)
+
+    def _step(self, u: float) -> None:
+        obs, reward = self.system.step(u)
+        self.step_index += 1
+        truncated = self.step_index >= self.max_steps
+        # success is judged here (EnvInfo.success_rule 'reported'): at rest on the final step.
+        self._publish(obs, reward, False, truncated, truncated and self.system.at_rest())
+        if truncated:
+            self.episode += 1
+            self._reset()
+
+    def _on_action(self, msg: Float32MultiArray) -> None:
+        data = np.asarray(msg.data, dtype=np.float32)
+        # action[1], optionally tagged with the (episode, step) it answers.
+        if data.shape[0] not in (1, 3) or not np.isfinite(data).all():
+            self.rejected_actions += 1
+            self.get_logger().error(f'rejected action {data.tolist()}', throttle_duration_sec=5.0)
+            return
+        if self.realtime:
+            self.action, self.action_time = float(data[0]), time.monotonic()
+            return
+        if data.shape[0] == 3 and (int(data[1]), int(data[2])) != (self.episode, self.step_index):
+            return  # an answer to an observation already stepped past
+        self._step(float(data[0]))
+
+    def _tick(self) -> None:
+        # Deadman: a real robot must not keep pushing on an old command.
+        fresh = time.monotonic() - self.action_time < self.action_timeout_s
+        self._step(self.action if fresh else 0.0)
+
+    def _republish_if_idle(self) -> None:
+        # A learner that started late, restarted or lost the message gets the observation again.
+        if time.monotonic() - self.last_publish >= self.republish_period_s:
+            self.observation_pub.publish(self.last_msg)
+            self.last_publish = time.monotonic()
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    node = DoubleIntegratorEnv()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,143 @@
+"""env_info: an env node's EnvSpec on a latched topic, and how the other nodes use it.
+
+The env publishes eqhrl_interfaces/msg/EnvInfo once, transient-local, so a node that
+starts later still gets it. Every other node either knows the spaces already (a gymnasium
+``env_id`` or the spaces as parameters) and checks each EnvInfo against them, or waits for
+the first one and takes the spaces from it. A disagreement is a refusal: one error line,
+and the node stops with exit code 1 (see spinning.stop_with_error).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from eqhrl_interfaces.msg import EnvInfo
+
+from ..core.env_spec import EnvSpec, spec_from_parameters
+from .spinning import start_up_errors, stop_with_error
+
+TOPIC = 'env_info'
+# Latched: one message, kept for late joiners. A subscriber must ask for transient-local too.
+ENV_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def env_info_msg(spec: EnvSpec) -> EnvInfo:
+    return EnvInfo(
+        name=spec.name,
+        observation_size=spec.observation_size,
+        observation_labels=list(spec.observation_labels),
+        action_size=spec.action_size,
+        action_labels=list(spec.action_labels),
+        action_low=spec.action_low.tolist(),
+        action_high=spec.action_high.tolist(),
+        max_episode_steps=spec.max_episode_steps,
+        realtime=spec.realtime,
+        rate_hz=float(spec.rate_hz),
+        success_rule=spec.success_rule,
+        success_threshold=float(spec.success_threshold),
+    )
+
+
+def spec_from_msg(msg: EnvInfo, source: str = TOPIC) -> EnvSpec:
+    """The EnvSpec an EnvInfo describes. ValueError names what is inconsistent in it."""
+    if msg.action_size != len(msg.action_low):
+        raise ValueError(f'action_size {msg.action_size} but {len(msg.action_low)} action bounds ({source})')
+    return EnvSpec(
+        msg.name,
+        int(msg.observation_size),
+        msg.action_low,
+        msg.action_high,
+        observation_labels=tuple(msg.observation_labels),
+        action_labels=tuple(msg.action_labels),
+        max_episode_steps=int(msg.max_episode_steps),
+        realtime=bool(msg.realtime),
+        rate_hz=float(msg.rate_hz),
+        success_rule=msg.success_rule or 'none',
+        success_threshold=float(msg.success_threshold),
+        source=source,
+    )
+
+
+def configured_spec(params: dict) -> Optional[EnvSpec]:
+    """The spec a node's parameters give (ENV_PARAMS): the spaces as parameters, or a gymnasium
+    env_id; None when neither is set (the node then waits for env_info). Both set must agree.
+    Raises ValueError (a start-up refusal) on an incomplete or contradictory set."""
+    from_parameters = spec_from_parameters(
+        params.get('observation_size', 0), params.get('action_low'), params.get('action_high')
+    )
+    env_id = params.get('env_id', '')
+    if not env_id:
+        return from_parameters
+    from ..core.envs import gym_spec  # gymnasium: only for a node given a gymnasium id
+
+    spec = gym_spec(env_id)
+    if from_parameters is not None:
+        differences = spec.disagreements(from_parameters)
+        if differences:
+            raise ValueError(f'the parameters give {"; ".join(differences)} (from env_id {env_id})')
+    return spec
+
+
+class EnvInfoWatcher:
+    """Subscribes to ``env_info`` for a node.
+
+    ``configured``: the spec the node was configured with (env_id or parameters), or None.
+    ``on_spec(spec)`` is called once: at once with ``configured``, or with the first EnvInfo
+    that arrives. Every EnvInfo is checked against the spec in use; a disagreement, or an
+    EnvInfo that contradicts itself, stops the node with one error line naming both sides.
+    """
+
+    def __init__(self, node: Node, configured: Optional[EnvSpec], on_spec: Callable[[EnvSpec], None]):
+        self.node = node
+        self.spec: Optional[EnvSpec] = None
+        self.announced: Optional[EnvSpec] = None  # the env's own EnvInfo, once heard
+        self._on_spec = on_spec
+        self.subscription = node.create_subscription(EnvInfo, TOPIC, self._on_env_info, ENV_INFO_QOS)
+        self.topic = self.subscription.topic_name
+        if configured is not None:
+            self._use(configured)
+        else:
+            node.get_logger().info(f'waiting for env_info on {self.topic}')
+
+    @property
+    def ready(self) -> bool:
+        return self.spec is not None
+
+    def _use(self, spec: EnvSpec) -> None:
+        self.spec = spec
+        self._on_spec(spec)
+
+    def _on_env_info(self, msg: EnvInfo) -> None:
+        if self.node.context is None or not self.node.context.ok():
+            return
+        try:
+            announced = spec_from_msg(msg, f'env_info from the env {msg.name!r}')
+        except ValueError as error:
+            stop_with_error(self.node, f'refused {self.topic}: {error}')
+            return
+        self.announced = announced
+        if self.spec is None:
+            self.node.get_logger().info(
+                f'{self.topic}: {announced.name}, obs {announced.observation_size}, action '
+                f'{announced.action_size} in [{announced.action_low.tolist()}, {announced.action_high.tolist()}]'
+            )
+            try:
+                self._use(announced)
+            except start_up_errors() as error:  # the node cannot work with it (no controller, a bad checkpoint)
+                stop_with_error(self.node, f'cannot start with {self.topic} of {announced.name!r}: {error}')
+            return
+        differences = self.spec.disagreements(announced)
+        if differences:
+            stop_with_error(
+                self.node,
+                f"refused {self.topic}: the env '{announced.name}' has {'; '.join(differences)} "
+                f'(this node was configured by {self.spec.source or "an earlier env_info"})',
+            )
+        elif announced.name != self.spec.name and self.spec.name:
+            self.node.get_logger().warn(
+                f"{self.topic}: the env is '{announced.name}', this node was configured for "
+                f"'{self.spec.name}'; the spaces agree, going on"
+            )

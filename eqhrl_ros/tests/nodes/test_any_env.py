@@ -1,0 +1,309 @@
+"""Any env node (issue 18): spaces from env_info or parameters, success reported by the env,
+shared params sections, and the example env node that is not gymnasium."""
+
+import csv
+import io
+import os
+
+import numpy as np
+import pytest
+import rclpy
+from std_msgs.msg import Float32MultiArray
+
+from eqhrl_interfaces.msg import EnvInfo
+from eqhrl_ros.core.env_spec import SUCCESS_RULES, EnvSpec
+from eqhrl_ros.core.experts import DoubleIntegratorExpert
+from eqhrl_ros.nodes import env_info, messages
+from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegrator, DoubleIntegratorEnv
+from eqhrl_ros.nodes.expert_node import ExpertNode
+from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+from eqhrl_ros.nodes.keyboard_teleop_node import KeyboardTeleop
+from eqhrl_ros.nodes.learner_node import LearnerNode
+from eqhrl_ros.nodes.params import file_section
+from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
+
+from ros_helpers import observation_publisher, params, small_learner_params
+
+
+def no_env_id(tmp_path, **extra):
+    """The small learner of the other tests, with no gymnasium id."""
+    return [p for p in small_learner_params(tmp_path, **extra) if p.name != 'env_id']
+
+
+def test_the_success_rules_of_the_message_are_the_cores():
+    constants = {getattr(EnvInfo, name) for name in dir(EnvInfo) if name.startswith('SUCCESS_')}
+    assert constants == set(SUCCESS_RULES)
+
+
+def test_env_info_round_trips_and_a_self_contradicting_one_is_refused():
+    spec = EnvSpec('robot', 4, [-1.0, 0.0], [1.0, 2.0], ('a', 'b', 'c', 'd'), ('u', 'w'), 50, True, 30.0, 'reported')
+    back = env_info.spec_from_msg(env_info.env_info_msg(spec))
+    assert back == spec and not spec.disagreements(back)
+    bad = env_info.env_info_msg(spec)
+    bad.action_size = 3
+    with pytest.raises(ValueError, match='action_size 3 but 2 action bounds'):
+        env_info.spec_from_msg(bad)
+    with pytest.raises(ValueError, match='high > low'):
+        EnvSpec('robot', 4, [1.0], [1.0])
+
+
+def test_a_learner_without_env_id_waits_for_env_info_then_learns_from_the_example_env(
+    harness, ros_context, tmp_path, caplog
+):
+    """Started before the env, the learner and the expert wait; the env's env_info configures
+    both (the expert picks its PD law by the env's name), and advice is given and counted."""
+    expert = harness.add(ExpertNode(context=ros_context))
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=no_env_id(tmp_path, max_episodes=3)))
+    harness.spin_until(lambda: False, timeout=0.3)
+    assert learner.learner is None and expert.backend is None  # nothing to act on yet
+    env = harness.add(
+        DoubleIntegratorEnv(context=ros_context, parameter_overrides=params(max_episode_steps=30, seed=3))
+    )
+    assert harness.spin_until(lambda: learner.done, timeout=60)
+    assert learner.spec.name == 'double_integrator' and learner.learner.obs_dim == 2
+    assert isinstance(expert.backend, DoubleIntegratorExpert)
+    totals = learner.learner.advice_total
+    assert totals.asked > 0 and totals.given == totals.asked  # the PD expert answered every request
+    with open(tmp_path / 'episodes.csv', newline='') as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r['length']) for r in rows] == [30, 30, 30]
+    assert sum(int(r['advice_given']) for r in rows) == totals.given
+    assert env.episode == 3
+
+
+def test_the_env_reports_success_and_the_learner_takes_its_verdict(harness, ros_context, tmp_path):
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=no_env_id(
+                tmp_path, observation_size=2, action_low=[-1.0], action_high=[1.0], max_episodes=2
+            ),
+        )
+    )
+    publisher, probe = observation_publisher(harness)
+    for episode, verdict in enumerate((True, False)):
+        for step in range(4):
+            final = step == 3
+            count = len(probe.actions)
+            publisher.publish(
+                messages.observation_msg([0.1, 0.0], -1.0, False, final, episode, step, final and verdict)
+            )
+            if not final:
+                assert harness.spin_until(lambda: len(probe.actions) > count)
+    assert harness.spin_until(lambda: learner.done)
+    with open(tmp_path / 'episodes.csv', newline='') as f:
+        assert [r['success'] for r in csv.DictReader(f)] == ['1', '0']
+
+
+def test_spaces_as_parameters_work_with_an_env_that_publishes_no_env_info(harness, ros_context, tmp_path):
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=no_env_id(tmp_path, observation_size=2, action_low=[-2.0], action_high=[2.0]),
+        )
+    )
+    assert learner.spec.source == 'parameters' and learner.learner.scaler.high.tolist() == [2.0]
+    publisher, probe = observation_publisher(harness)
+    publisher.publish(messages.observation_msg([0.3, -0.1], 0.0, False, False, 0, 0))
+    assert harness.spin_until(lambda: probe.acted_on() == [(0, 0)])
+    action = messages.parse_fields(probe.actions[-1])['action']
+    assert -2.0 <= action <= 2.0
+
+
+@pytest.mark.parametrize(
+    'spaces,message',
+    [
+        (dict(observation_size=2), 'action_low, action_high are missing'),
+        (dict(observation_size=2, action_low=[-1.0], action_high=[1.0, 2.0]), 'one per action dimension'),
+        (dict(env_id='Pendulum-v1', observation_size=2, action_low=[-2.0], action_high=[2.0]), 'observation size 2'),
+    ],
+)
+def test_incomplete_or_contradictory_spaces_are_refused_at_start_up(ros_context, tmp_path, spaces, message):
+    overrides = [p for p in small_learner_params(tmp_path) if p.name not in spaces] + params(**spaces)
+    with pytest.raises(ValueError, match=message):
+        LearnerNode(context=ros_context, parameter_overrides=overrides)
+
+
+def test_a_learner_configured_for_another_env_refuses_its_env_info(harness, ros_context, tmp_path):
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    harness.add(DoubleIntegratorEnv(context=ros_context))
+    assert harness.spin_until(lambda: not ros_context.ok(), timeout=10)
+    assert 'observation size 2, not 3; action bounds [[-1.0], [1.0]], not [[-2.0], [2.0]]' in learner.exit_error
+    assert 'configured by env_id Pendulum-v1' in learner.exit_error
+
+
+def test_teleop_expert_takes_the_action_size_from_env_info_and_refuses_a_mapping_of_another_size(harness, ros_context):
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(source='array', axes=[0, 1], scales=[1.0, 1.0], offsets=[0.0, 0.0]),
+        )
+    )
+    harness.add(DoubleIntegratorEnv(context=ros_context))
+    assert harness.spin_until(lambda: not ros_context.ok(), timeout=10)
+    assert "the mapping gives 2 action value(s) (parameter 'scales'), env 'double_integrator' takes 1" in (
+        teleop.exit_error
+    )
+
+
+def test_a_person_advises_on_the_example_env_through_teleop_expert(harness, ros_context, tmp_path):
+    """teleop_expert and a person's command (here a PD law on the latest observation) against the
+    example env with no gymnasium id: advice is given, counted as a person's."""
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(source='array', axes=[0], scales=[1.0], offsets=[0.0], stale_after_s=5.0),
+        )
+    )
+    person = harness.add(rclpy.create_node('person', context=ros_context))
+    command_pub = person.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    controller = DoubleIntegratorExpert()
+
+    def follow(msg):
+        step = messages.parse_observation(msg, 2)
+        command_pub.publish(messages.build([('command', controller.action(step.obs))]))
+
+    person.create_subscription(Float32MultiArray, 'observation', follow, 10)
+    harness.add(DoubleIntegratorEnv(context=ros_context, parameter_overrides=params(max_episode_steps=30)))
+    learner = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=no_env_id(tmp_path, mode='qasac', max_episodes=2))
+    )
+    assert harness.spin_until(lambda: learner.done, timeout=60)
+    assert teleop.env_info.spec.name == 'double_integrator'
+    totals = learner.learner.advice_total
+    assert totals.given > 0 and totals.human == totals.given
+
+
+def test_keyboard_teleop_takes_its_dimensions_from_env_info(harness, ros_context):
+    read_end, write_end = os.pipe()
+    try:
+        keyboard = harness.add(KeyboardTeleop(read_end, io.StringIO(), context=ros_context))
+        assert len(keyboard.command) == 0  # nothing to command yet: nothing is published
+        harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(env_id='LunarLanderContinuous-v3')))
+        assert harness.spin_until(lambda: len(keyboard.command) == 2, timeout=10)
+        keyboard.on_key('d')
+        assert keyboard.command.tolist() == [0.25, 0.0]
+    finally:
+        os.close(read_end)
+        os.close(write_end)
+
+
+def test_an_expert_with_no_controller_for_the_env_says_so(harness, ros_context):
+    expert = harness.add(ExpertNode(context=ros_context))
+    info = harness.add(rclpy.create_node('some_env', context=ros_context))
+    publisher = info.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS)
+    publisher.publish(env_info.env_info_msg(EnvSpec('my_arm', 6, [-1.0] * 3, [1.0] * 3)))
+    assert harness.spin_until(lambda: not ros_context.ok(), timeout=10)
+    assert "no heuristic expert for 'my_arm'" in expert.exit_error
+
+
+SHARED = """
+gym_env:
+  ros__parameters:
+    max_episode_steps: 20
+expert:
+  ros__parameters:
+    backend: heuristic
+teleop_expert:
+  ros__parameters:
+    source: array
+learner:
+  ros__parameters:
+    mode: qasac
+    output_dir: {output}
+keyboard_teleop:
+  ros__parameters:
+    dimensions: 1
+/**:
+  ros__parameters:
+    env_id: Pendulum-v1
+    use_sim_time: false
+"""
+
+
+def make_all(context, tmp_path):
+    read_end, write_end = os.pipe()
+    nodes = []
+    try:
+        nodes.append(GymEnvNode(context=context))
+        nodes.append(ExpertNode(context=context))
+        nodes.append(TeleopExpertNode(context=context))
+        nodes.append(KeyboardTeleop(read_end, io.StringIO(), context=context))
+        nodes.append(LearnerNode(context=context))
+        return list(nodes)
+    finally:
+        for node in nodes:
+            if isinstance(node, LearnerNode):
+                node.close()
+            node.destroy_node()
+        os.close(read_end)
+        os.close(write_end)
+
+
+def init_with(tmp_path, text, *extra):
+    path = tmp_path / 'shared.yaml'
+    path.write_text(text.format(output=tmp_path / 'run'))
+    context = rclpy.Context()
+    rclpy.init(context=context, args=['--ros-args', '--params-file', str(path), *extra])
+    return context
+
+
+def test_a_shared_section_last_in_the_file_keeps_the_command_line_in_charge(tmp_path):
+    """rcl puts -p values in the '/**' section and applies sections in file order: with the
+    shared section last (as in the shipped files), -p overrides a node's own section."""
+    context = init_with(tmp_path, SHARED, '-p', 'mode:=sac')
+    try:
+        learner = LearnerNode(context=context)
+        assert learner.config.mode == 'sac' and learner.params['env_id'] == 'Pendulum-v1'
+        learner.close()
+        learner.destroy_node()
+    finally:
+        context.try_shutdown()
+
+
+def test_a_shared_section_loads_into_every_node_and_a_typo_in_a_nodes_own_section_is_refused(tmp_path):
+    import yaml
+
+    context = init_with(tmp_path, SHARED)
+    try:
+        nodes = make_all(context, tmp_path)
+        assert [n.get_parameter('env_id').value for n in nodes] == ['Pendulum-v1'] * 5
+        assert nodes[-1].config.mode == 'qasac'
+    finally:
+        context.try_shutdown()
+    data = yaml.safe_load(SHARED)
+    assert file_section(data, 'learner')['env_id'] == 'Pendulum-v1'
+    # eqhrl-experiment reads a file as rcl applies it: sections in file order, the later wins.
+    own, shared = {'ros__parameters': {'env_id': 'own'}}, {'ros__parameters': {'env_id': 'shared'}}
+    assert file_section({'learner': own, '/**': shared}, 'learner')['env_id'] == 'shared'
+    assert file_section({'/**': shared, 'learner': own}, 'learner')['env_id'] == 'own'
+
+    typo = SHARED.replace('    mode: qasac', '    mdoe: qasac')
+    shared_typo = SHARED.replace('    use_sim_time: false', '    use_sim_tmie: false')
+    for text, refusal in ((typo, "unknown parameter\\(s\\) for node 'learner': mdoe"), (shared_typo, 'use_sim_tmie')):
+        context = init_with(tmp_path, text)
+        try:
+            with pytest.raises(ValueError, match=refusal):
+                make_all(context, tmp_path)
+        finally:
+            context.try_shutdown()
+    with pytest.raises(ValueError, match="the shared '/\\*\\*' section holds use_sim_tmie"):
+        file_section(yaml.safe_load(shared_typo), 'learner')
+
+
+def test_the_example_env_is_solved_by_its_expert_and_not_by_chance():
+    """The numbers its docstring states: PD about -4 and at rest; random pushing far worse."""
+    returns = {'pd': [], 'random': []}
+    rests = 0
+    for seed in range(20):
+        for name in returns:
+            system, rng = DoubleIntegrator(seed=seed), np.random.default_rng(seed)
+            obs, total = system.reset(), 0.0
+            for _ in range(100):
+                u = DoubleIntegratorExpert().action(obs)[0] if name == 'pd' else rng.uniform(-1, 1)
+                obs, reward = system.step(u)
+                total += reward
+            returns[name].append(total)
+            rests += name == 'pd' and system.at_rest()
+    assert -6 < np.mean(returns['pd']) < -2 and rests == 20
+    assert np.mean(returns['random']) < -300
