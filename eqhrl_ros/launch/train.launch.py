@@ -5,6 +5,7 @@ ros2 launch eqhrl_ros train.launch.py env:=lunar_lander mode:=qasac
 ros2 launch eqhrl_ros train.launch.py params_file:=/path/to/my.yaml
 ros2 launch eqhrl_ros train.launch.py env:=double_integrator env_node:=double_integrator_env
 ros2 launch eqhrl_ros train.launch.py params_file:=/path/to/my.yaml env_node:=none   (your own env node)
+ros2 launch eqhrl_ros train.launch.py env:=teleop_pendulum expert:=teleop   (a person advises)
 """
 
 import os
@@ -16,6 +17,8 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 ENV_NODES = ('gym_env', 'double_integrator_env', 'none')
+# expert:=... -> the executable it starts (none: your own expert, started apart).
+EXPERT_NODES = {'expert': 'expert', 'teleop': 'teleop_expert', 'none': None}
 
 
 def _nodes(context):
@@ -27,23 +30,42 @@ def _nodes(context):
     env_node = LaunchConfiguration('env_node').perform(context)
     if env_node not in ENV_NODES:
         raise ValueError(f'env_node:={env_node} is not one of {", ".join(ENV_NODES)}')
+    expert = LaunchConfiguration('expert').perform(context)
+    if expert not in EXPERT_NODES:
+        raise ValueError(f'expert:={expert} is not one of {", ".join(EXPERT_NODES)}')
     learner_params = [params_file] + ([{'mode': mode}] if mode else [])
+    experts = (
+        [
+            Node(
+                package='eqhrl_ros',
+                executable=EXPERT_NODES[expert],
+                name=EXPERT_NODES[expert],
+                parameters=[params_file],
+                output='screen',
+            )
+        ]
+        if EXPERT_NODES[expert]
+        else []
+    )
     env = (
         [Node(package='eqhrl_ros', executable=env_node, name=env_node, parameters=[params_file], output='screen')]
         if env_node != 'none'
         else []  # your own env node, started apart: the others take the spaces from its env_info
     )
-    return env + [
-        Node(package='eqhrl_ros', executable='expert', name='expert', parameters=[params_file], output='screen'),
-        Node(
-            package='eqhrl_ros',
-            executable='learner',
-            name='learner',
-            parameters=learner_params,
-            output='screen',
-            emulate_tty=True,
-        ),
-    ]
+    return (
+        env
+        + experts
+        + [
+            Node(
+                package='eqhrl_ros',
+                executable='learner',
+                name='learner',
+                parameters=learner_params,
+                output='screen',
+                emulate_tty=True,
+            ),
+        ]
+    )
 
 
 def generate_launch_description():
@@ -57,6 +79,12 @@ def generate_launch_description():
             DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
             DeclareLaunchArgument(
                 'mode', default_value='', description='sac, qasac or eqsac (overrides the params file)'
+            ),
+            DeclareLaunchArgument(
+                'expert',
+                default_value='expert',
+                description='who advises: expert (the built-in controller or a policy), teleop (a person, '
+                'through teleop_expert; start keyboard_teleop or a joystick apart), or none (your own)',
             ),
             DeclareLaunchArgument(
                 'env_node',

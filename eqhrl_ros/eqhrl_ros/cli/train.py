@@ -27,6 +27,7 @@ from ..nodes.spinning import EXECUTORS
 
 DISCOVERY = ('off', 'localhost', 'subnet')
 ENV_NODES = ('gym_env', 'double_integrator_env', 'none')
+EXPERT_NODES = ('expert', 'teleop', 'none')  # the launch file's expert:= takes the same names
 
 
 class StartUpRefused(Exception):
@@ -50,7 +51,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument('--overwrite', action='store_true', help='replace a run already in the output folder')
     parser.add_argument(
         '--expert-node',
-        choices=('expert', 'teleop', 'none'),
+        choices=EXPERT_NODES,
         default='expert',
         help='which expert to start: the built-in/policy expert, the teleop expert '
         '(a person advises, e.g. with keyboard_teleop), or none',

@@ -1,5 +1,6 @@
 """The env, learner and expert nodes, spun by rclpy executors in the test process."""
 
+import ast
 import csv
 import dataclasses
 import time
@@ -256,13 +257,18 @@ def test_realtime_env_steps_at_its_rate_holding_the_last_action(harness, ros_con
 def test_launch_file_is_valid_python_naming_the_executables():
     source = (PARAMS_DIR.parent / 'launch' / 'train.launch.py').read_text()
     compile(source, 'train.launch.py', 'exec')
-    for executable in ('expert', 'learner'):
-        assert f"executable='{executable}'" in source
-    assert 'executable=env_node' in source
-    # The env nodes it may start are eqhrl-train's (checked here: the launch file imports nothing of ours).
-    from eqhrl_ros.cli.train import ENV_NODES
+    assert "executable='learner'" in source
+    assert 'executable=env_node' in source and 'executable=EXPERT_NODES[expert]' in source
+    # Its choices are eqhrl-train's (checked here: the launch file imports nothing of ours).
+    from eqhrl_ros.cli.train import ENV_NODES, EXPERT_NODES
 
-    assert f'ENV_NODES = {ENV_NODES!r}' in source
+    constants = {
+        node.targets[0].id: ast.literal_eval(node.value)
+        for node in ast.parse(source).body
+        if isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name)
+    }
+    assert constants['ENV_NODES'] == ENV_NODES and tuple(constants['EXPERT_NODES']) == EXPERT_NODES
+    assert {v for v in constants['EXPERT_NODES'].values() if v} == {'expert', 'teleop_expert'}
 
 
 def test_realtime_env_with_a_slow_expert_keeps_every_transition(harness, ros_context, tmp_path):
