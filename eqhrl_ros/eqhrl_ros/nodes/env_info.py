@@ -4,7 +4,8 @@ The env publishes eqhrl_interfaces/msg/EnvInfo once, transient-local, so a node 
 starts later still gets it. Every other node either knows the spaces already (a gymnasium
 ``env_id`` or the spaces as parameters) and checks each EnvInfo against them, or waits for
 the first one and takes the spaces from it. A disagreement is a refusal: one error line,
-and the node stops with exit code 1 (see spinning.stop_with_error).
+and a node that has not begun its work stops with exit code 1 (see spinning.stop_with_error);
+one at work logs it and goes on.
 """
 
 from __future__ import annotations
@@ -90,8 +91,20 @@ class EnvInfoWatcher:
     EnvInfo that contradicts itself, stops the node with one error line naming both sides.
     """
 
-    def __init__(self, node: Node, configured: Optional[EnvSpec], on_spec: Callable[[EnvSpec], None]):
+    def __init__(
+        self,
+        node: Node,
+        configured: Optional[EnvSpec],
+        on_spec: Callable[[EnvSpec], None],
+        working: Callable[[], bool] = lambda: False,
+    ):
+        """``working()``: the node has begun its work (the learner has stored a step, the expert
+        answered). From then on a disagreeing EnvInfo is logged and ignored, not obeyed: any
+        node can publish on env_info, and a run in progress is not ended on its word (the
+        observations of another size that a really different env sends are dropped anyway)."""
         self.node = node
+        self._working = working
+        self.ignored = 0  # disagreeing EnvInfo messages ignored while working
         self.spec: Optional[EnvSpec] = None
         self.announced: Optional[EnvSpec] = None  # the env's own EnvInfo, once heard
         self._on_spec = on_spec
@@ -110,13 +123,20 @@ class EnvInfoWatcher:
         self.spec = spec
         self._on_spec(spec)
 
+    def _refuse(self, message: str) -> None:
+        if self._working():
+            self.ignored += 1
+            self.node.get_logger().error(f'{message}; ignored, this run goes on', throttle_duration_sec=5.0)
+        else:
+            stop_with_error(self.node, message)
+
     def _on_env_info(self, msg: EnvInfo) -> None:
         if self.node.context is None or not self.node.context.ok():
             return
         try:
             announced = spec_from_msg(msg, f'env_info from the env {msg.name!r}')
         except ValueError as error:
-            stop_with_error(self.node, f'refused {self.topic}: {error}')
+            self._refuse(f'refused {self.topic}: {error}')
             return
         self.announced = announced
         if self.spec is None:
@@ -131,10 +151,9 @@ class EnvInfoWatcher:
             return
         differences = self.spec.disagreements(announced)
         if differences:
-            stop_with_error(
-                self.node,
+            self._refuse(
                 f"refused {self.topic}: the env '{announced.name}' has {'; '.join(differences)} "
-                f'(this node was configured by {self.spec.source or "an earlier env_info"})',
+                f'(this node was configured by {self.spec.source or "an earlier env_info"})'
             )
         elif announced.name != self.spec.name and self.spec.name:
             self.node.get_logger().warn(

@@ -35,7 +35,9 @@ class ExpertNode(Node):
         self.requests = 0
         self.create_service(Advise, 'advise', self._on_request)
         # The spaces given as parameters are checked against the backend; env_id only names it.
-        self.env_info = EnvInfoWatcher(self, configured_spec(dict(p, env_id='')), self._on_env)
+        self.env_info = EnvInfoWatcher(
+            self, configured_spec(dict(p, env_id='')), self._on_env, working=lambda: self.requests > 0
+        )
 
     def _make_backend(self, env_name: str):
         backend = make_expert(self.params['backend'], env_name, self.params['policy_path'])

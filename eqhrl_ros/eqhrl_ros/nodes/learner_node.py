@@ -133,7 +133,9 @@ class LearnerNode(Node):
         self.create_timer(0.25, self._check_stall, clock=self._steady)
         self.done = False
         self.summaries: list[EpisodeSummary] = []
-        self.env_info = EnvInfoWatcher(self, configured_spec(p), self._configure)
+        self.env_info = EnvInfoWatcher(
+            self, configured_spec(p), self._configure, working=lambda: bool(self.learner and self.learner.total_steps)
+        )
 
     def _configure(self, spec: EnvSpec) -> None:
         """Build the learner for the env's spaces; with resume, load the checkpoint. From

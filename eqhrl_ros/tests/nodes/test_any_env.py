@@ -307,3 +307,24 @@ def test_the_example_env_is_solved_by_its_expert_and_not_by_chance():
             rests += name == 'pd' and system.at_rest()
     assert -6 < np.mean(returns['pd']) < -2 and rests == 20
     assert np.mean(returns['random']) < -300
+
+
+def test_a_learner_at_work_logs_and_ignores_a_disagreeing_env_info(harness, ros_context, tmp_path):
+    """Any node can publish on env_info: a run in progress is not ended on its word."""
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=no_env_id(tmp_path, observation_size=2, action_low=[-1.0], action_high=[1.0]),
+        )
+    )
+    publisher, probe = observation_publisher(harness)
+    for step in range(3):
+        publisher.publish(messages.observation_msg([0.1, 0.0], -1.0, False, False, 0, step))
+        assert harness.spin_until(lambda: len(probe.acted_on()) == step + 1)
+    intruder = probe.node.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS)
+    intruder.publish(env_info.env_info_msg(EnvSpec('fake', 7, [-5.0], [5.0])))
+    assert harness.spin_until(lambda: learner.env_info.ignored == 1)
+    assert ros_context.ok() and getattr(learner, 'exit_error', None) is None
+    publisher.publish(messages.observation_msg([0.1, 0.0], -1.0, False, False, 0, 3))
+    assert harness.spin_until(lambda: probe.acted_on()[-1] == (0, 3))
+    assert learner.learner.total_steps == 3
