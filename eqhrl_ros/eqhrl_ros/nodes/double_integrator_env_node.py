@@ -4,8 +4,9 @@ A point mass on a line: state [x, v], force u in [-1, 1], x'' = u. The task is t
 to rest at x = 0: reward -(x^2 + 0.1 v^2 + 0.01 u^2) per step, 100 steps of 0.1 s. A PD law
 (the expert's heuristic backend for this env) scores about -4; pushing at random about -580.
 
-The node speaks the protocol of the package README ("Connect your own robot or simulator")
-with nothing but rclpy, numpy, std_msgs and eqhrl_interfaces:
+The node class speaks the protocol of the package README ("Connect your own robot or
+simulator") with nothing but rclpy, numpy, std_msgs and eqhrl_interfaces (only main() uses
+this package's runner, for a clean Ctrl-C):
 - it announces itself once on the latched ``env_info`` (eqhrl_interfaces/msg/EnvInfo);
 - it publishes each step on ``observation``: obs[2], reward, terminated, truncated, episode,
   step, success (a std_msgs/Float32MultiArray, labelled);
@@ -19,7 +20,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -174,15 +174,12 @@ class DoubleIntegratorEnv(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    node = DoubleIntegratorEnv()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    # This package's runner: Ctrl-C and SIGTERM (also twice, as ros2 launch sends them) end the
+    # node cleanly with exit code 0. In your own package, rclpy.init(), rclpy.spin(node) and
+    # rclpy.try_shutdown() are enough to start with.
+    from eqhrl_ros.nodes.spinning import run_node
+
+    run_node(DoubleIntegratorEnv, args, name='double_integrator_env')
 
 
 if __name__ == '__main__':

@@ -64,6 +64,8 @@ def test_every_node_exits_0_and_quietly_on_a_signal_and_a_second_one(tmp_path, s
         'gym_env': start('gym_env', '--ros-args', '-p', 'max_episode_steps:=20', log_dir=tmp_path),
         'expert': start('expert', log_dir=tmp_path),
         'teleop_expert': start('teleop_expert', log_dir=tmp_path),
+        # The example env in a namespace of its own, beside the graph under test.
+        'double_integrator_env': start('double_integrator_env', '--ros-args', '-r', '__ns:=/example', log_dir=tmp_path),
         'learner': start(
             'learner',
             *learner_args(
