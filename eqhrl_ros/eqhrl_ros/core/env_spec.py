@@ -18,6 +18,12 @@ import numpy as np
 SUCCESS_RULES = ('none', 'reported', 'return_at_least', 'pendulum_upright')
 
 
+# Sizes beyond any flat observation or action this learner is built for: an announcement
+# outside them is refused before a network of that size is made.
+MAX_OBSERVATION_SIZE = 1_000_000
+MAX_ACTION_SIZE = 10_000
+
+
 def builtin_success(name: str) -> tuple[str, float]:
     """The built-in success rule of a gymnasium env: Pendulum ends balanced; LunarLander
     reaches 200, the env's solved line. Any other env: none (an env node may report it)."""
@@ -53,8 +59,12 @@ class EnvSpec:
         object.__setattr__(self, 'observation_labels', tuple(self.observation_labels))
         object.__setattr__(self, 'action_labels', tuple(self.action_labels))
         where = f' ({self.source})' if self.source else ''
-        if self.observation_size < 1:
-            raise ValueError(f'observation size must be >= 1, got {self.observation_size}{where}')
+        if not 1 <= self.observation_size <= MAX_OBSERVATION_SIZE:
+            raise ValueError(
+                f'observation size must be in [1, {MAX_OBSERVATION_SIZE:,}], got {self.observation_size}{where}'
+            )
+        if low.size > MAX_ACTION_SIZE:
+            raise ValueError(f'action size must be at most {MAX_ACTION_SIZE:,}, got {low.size}{where}')
         if low.shape != high.shape or low.size == 0:
             raise ValueError(
                 f'action_low has {low.size} values and action_high {high.size}; '

@@ -160,7 +160,7 @@ def heuristic_expert(env_name: str):
         if env_name.startswith(prefix):
             return controller()
     raise ValueError(
-        f'no heuristic expert for {env_name!r}; built in: Pendulum-v1, LunarLanderContinuous-v3, '
+        f'no heuristic expert for {env_name[:64]!r}; built in: Pendulum-v1, LunarLanderContinuous-v3, '
         'double_integrator (use the policy backend for other envs)'
     )
 

@@ -42,6 +42,12 @@ def env_info_msg(spec: EnvSpec) -> EnvInfo:
     )
 
 
+def shown(name: str) -> str:
+    """An env's name as one safe log token: printable ASCII, at most 64 characters."""
+    text = ''.join(c if c.isascii() and c.isprintable() else '?' for c in name[:65])
+    return (text[:61] + '...' if len(text) > 64 else text) or '(unnamed)'
+
+
 def spec_from_msg(msg: EnvInfo, source: str = TOPIC) -> EnvSpec:
     """The EnvSpec an EnvInfo describes. ValueError names what is inconsistent in it."""
     if msg.action_size != len(msg.action_low):
@@ -134,29 +140,29 @@ class EnvInfoWatcher:
         if self.node.context is None or not self.node.context.ok():
             return
         try:
-            announced = spec_from_msg(msg, f'env_info from the env {msg.name!r}')
+            announced = spec_from_msg(msg, f"env_info from the env '{shown(msg.name)}'")
         except ValueError as error:
             self._refuse(f'refused {self.topic}: {error}')
             return
         self.announced = announced
         if self.spec is None:
             self.node.get_logger().info(
-                f'{self.topic}: {announced.name}, obs {announced.observation_size}, action '
+                f'{self.topic}: {shown(announced.name)}, obs {announced.observation_size}, action '
                 f'{announced.action_size} in [{announced.action_low.tolist()}, {announced.action_high.tolist()}]'
             )
             try:
                 self._use(announced)
             except start_up_errors() as error:  # the node cannot work with it (no controller, a bad checkpoint)
-                stop_with_error(self.node, f'cannot start with {self.topic} of {announced.name!r}: {error}')
+                stop_with_error(self.node, f"cannot start with {self.topic} of '{shown(announced.name)}': {error}")
             return
         differences = self.spec.disagreements(announced)
         if differences:
             self._refuse(
-                f"refused {self.topic}: the env '{announced.name}' has {'; '.join(differences)} "
+                f"refused {self.topic}: the env '{shown(announced.name)}' has {'; '.join(differences)} "
                 f'(this node was configured by {self.spec.source or "an earlier env_info"})'
             )
         elif announced.name != self.spec.name and self.spec.name:
             self.node.get_logger().warn(
-                f"{self.topic}: the env is '{announced.name}', this node was configured for "
+                f"{self.topic}: the env is '{shown(announced.name)}', this node was configured for "
                 f"'{self.spec.name}'; the spaces agree, going on"
             )

@@ -37,7 +37,7 @@ from ..core.experts import Advice
 from ..core.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
 from ..core.records import EpisodeRecord, RunFolder
 from . import advise_msgs, messages
-from .env_info import EnvInfoWatcher, configured_spec
+from .env_info import EnvInfoWatcher, configured_spec, shown
 from .params import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, choices_validator, declare, reject_unknown_overrides
 from .spinning import ExitError, run_node, steady_clock
 
@@ -160,7 +160,7 @@ class LearnerNode(Node):
             )
             self.spec, self.learner = spec, learner
         self.get_logger().info(
-            f'{self.config.mode} on {spec.name or "(unnamed env)"} ({spec.source}): obs {spec.observation_size}, '
+            f'{self.config.mode} on {shown(spec.name)} ({spec.source}): obs {spec.observation_size}, '
             f'action {spec.action_size}, success {spec.success_rule}, '
             f'budget {self.config.advising_budget} episodes, output {self.output_dir}'
         )

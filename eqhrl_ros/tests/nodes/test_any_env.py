@@ -328,3 +328,18 @@ def test_a_learner_at_work_logs_and_ignores_a_disagreeing_env_info(harness, ros_
     publisher.publish(messages.observation_msg([0.1, 0.0], -1.0, False, False, 0, 3))
     assert harness.spin_until(lambda: probe.acted_on()[-1] == (0, 3))
     assert learner.learner.total_steps == 3
+
+
+def test_a_hostile_env_info_is_refused_with_a_bounded_line(harness, ros_context, tmp_path):
+    """A megabyte name and a billion observation values: refused before any network is made,
+    in a log line of bounded length."""
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=no_env_id(tmp_path)))
+    info = harness.add(rclpy.create_node('hostile', context=ros_context))
+    msg = EnvInfo(
+        name='\x1b[2J' + 'x' * 1_000_000, observation_size=10**9, action_size=1, action_low=[-1.0], action_high=[1.0]
+    )
+    info.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(msg)
+    assert harness.spin_until(lambda: not ros_context.ok(), timeout=10)
+    assert learner.learner is None
+    assert 'observation size must be in [1, 1,000,000], got 1000000000' in learner.exit_error
+    assert len(learner.exit_error) < 300 and '\x1b' not in learner.exit_error
