@@ -81,8 +81,7 @@ class LearnerConfig:
     actor_on_advice: bool = hyper(False, 'Also train the actor on the advice batch')
 
     def __post_init__(self):
-        for f in dataclasses.fields(self):
-            setattr(self, f.name, check_value(f.name, getattr(self, f.name)))
+        check_fields(self)
 
     @classmethod
     def from_params(cls, params: dict, node_keys=(), **overrides) -> 'LearnerConfig':
@@ -113,12 +112,23 @@ def ros_name(f: dataclasses.Field) -> str:
 
 
 def check_value(name: str, value: Any) -> Any:
-    """``value`` for field ``name`` if it is allowed (ints for floats become floats), else ValueError."""
-    f = FIELDS[name]
-    kind, meta = type(f.default), f.metadata
+    """``value`` for LearnerConfig field ``name`` if it is allowed (ints for floats become floats),
+    else ValueError."""
+    return check_field(FIELDS[name], value, 'LearnerConfig')
+
+
+def check_fields(instance) -> None:
+    """Check (and normalise) every hyper() field of a dataclass instance, in place."""
+    for f in dataclasses.fields(instance):
+        setattr(instance, f.name, check_field(f, getattr(instance, f.name), type(instance).__name__))
+
+
+def check_field(f: dataclasses.Field, value: Any, owner: str) -> Any:
+    """``value`` for a field declared with hyper(), or a ValueError naming ``owner.field``."""
+    name, kind, meta = f.name, type(f.default), f.metadata
 
     def refuse(expected: str):
-        raise ValueError(f'LearnerConfig.{name} must be {expected}, got {value!r}')
+        raise ValueError(f'{owner}.{name} must be {expected}, got {value!r}')
 
     if kind is tuple:
         try:

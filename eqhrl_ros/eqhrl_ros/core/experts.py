@@ -35,18 +35,31 @@ class Advice:
     action: Optional[np.ndarray]
     reason: str = ''
     expert_name: str = ''
-    human: bool = False  # a person gave it (teleop)
+    human: bool = False  # a person answered (or skipped, or let the answer window pass)
+    # Seconds from the request to this answer: a person's reaction time, the cost the
+    # method exists to save (0 for a controller that answers at once).
+    response_time_s: float = 0.0
+    # A person's answer window passed with no answer: counted as a timeout, not a decline.
+    timed_out: bool = False
 
     @property
     def advised(self) -> bool:
         return self.action is not None
 
     @staticmethod
-    def decline(reason: str, expert_name: str = '') -> 'Advice':
-        return Advice(None, reason, expert_name)
+    def decline(reason: str, expert_name: str = '', human: bool = False, response_time_s: float = 0.0) -> 'Advice':
+        return Advice(None, reason, expert_name, human, response_time_s)
+
+    @staticmethod
+    def no_answer(window_s: float, expert_name: str = '') -> 'Advice':
+        """A person did not answer within ``window_s``: the whole window was their time."""
+        return Advice(None, f'no answer within {window_s:.1f} s', expert_name, True, window_s, timed_out=True)
 
 
 Expert = Callable[[AdviceRequest], Advice]
+
+# The reason a person's explicit "no advice" (skip) carries.
+SKIPPED = 'skipped by the person'
 
 
 # Kinds of failed advice, counted apart from advice given and advice declined.
@@ -177,12 +190,19 @@ def expert_disagreements(expert, observation_size: int, action_size: int) -> lis
     return found
 
 
-EXPERT_BACKENDS = ('heuristic', 'policy')
+EXPERT_BACKENDS = ('heuristic', 'policy', 'simulated_human')
 
 
-def make_expert(backend: str, env_id: str, policy_path: str = ''):
-    """The expert a backend name stands for: the env's built-in controller, or a policy file
-    exported by a learner (checkpoint.PolicyExpert). ValueError names what is missing."""
+def make_expert(backend: str, env_id: str, policy_path: str = '', human_limits=None, seed: int = 0):
+    """The expert a backend name stands for: the env's built-in controller, a policy file
+    exported by a learner (checkpoint.PolicyExpert), or a simulated person who imitates the
+    policy (when policy_path is set) or else the controller, with ``human_limits``
+    (simulated_human.HumanLimits). ValueError names what is missing."""
+    if backend == 'simulated_human':
+        from .simulated_human import SimulatedHuman
+
+        model = make_expert('policy' if policy_path else 'heuristic', env_id, policy_path)
+        return SimulatedHuman(model, human_limits, seed)
     if backend == 'policy':
         if not policy_path:
             raise ValueError("backend 'policy' needs a policy file (policy_path is empty)")

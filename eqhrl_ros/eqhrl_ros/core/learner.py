@@ -66,6 +66,8 @@ class AdviceCounts:
     human: int = 0  # of the given advice, how much came from a person
     declined: int = 0
     failed: dict = field(default_factory=lambda: {kind: 0 for kind in FAILURE_KINDS})
+    # Seconds a person spent on requests: answering, skipping, or a whole answer window let pass.
+    human_time_s: float = 0.0
 
     @property
     def failed_total(self) -> int:
@@ -76,6 +78,7 @@ class AdviceCounts:
         self.given += other.given
         self.human += other.human
         self.declined += other.declined
+        self.human_time_s += other.human_time_s
         for kind, n in other.failed.items():
             self.failed[kind] += n
 
@@ -86,13 +89,21 @@ class AdviceCounts:
             'human': self.human,
             'declined': self.declined,
             'failed': dict(self.failed),
+            'human_time_s': self.human_time_s,
         }
 
     @staticmethod
     def from_dict(d: dict) -> 'AdviceCounts':
         failed = {kind: 0 for kind in FAILURE_KINDS}
         failed.update({k: int(v) for k, v in d['failed'].items() if k in failed})
-        return AdviceCounts(int(d['asked']), int(d['given']), int(d.get('human', 0)), int(d['declined']), failed)
+        return AdviceCounts(
+            int(d['asked']),
+            int(d['given']),
+            int(d.get('human', 0)),
+            int(d['declined']),
+            failed,
+            float(d.get('human_time_s', 0.0)),  # checkpoints before people were timed have none
+        )
 
 
 def adam(params, lr: float, state: dict | None = None) -> torch.optim.Adam:
@@ -285,9 +296,15 @@ class EQSACLearner:
 
         ``failure`` names why no answer came (one of experts.FAILURE_KINDS); otherwise
         ``advice`` is the answer. A refusal or a failure leaves the learner's own action.
+        A person's time on the request (advice.response_time_s) is counted whatever they said;
+        a person's answer window that passed (advice.timed_out) counts as a timeout.
         """
         counts = self._episode_advice
         counts.asked += 1
+        if advice is not None and advice.human:
+            counts.human_time_s += max(0.0, float(advice.response_time_s))
+        if advice is not None and advice.timed_out:
+            failure = 'timeout'
         if failure:
             if failure not in counts.failed:
                 raise ValueError(f'unknown failure kind {failure!r}; one of {FAILURE_KINDS}')
@@ -479,6 +496,8 @@ class EQSACLearner:
             total_steps=self.total_steps,
             alpha=self.alpha,
             interrupted=self.episode_interrupted,
+            human_time_s=counts.human_time_s,
+            human_time_total_s=self.advice_total.human_time_s + counts.human_time_s,
         )
         self.advice_total.add(counts)
         self.episode += 1

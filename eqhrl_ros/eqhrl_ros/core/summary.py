@@ -26,6 +26,10 @@ class EpisodeSummary:
     # The learner did not see the whole episode (an observation was lost, or it joined
     # mid-episode): return and length cover only what it saw. Never a normal episode.
     interrupted: bool = False
+    # Seconds of a person's time spent on this episode's advice requests (reaction times of
+    # answers and skips, whole answer windows let pass), and over the whole run so far.
+    human_time_s: float = 0.0
+    human_time_total_s: float = 0.0
 
     CSV_FIELDS = (
         'episode',
@@ -40,6 +44,8 @@ class EpisodeSummary:
         'total_steps',
         'alpha',
         'interrupted',
+        'human_time_s',
+        'human_time_total_s',
     )
 
     def csv_row(self) -> list:
@@ -56,4 +62,6 @@ class EpisodeSummary:
             self.total_steps,
             f'{self.alpha:.6f}',
             int(self.interrupted),
+            f'{self.human_time_s:.3f}',
+            f'{self.human_time_total_s:.3f}',
         ]

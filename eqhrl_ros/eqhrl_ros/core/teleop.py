@@ -12,7 +12,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from .experts import Advice, AdviceRequest
+from .experts import SKIPPED, Advice, AdviceRequest
 
 
 @dataclass(frozen=True)
@@ -22,6 +22,8 @@ class Command:
     values: np.ndarray
     enabled: bool  # the deadman/enable button is held (always True without one)
     disabled_reason: str = ''
+    answer: bool = False  # the answer button is held: "use my command for this request"
+    skip: bool = False  # the skip button is held: "no advice for this request"
 
 
 def affine(values: Sequence[float], scales: Sequence[float], offsets: Sequence[float]) -> np.ndarray:
@@ -37,18 +39,24 @@ def joy_command(
     offsets: Sequence[float],
     require_enable_button: bool = True,
     enable_button: int = 0,
+    answer_button: int = -1,
+    skip_button: int = -1,
 ) -> Command:
     """sensor_msgs/Joy -> Command, in the style of teleop_twist_joy (axis index and scale per output).
 
-    An axis index beyond the joystick's axes reads as 0.
+    An axis index beyond the joystick's axes reads as 0; a button index of -1 (or beyond the
+    joystick's buttons) is a button that is never held.
     """
+
+    def held(index: int) -> bool:
+        return 0 <= index < len(buttons) and bool(buttons[index])
+
     raw = [axes[i] if 0 <= i < len(axes) else 0.0 for i in axis_indices]
     values = affine(raw, scales, offsets)
-    if require_enable_button:
-        held = 0 <= enable_button < len(buttons) and bool(buttons[enable_button])
-        if not held:
-            return Command(values, False, f'enable (deadman) button {enable_button} is not held')
-    return Command(values, True)
+    answer, skip = held(answer_button), held(skip_button)
+    if require_enable_button and not held(enable_button):
+        return Command(values, False, f'enable (deadman) button {enable_button} is not held', answer, skip)
+    return Command(values, True, '', answer, skip)
 
 
 TWIST_FIELDS = ('linear.x', 'linear.y', 'linear.z', 'angular.x', 'angular.y', 'angular.z')
@@ -65,36 +73,80 @@ def twist_command(
     return Command(affine([read(f) for f in fields], scales, offsets), True)
 
 
-def array_command(
-    data: Sequence[float], indices: Sequence[int], scales: Sequence[float], offsets: Sequence[float]
-) -> Command:
-    """A plain Float32MultiArray command: value ``indices[i]`` drives action dimension i."""
+# The teleop_command message (std_msgs/Float32MultiArray), as keyboard_teleop and
+# advice_console publish it: labelled fields, 'command' first. A plain unlabelled array is
+# all command, always enabled, with no buttons.
+COMMAND_FIELDS = ('command', 'enabled', 'answer', 'skip')
+
+
+def array_command(fields: dict, indices: Sequence[int], scales: Sequence[float], offsets: Sequence[float]) -> Command:
+    """A Float32MultiArray command read into ``fields`` ({label: values}): value ``indices[i]``
+    of 'command' drives action dimension i; 'enabled' (the deadman), 'answer' and 'skip' are
+    buttons, held when non-zero (an absent one reads: enabled, not pressed)."""
+    data = list(fields.get('command', ()))
     if any(i >= len(data) or i < 0 for i in indices):
         raise ValueError(f'command has {len(data)} values, the mapping reads indices {list(indices)}')
-    return Command(affine([data[i] for i in indices], scales, offsets), True)
+
+    def held(label: str, default: bool) -> bool:
+        values = fields.get(label)
+        return default if not values else bool(values[0])
+
+    enabled = held('enabled', True)
+    return Command(
+        affine([data[i] for i in indices], scales, offsets),
+        enabled,
+        '' if enabled else 'the deadman is not held',
+        held('answer', False),
+        held('skip', False),
+    )
+
+
+ANSWER_MODES = ('window', 'instant')
+
+
+@dataclass
+class OpenRequest:
+    """A request held open for the person to answer."""
+
+    request: AdviceRequest
+    opened: float  # clock() when it arrived
+    values: Optional[np.ndarray]  # the command held when it arrived (None: none yet)
 
 
 class TeleopExpert:
-    """An Expert (core interface) that answers with a person's latest command.
+    """An Expert (core interface) that answers with a person's command.
 
-    Declines, with a reason, when no command has arrived yet, when the latest one is
-    older than ``stale_after_s``, when its deadman is not held, or when its size does
-    not match the env's action. Otherwise it clips the command into the env's bounds
-    (given in each request) and marks the advice as human.
+    Two ways to answer (the teleop_expert node's ``answer_mode``):
+    - ``window``: ``open(request)`` holds the request until the person acts. ``update``
+      returns the answer when a command answers it: the answer button or the deadman
+      pressed, or a command that differs from the one held when the request came (by more
+      than ``answer_change`` in some dimension); the skip button declines. ``expire`` ends
+      it unanswered (a timeout). Each answer carries the person's reaction time.
+    - ``instant`` (calling it): the latest command at once, for a person who holds the stick
+      all along (HIL-SERL-style intervention).
+    Either way it declines, with a reason, a command that is missing, stale (older than
+    ``stale_after_s``), without its deadman, or of the wrong size; an advised action is
+    clipped into the env's bounds (given in each request) and marked human.
     """
 
-    def __init__(self, stale_after_s: float = 0.5, name: str = 'teleop', clock: Callable[[], float] = time.monotonic):
+    def __init__(
+        self,
+        stale_after_s: float = 0.5,
+        name: str = 'teleop',
+        clock: Callable[[], float] = time.monotonic,
+        answer_change: float = 0.05,
+    ):
         if stale_after_s <= 0:
             raise ValueError(f'stale_after_s must be > 0, got {stale_after_s}')
         self.stale_after_s = stale_after_s
+        self.answer_change = answer_change
         self.name = name
         self._clock = clock
         self._command: Optional[Command] = None
         self._stamp = 0.0
+        self.pending: Optional[OpenRequest] = None
 
-    def update(self, command: Command) -> None:
-        self._command = command
-        self._stamp = self._clock()
+    # ------------------------------------------------------------------ instant
 
     def __call__(self, request: AdviceRequest) -> Advice:
         command = self._command
@@ -105,12 +157,65 @@ class TeleopExpert:
             return Advice.decline(
                 f'last teleop command is {age:.2f} s old (stale after {self.stale_after_s:g} s)', self.name
             )
+        return self._advice(command, request, 0.0)
+
+    def _advice(self, command: Command, request: AdviceRequest, reaction_s: float) -> Advice:
         if not command.enabled:
-            return Advice.decline(command.disabled_reason or 'teleop disabled', self.name)
+            return Advice.decline(command.disabled_reason or 'teleop disabled', self.name, True, reaction_s)
         low = np.asarray(request.action_low, dtype=np.float32)
         high = np.asarray(request.action_high, dtype=np.float32)
         if command.values.shape[0] != low.shape[0]:
             return Advice.decline(
-                f'teleop command has {command.values.shape[0]} values, the env action has {low.shape[0]}', self.name
+                f'teleop command has {command.values.shape[0]} values, the env action has {low.shape[0]}',
+                self.name,
+                True,
+                reaction_s,
             )
-        return Advice(np.clip(command.values, low, high), expert_name=self.name, human=True)
+        return Advice(np.clip(command.values, low, high), expert_name=self.name, human=True, response_time_s=reaction_s)
+
+    # ------------------------------------------------------------------ answer window
+
+    def open(self, request: AdviceRequest) -> None:
+        """Hold ``request`` open for the person (a request still open is replaced)."""
+        held = self._command.values.copy() if self._command is not None else None
+        self.pending = OpenRequest(request, self._clock(), held)
+
+    def update(self, command: Command) -> Optional[Advice]:
+        """Take the person's latest command; returns the answer to the open request if this
+        command gives one (the request is then closed), else None."""
+        previous = self._command
+        self._command, self._stamp = command, self._clock()
+        pending = self.pending
+        if pending is None:
+            return None
+
+        def pressed(button: str) -> bool:  # a rising edge: held now, not in the previous command
+            return getattr(command, button) and not (previous is not None and getattr(previous, button))
+
+        reaction = self._stamp - pending.opened
+        if pressed('skip'):
+            self.pending = None
+            return Advice.decline(SKIPPED, self.name, True, reaction)
+        moved = pending.values is None or (
+            pending.values.shape != command.values.shape
+            or float(np.max(np.abs(command.values - pending.values), initial=0.0)) > self.answer_change
+        )
+        deadman_pressed = command.enabled and previous is not None and not previous.enabled
+        if not command.enabled or not (pressed('answer') or deadman_pressed or moved):
+            return None  # no answer yet (and nothing is given without the deadman)
+        self.pending = None
+        return self._advice(command, pending.request, reaction)
+
+    def expire(self, window_s: float) -> Optional[Advice]:
+        """The answer window passed: the open request ends unanswered (None if none was open)."""
+        if self.pending is None:
+            return None
+        self.pending = None
+        return Advice.no_answer(window_s, self.name)
+
+    def withdraw(self, reason: str) -> Optional[Advice]:
+        """End the open request without the person (e.g. a newer request replaces it)."""
+        if self.pending is None:
+            return None
+        pending, self.pending = self.pending, None
+        return Advice.decline(reason, self.name, True, self._clock() - pending.opened)

@@ -10,9 +10,10 @@ from eqhrl_interfaces.srv import Advise
 from ..core.experts import Advice, AdviceRequest
 
 
-def request_msg(request: AdviceRequest) -> Advise.Request:
-    """The learner's request as the service carries it."""
+def request_msg(request: AdviceRequest, timeout_s: float = 0.0) -> Advise.Request:
+    """The learner's request as the service carries it; ``timeout_s``: how long it waits."""
     return Advise.Request(
+        timeout_s=float(timeout_s),
         observation=request.observation.tolist(),
         proposed_action=request.proposed_action.tolist(),
         action_low=request.action_low.tolist(),
@@ -57,6 +58,8 @@ def fill_response(response: Advise.Response, advice: Advice, name: str) -> Advis
     response.expert_name = name
     response.advised = advice.advised
     response.human = bool(advice.human)
+    response.response_time_s = float(advice.response_time_s)
+    response.timed_out = bool(advice.timed_out)
     if advice.advised:
         response.action = np.asarray(advice.action, dtype=np.float32).tolist()
     else:
@@ -67,4 +70,6 @@ def fill_response(response: Advise.Response, advice: Advice, name: str) -> Advis
 def advice_from_response(response: Advise.Response, name: str) -> Advice:
     """The answer as the core's Advice; ``name`` is the expert's name as the learner shows it."""
     action = np.asarray(response.action, dtype=np.float32) if response.advised else None
-    return Advice(action, response.reason, name, bool(response.human))
+    return Advice(
+        action, response.reason, name, bool(response.human), float(response.response_time_s), bool(response.timed_out)
+    )

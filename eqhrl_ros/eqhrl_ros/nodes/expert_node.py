@@ -1,23 +1,30 @@
-"""expert: serves the Advise service with a built-in controller or an exported policy.
+"""expert: serves the Advise service with a built-in controller, an exported policy, or a
+simulated person imitating either.
 
 The heuristic backend picks its controller by the env's name: ``env_id`` if set, else the
-name in the env's ``env_info``. Requests that come before it knows are declined.
+name in the env's ``env_info``. Requests that come before it knows are declined. The
+simulated person's reaction time is waited out on the steady clock in a coroutine, so the
+node stays responsive meanwhile (its service has its own callback group).
 """
 
 from __future__ import annotations
 
 import time
+from typing import Optional
 
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
 from eqhrl_interfaces.srv import Advise
 
 from ..core.env_spec import EnvSpec
 from ..core.experts import Advice, expert_disagreements, make_expert
-from .advise_msgs import answer, fill_response
+from ..core.simulated_human import HumanLimits, SimulatedHuman
+from .advise_msgs import answer, fill_response, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec
-from .params import EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
-from .spinning import run_node
+from .params import EXPERT_PARAMS, HUMAN_LIMIT_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .spinning import pause, run_node, steady_clock
+from .teleop_expert_node import ANSWER_MARGIN_S
 
 
 class ExpertNode(Node):
@@ -33,14 +40,25 @@ class ExpertNode(Node):
             # env_id here names the controller (any env name, not only a gymnasium id).
             self.backend = self._make_backend(p['env_id'])
         self.requests = 0
-        self.create_service(Advise, 'advise', self._on_request)
+        self._steady = steady_clock()
+        # A simulated person answers from a coroutine (it waits out a reaction time); the
+        # others answer at once. Coroutine callbacks need an executor that runs them.
+        self.coroutine_callbacks = p['backend'] == 'simulated_human'
+        self.create_service(
+            Advise,
+            'advise',
+            self._on_request_as_person if self.coroutine_callbacks else self._on_request,
+            callback_group=ReentrantCallbackGroup(),
+        )
         # The spaces given as parameters are checked against the backend; env_id only names it.
         self.env_info = EnvInfoWatcher(
             self, configured_spec(dict(p, env_id='')), self._on_env, working=lambda: self.requests > 0
         )
 
     def _make_backend(self, env_name: str):
-        backend = make_expert(self.params['backend'], env_name, self.params['policy_path'])
+        p = self.params
+        limits = HumanLimits(**{param.name: p[param.name] for param in HUMAN_LIMIT_PARAMS})
+        backend = make_expert(p['backend'], env_name, p['policy_path'], limits, p['seed'])
         self.get_logger().info(f"serving 'advise' with {getattr(backend, 'name', type(backend).__name__)}")
         return backend
 
@@ -54,17 +72,39 @@ class ExpertNode(Node):
                 + '; '.join(differences)
             )
 
-    def _on_request(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+    def _refusal(self) -> Optional[Advice]:
+        """Why this request gets no answer from the backend, if it does not."""
         self.requests += 1
-        name = self.get_fully_qualified_name()
         delay = self.get_parameter('response_delay_s').value
         if delay > 0:
             time.sleep(delay)
         if not self.get_parameter('enabled').value:
-            return fill_response(response, Advice.decline('expert disabled (parameter enabled is false)'), name)
+            return Advice.decline('expert disabled (parameter enabled is false)')
         if self.backend is None:
-            return fill_response(response, Advice.decline(f'waiting for {self.env_info.topic}'), name)
+            return Advice.decline(f'waiting for {self.env_info.topic}')
+        return None
+
+    def _on_request(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        name = self.get_fully_qualified_name()
+        refusal = self._refusal()
+        if refusal is not None:
+            return fill_response(response, refusal, name)
         return answer(self.backend, request, response, name, self.get_logger())
+
+    async def _on_request_as_person(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        """The simulated person reacts after their drawn delay, within the answer window
+        (cut, like teleop_expert's, to the learner's timeout)."""
+        name = self.get_fully_qualified_name()
+        refusal = self._refusal()
+        if refusal is not None:
+            return fill_response(response, refusal, name)
+        human: SimulatedHuman = self.backend
+        window = human.limits.answer_window_s
+        if request.timeout_s > 0:
+            window = max(0.0, min(window, request.timeout_s - ANSWER_MARGIN_S))
+        plan = human.plan(request_from_msg(request))
+        await pause(self, min(plan.delay_s, window), self._steady)
+        return fill_response(response, human.outcome(plan, window), name)
 
 
 def main(args=None):

@@ -320,7 +320,7 @@ class LearnerNode(Node):
             return
         self._token += 1
         token = self._token
-        request = advise_msgs.request_msg(proposal.request)
+        request = advise_msgs.request_msg(proposal.request, self.params['advice_timeout_s'])
         timer = self.create_timer(
             self.params['advice_timeout_s'], lambda: self._on_advice_timeout(token), clock=self._steady
         )
@@ -359,12 +359,18 @@ class LearnerNode(Node):
     def _resolve(self, pending: PendingAdvice, advice: Optional[Advice] = None, failure: str = '') -> None:
         """Count the outcome, tell the person's UI, and act."""
         resolution = self.learner.resolve_advice(pending.proposal, advice, failure)
+        human = advice is not None and advice.human
         if resolution.outcome == 'declined' and resolution.detail:
             # A person's "why not" is worth seeing (a declining controller says why too).
             self.get_logger().info(f'advice declined: {printable_name(resolution.detail)}', throttle_duration_sec=2.0)
         self.request_pub.publish(
             messages.advice_request_msg(
-                resolution.outcome, pending.proposal.request, self.params['advice_timeout_s'], resolution.detail
+                resolution.outcome,
+                pending.proposal.request,
+                self.params['advice_timeout_s'],
+                resolution.detail,
+                human,
+                advice.response_time_s if human else time.monotonic() - pending.sent,
             )
         )
         self._finish_step(*resolution.take())
@@ -445,6 +451,11 @@ class LearnerNode(Node):
         failed = self.learner.advice_total.failed
         failures = ', '.join(f'{k} {v}' for k, v in failed.items() if v)
         experts = ', '.join(f'{name} {n}' for name, n in self.experts_heard.items())
+        person = (
+            f'  person {summary.human_time_s:.1f} s (total {summary.human_time_total_s:.1f} s)'
+            if summary.human_time_total_s
+            else ''
+        )
         self.experts_heard.clear()
         self.get_logger().info(
             f'episode {summary.episode:4d}  return {summary.episode_return:9.2f}  len {summary.length:4d}  '
@@ -454,6 +465,7 @@ class LearnerNode(Node):
             f'{"  failed %d (total: %s)" % (summary.advice_failed, failures) if summary.advice_failed else ""}'
             f'  success {int(summary.success)}  steps {summary.total_steps}  alpha {summary.alpha:.3f}'
             f'{"  INTERRUPTED (not seen whole)" if summary.interrupted else ""}'
+            f'{person}'
             f'{"  answered by: " + experts if experts else ""}'
         )
         every = self.params['checkpoint_every_episodes']

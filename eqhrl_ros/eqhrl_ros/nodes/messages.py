@@ -10,6 +10,10 @@ Each message labels its fields in ``layout.dim`` (label, size; stride = size), i
 - action (learner -> env):       action[m], episode, step
   episode and step name the observation the action answers; the env ignores a
   tagged action for another step. A bare action[m] (no tag) is accepted too.
+- teleop_command (a person's UI -> teleop_expert):  command[k], enabled, answer, skip
+  command values in [-1, 1] (teleop_expert maps them with axes, scales and offsets);
+  enabled, answer and skip are buttons, 1.0 while held: the deadman, "answer with my
+  command" and "no advice". A bare command[k] (no labels) is accepted too.
 
 The learner's own topics have message types with named fields (eqhrl_interfaces/msg):
 episode_stats (EpisodeStats), gate_debug (GateDecision), advice_request (AdviceRequest);
@@ -34,6 +38,7 @@ from std_msgs.msg import Float32MultiArray, MultiArrayDimension, MultiArrayLayou
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 
 from ..core.summary import EpisodeSummary
+from ..core.teleop import COMMAND_FIELDS
 
 OBS_TAIL = ('reward', 'terminated', 'truncated', 'episode', 'step')
 OBS_SUCCESS = 'success'  # the optional last field of an observation
@@ -287,6 +292,29 @@ def stats_msg(summary: EpisodeSummary) -> EpisodeStats:
     return EpisodeStats(**dataclasses.asdict(summary))
 
 
+def command_msg(command: Sequence[float], enabled: bool, answer: bool, skip: bool) -> Float32MultiArray:
+    """teleop_command as keyboard_teleop and advice_console publish it (COMMAND_FIELDS)."""
+    values = (command, [float(enabled)], [float(answer)], [float(skip)])
+    return build(list(zip(COMMAND_FIELDS, values)))
+
+
+def read_fields(msg: Float32MultiArray) -> dict:
+    """{label: [values]} of a labelled message; an unlabelled one is all 'command'. A layout
+    whose sizes do not add up to the data raises MessageError."""
+    data = list(msg.data)
+    if not msg.layout.dim:
+        return {'command': data}
+    if sum(dim.size for dim in msg.layout.dim) != len(data):
+        raise MessageError(
+            f'layout sizes add up to {sum(dim.size for dim in msg.layout.dim)}, the message has {len(data)} values'
+        )
+    out, offset = {}, 0
+    for dim in msg.layout.dim:
+        out[dim.label] = data[offset : offset + dim.size]
+        offset += dim.size
+    return out
+
+
 def parse_fields(msg: Float32MultiArray) -> dict:
     """{label: value or list} from a labelled message (for tests and tools)."""
     out, offset = {}, 0
@@ -311,11 +339,15 @@ def gate_msg(episode: int, step: int, decision) -> GateDecision:
     )
 
 
-def advice_request_msg(outcome: str, request, timeout_s: float, detail: str = '') -> AdviceRequest:
+def advice_request_msg(
+    outcome: str, request, timeout_s: float, detail: str = '', human: bool = False, response_time_s: float = 0.0
+) -> AdviceRequest:
     """learner/advice_request: ``request`` (core AdviceRequest) and what came of it so far."""
     return AdviceRequest(
         outcome=ADVICE_OUTCOMES[outcome],
         detail=detail,
+        human=bool(human),
+        response_time_s=float(response_time_s),
         episode=int(request.episode),
         step=int(request.step),
         discrepancy=float(request.discrepancy),

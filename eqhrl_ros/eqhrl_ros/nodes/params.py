@@ -17,6 +17,8 @@ from rclpy.parameter import Parameter
 
 from ..core.config import INT_MAX, LearnerConfig, ros_name
 from ..core.experts import EXPERT_BACKENDS
+from ..core.simulated_human import HumanLimits
+from ..core.teleop import ANSWER_MODES
 
 
 @dataclass(frozen=True)
@@ -48,19 +50,26 @@ class Param:
         return descriptor
 
 
+def params_of(declared) -> tuple[Param, ...]:
+    """ROS parameters for the fields of a dataclass declared with core.config.hyper()."""
+    return tuple(
+        Param(
+            ros_name(f),
+            list(f.default) if isinstance(f.default, tuple) else f.default,
+            f.metadata['description'],
+            f.metadata['range'],
+            f.metadata['choices'],
+            f.metadata['dynamic'],
+        )
+        for f in dataclasses.fields(declared)
+    )
+
+
 # Parameters of the learner that map one-to-one onto core.LearnerConfig fields: derived
 # from the fields' declarations (core/config.py), never written here.
-LEARNER_CONFIG_PARAMS = tuple(
-    Param(
-        ros_name(f),
-        list(f.default) if isinstance(f.default, tuple) else f.default,
-        f.metadata['description'],
-        f.metadata['range'],
-        f.metadata['choices'],
-        f.metadata['dynamic'],
-    )
-    for f in dataclasses.fields(LearnerConfig)
-)
+LEARNER_CONFIG_PARAMS = params_of(LearnerConfig)
+# The simulated person's limits (expert backend simulated_human): core/simulated_human.py.
+HUMAN_LIMIT_PARAMS = params_of(HumanLimits)
 
 # The env's spaces, for an env node that publishes no env_info. Every node accepts them, so
 # that a params file's shared `/**:` section can set them for all nodes at once.
@@ -177,6 +186,8 @@ EXPERT_PARAMS = (
         dynamic=True,
     ),
     Param('enabled', True, 'Answer with advice; when false, decline every request', dynamic=True),
+    *HUMAN_LIMIT_PARAMS,
+    Param('seed', 0, 'Seed of the simulated person (backend simulated_human)', (0, INT_MAX)),
 )
 
 
@@ -339,6 +350,30 @@ TELEOP_EXPERT_PARAMS = (
     Param('offsets', [0.0], 'Offset for each action dimension', dynamic=True),
     Param('require_enable_button', True, 'joy: advise only while the enable (deadman) button is held', dynamic=True),
     Param('enable_button', 0, 'joy: index of the enable (deadman) button', (0, 128), dynamic=True),
+    Param('answer_button', 1, 'joy: index of the answer button (-1: none)', (-1, 128), dynamic=True),
+    Param('skip_button', 2, 'joy: index of the skip button (-1: none)', (-1, 128), dynamic=True),
+    Param(
+        'answer_mode',
+        'window',
+        'window: hold each request open until the person acts (or the window passes); '
+        'instant: answer at once with the held command (for a person who steers all along)',
+        choices=ANSWER_MODES,
+    ),
+    Param(
+        'answer_window_s',
+        5.0,
+        "Seconds the person is given per request (window mode); cut to the learner's advice_timeout_s less 0.2 s",
+        (0.05, 3600.0),
+        dynamic=True,
+    ),
+    Param(
+        'answer_change',
+        0.05,
+        'Window mode: a command that differs from the one held when the request came by more than this '
+        '(env units, any dimension) answers it',
+        (0.0, 1e6),
+        dynamic=True,
+    ),
     Param('stale_after_s', 0.5, 'Decline when the latest command is older than this', (0.01, 3600.0), dynamic=True),
 )
 

@@ -24,6 +24,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 
 from ..core.errors import CheckpointError
 
@@ -54,7 +55,7 @@ EXECUTORS = ('single', 'events', 'multi')
 DEFAULT_EXECUTOR = 'single'
 
 
-def make_executor(kind: Optional[str] = None, context=None):
+def make_executor(kind: Optional[str] = None, context=None, coroutines: bool = False):
     """The executor that spins our nodes: ``kind`` or $EQHRL_EXECUTOR, else 'single'.
 
     'single' (rclpy's SingleThreadedExecutor) takes messages through a wait set, so what
@@ -65,11 +66,15 @@ def make_executor(kind: Optional[str] = None, context=None):
     until it stops (benchmarks/flood.py); use it only on a closed graph. Where an rclpy
     lacks it, 'single' is used. 'multi' is the MultiThreadedExecutor; the nodes are safe
     under all three.
+
+    ``coroutines``: a node answers from coroutine callbacks (a person's answer window, a
+    simulated person's reaction time). rclpy's EventsExecutor does not run those, so such a
+    node gets 'single' instead of 'events'.
     """
     kind = kind or os.environ.get('EQHRL_EXECUTOR') or DEFAULT_EXECUTOR
     if kind not in EXECUTORS:
         raise ValueError(f'executor {kind!r} is not one of {EXECUTORS}')
-    if kind == 'events':
+    if kind == 'events' and not coroutines:
         try:
             from rclpy.experimental import EventsExecutor
         except ImportError:
@@ -79,6 +84,11 @@ def make_executor(kind: Optional[str] = None, context=None):
     if kind == 'multi':
         return MultiThreadedExecutor(context=context)
     return SingleThreadedExecutor(context=context)
+
+
+def needs_coroutines(node: Node) -> bool:
+    """The node answers from coroutine callbacks (see make_executor)."""
+    return bool(getattr(node, 'coroutine_callbacks', False))
 
 
 def steady_clock() -> Clock:
@@ -147,7 +157,7 @@ def spin(node_or_executor, stop: Optional[StopSignals] = None) -> None:
     context = node_or_executor.context
     try:
         if isinstance(node_or_executor, Node):
-            executor = make_executor(context=context)
+            executor = make_executor(context=context, coroutines=needs_coroutines(node_or_executor))
             executor.add_node(node_or_executor)
             try:
                 _spin_executor(executor, context, stop)
@@ -208,3 +218,16 @@ def run_node(
         stop.finished()
         if status:
             raise SystemExit(status)
+
+
+async def pause(node, seconds: float, clock) -> None:
+    """Await ``seconds`` on ``clock`` inside a coroutine callback, without blocking the
+    executor's thread (a one-shot timer completes a future)."""
+    if seconds <= 0:
+        return
+    done = Future()
+    timer = node.create_timer(seconds, lambda: done.done() or done.set_result(None), clock=clock)
+    try:
+        await done
+    finally:
+        node.destroy_timer(timer)

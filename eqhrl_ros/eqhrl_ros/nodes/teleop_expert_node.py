@@ -2,28 +2,41 @@
 
 Subscribes to ``joy`` (sensor_msgs/Joy, from the `joy` node), ``cmd_vel``
 (geometry_msgs/Twist, from teleop_twist_keyboard or teleop_twist_joy) or
-``teleop_command`` (std_msgs/Float32MultiArray, e.g. from keyboard_teleop), as
-``source`` says, and serves ``advise`` with the latest command.
+``teleop_command`` (std_msgs/Float32MultiArray, from keyboard_teleop or advice_console),
+as ``source`` says, and serves ``advise``.
+
+In ``answer_mode: window`` each request is held open until the person acts (see
+core.teleop.TeleopExpert) or the answer window passes. The service callback is a
+coroutine awaiting that moment, in its own callback group: the executor goes on
+delivering the person's commands meanwhile, and nothing blocks a thread.
 """
 
 from __future__ import annotations
 
+import threading
 from functools import reduce
 
 from geometry_msgs.msg import Twist
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.task import Future
 from sensor_msgs.msg import Joy
 from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.srv import Advise
 
 from ..core.env_spec import EnvSpec
-from ..core.teleop import TWIST_FIELDS, TeleopExpert, array_command, joy_command, twist_command
-from .advise_msgs import answer
+from ..core.experts import SKIPPED, Advice
+from ..core.teleop import TWIST_FIELDS, Command, TeleopExpert, array_command, joy_command, twist_command
+from . import messages
+from .advise_msgs import answer, fill_response, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec
 from .params import TELEOP_EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
-from .spinning import run_node
+from .spinning import run_node, steady_clock
+
+# The answer must reach the learner before its advice_timeout_s ends.
+ANSWER_MARGIN_S = 0.2
 
 
 class TeleopExpertNode(Node):
@@ -34,8 +47,17 @@ class TeleopExpertNode(Node):
         self._check_mapping(self.params)
         self.add_on_set_parameters_callback(choices_validator(TELEOP_EXPERT_PARAMS))
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.expert = TeleopExpert(self.params['stale_after_s'], name=self.get_fully_qualified_name())
+        self.expert = TeleopExpert(
+            self.params['stale_after_s'],
+            name=self.get_fully_qualified_name(),
+            answer_change=self.params['answer_change'],
+        )
         self.rejected_commands = 0
+        self.answers = {'answered': 0, 'skipped': 0, 'timed_out': 0, 'declined': 0}
+        self.reaction_times: list[float] = []  # seconds, per request the person answered or skipped
+        self._lock = threading.Lock()  # commands and requests may come on different threads
+        self._waiting: Future | None = None  # the open request's answer, once the person gives it
+        self._steady = steady_clock()
         source = self.params['source']
         if source == 'joy':
             self.create_subscription(Joy, 'joy', self._on_joy, 10)
@@ -43,9 +65,22 @@ class TeleopExpertNode(Node):
             self.create_subscription(Twist, 'cmd_vel', self._on_twist, 10)
         else:
             self.create_subscription(Float32MultiArray, 'teleop_command', self._on_array, 10)
-        self.create_service(Advise, 'advise', self._on_request)
+        # Window mode answers from a coroutine, in its own callback group: a request awaiting
+        # the person must not hold back the commands. Coroutine callbacks need an executor
+        # that runs them (spinning.make_executor).
+        self.coroutine_callbacks = self.params['answer_mode'] == 'window'
+        self.create_service(
+            Advise,
+            'advise',
+            self._on_request_in_window if self.coroutine_callbacks else self._on_request_now,
+            callback_group=ReentrantCallbackGroup(),
+        )
         topic = {'joy': 'joy', 'twist': 'cmd_vel', 'array': 'teleop_command'}[source]
-        self.get_logger().info(f"advising from '{topic}' ({source}); scales {self.params['scales']}")
+        self.get_logger().info(
+            f"advising from '{topic}' ({source}); scales {self.params['scales']}; answer mode "
+            f'{self.params["answer_mode"]}'
+            + (f', window {self.params["answer_window_s"]:g} s' if self.params['answer_mode'] == 'window' else '')
+        )
         self.env_info = EnvInfoWatcher(self, configured_spec(self.params), self._check_action_size)
 
     def _check_action_size(self, spec: EnvSpec) -> None:
@@ -79,11 +114,14 @@ class TeleopExpertNode(Node):
             return SetParametersResult(successful=False, reason=str(error))
         self.params = updated
         self.expert.stale_after_s = updated['stale_after_s']
+        self.expert.answer_change = updated['answer_change']
         return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ the person's commands
 
     def _on_joy(self, msg: Joy) -> None:
         p = self.params
-        self.expert.update(
+        self._take(
             joy_command(
                 list(msg.axes),
                 list(msg.buttons),
@@ -92,12 +130,14 @@ class TeleopExpertNode(Node):
                 p['offsets'],
                 p['require_enable_button'],
                 p['enable_button'],
+                p['answer_button'],
+                p['skip_button'],
             )
         )
 
     def _on_twist(self, msg: Twist) -> None:
         p = self.params
-        self.expert.update(
+        self._take(
             twist_command(
                 lambda field: float(reduce(getattr, field.split('.'), msg)),
                 p['twist_fields'],
@@ -109,13 +149,75 @@ class TeleopExpertNode(Node):
     def _on_array(self, msg: Float32MultiArray) -> None:
         p = self.params
         try:
-            self.expert.update(array_command(list(msg.data), p['axes'], p['scales'], p['offsets']))
+            command = array_command(messages.read_fields(msg), p['axes'], p['scales'], p['offsets'])
         except ValueError as error:
             self.rejected_commands += 1
             self.get_logger().error(f"'teleop_command': {error}", throttle_duration_sec=5.0)
+            return
+        self._take(command)
 
-    def _on_request(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+    def _take(self, command: Command) -> None:
+        with self._lock:
+            self._settle(self.expert.update(command))
+
+    # ------------------------------------------------------------------ requests
+
+    def _settle(self, advice: Advice | None) -> None:
+        """Give the open request its answer (called with the lock held)."""
+        if advice is None or self._waiting is None:
+            return
+        waiting, self._waiting = self._waiting, None
+        waiting.set_result(advice)
+
+    def _on_request_now(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
         return answer(self.expert, request, response, self.expert.name, self.get_logger())
+
+    async def _on_request_in_window(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        window = self.params['answer_window_s']
+        if request.timeout_s > 0:
+            window = min(window, request.timeout_s - ANSWER_MARGIN_S)
+        if window <= 0:
+            advice = Advice.decline(
+                f"the learner waits {request.timeout_s:.2f} s: no time for a person's answer", self.expert.name
+            )
+            return fill_response(response, advice, self.expert.name)
+        future = Future()
+        with self._lock:
+            # A request still open is superseded: the learner has given up on it.
+            self._settle(self.expert.withdraw('superseded by a newer request'))
+            self.expert.open(request_from_msg(request))
+            self._waiting = future
+        timer = self.create_timer(window, lambda: self._expire(future, window), clock=self._steady)
+        self.get_logger().info(
+            f'the learner asks for advice: episode {request.episode}, step {request.step}; answer within {window:.1f} s'
+        )
+        try:
+            advice = await future
+        finally:
+            self.destroy_timer(timer)
+        self._report(advice, request)
+        return fill_response(response, advice, self.expert.name)
+
+    def _expire(self, future: Future, window: float) -> None:
+        with self._lock:
+            if self._waiting is future:
+                self._settle(self.expert.expire(window))
+
+    def _report(self, advice: Advice, request: Advise.Request) -> None:
+        """Count and log what the person did, with their reaction time."""
+        where = f'episode {request.episode}, step {request.step}'
+        if advice.timed_out:
+            self.answers['timed_out'] += 1
+            self.get_logger().info(f'no answer for {where}: {advice.reason} (timeout)')
+            return
+        self.reaction_times.append(advice.response_time_s)
+        if advice.advised:
+            self.answers['answered'] += 1
+            action = ', '.join(f'{v:+.2f}' for v in advice.action)
+            self.get_logger().info(f'answered {where} after {advice.response_time_s:.2f} s: [{action}]')
+        else:
+            self.answers['skipped' if advice.reason == SKIPPED else 'declined'] += 1
+            self.get_logger().info(f'declined {where} after {advice.response_time_s:.2f} s: {advice.reason}')
 
 
 def main(args=None):

@@ -148,11 +148,14 @@ def test_teleop_expert_takes_the_action_size_from_env_info_and_refuses_a_mapping
 
 def test_a_person_advises_on_the_example_env_through_teleop_expert(harness, ros_context, tmp_path):
     """teleop_expert and a person's command (here a PD law on the latest observation) against the
-    example env with no gymnasium id: advice is given, counted as a person's."""
+    example env with no gymnasium id: advice is given, counted as a person's. The person steers
+    all along (answer_mode instant)."""
     teleop = harness.add(
         TeleopExpertNode(
             context=ros_context,
-            parameter_overrides=params(source='array', axes=[0], scales=[1.0], offsets=[0.0], stale_after_s=5.0),
+            parameter_overrides=params(
+                source='array', axes=[0], scales=[1.0], offsets=[0.0], stale_after_s=5.0, answer_mode='instant'
+            ),
         )
     )
     person = harness.add(rclpy.create_node('person', context=ros_context))

@@ -73,23 +73,28 @@ def test_twist_and_array_mappings():
     fields = {'linear.x': 0.5, 'angular.z': -1.0}
     command = twist_command(fields.get, ['linear.x', 'angular.z'], [1.0, -1.0], [0.0, 0.0])
     assert command.enabled and command.values.tolist() == [0.5, 1.0]
-    assert array_command([0.25, -0.5], [1, 0], [2.0, 1.0], [0.0, 0.0]).values.tolist() == [-1.0, 0.25]
+    assert array_command({'command': [0.25, -0.5]}, [1, 0], [2.0, 1.0], [0.0, 0.0]).values.tolist() == [-1.0, 0.25]
     with pytest.raises(ValueError, match='indices'):
-        array_command([0.1], [0, 1], [1.0, 1.0], [0.0, 0.0])
+        array_command({'command': [0.1]}, [0, 1], [1.0, 1.0], [0.0, 0.0])
+    # The labelled message keyboard_teleop and advice_console publish: deadman and buttons.
+    released = array_command(
+        messages.read_fields(messages.command_msg([0.5], enabled=False, answer=True, skip=False)), [0], [1.0], [0.0]
+    )
+    assert not released.enabled and released.answer and not released.skip and released.values.tolist() == [0.5]
 
 
 def test_teleop_expert_declines_with_reasons_and_clips():
     clock = FakeClock()
     expert = TeleopExpert(stale_after_s=0.5, name='person', clock=clock)
     assert 'no teleop command' in expert(request()).reason
-    expert.update(array_command([0.9], [0], [4.0], [0.0]))  # 3.6, beyond the torque limit
+    expert.update(array_command({'command': [0.9]}, [0], [4.0], [0.0]))  # 3.6, beyond the torque limit
     advice = expert(request())
     assert advice.advised and advice.human and advice.action.tolist() == [2.0]
     clock.now += 0.6
     assert not expert(request()).advised and 'old' in expert(request()).reason
     expert.update(joy_command([0.5], [0], [0], [1.0], [0.0], True, 0))
     assert 'not held' in expert(request()).reason
-    expert.update(array_command([0.1, 0.2], [0, 1], [1.0, 1.0], [0.0, 0.0]))
+    expert.update(array_command({'command': [0.1, 0.2]}, [0, 1], [1.0, 1.0], [0.0, 0.0]))
     assert 'has 2 values' in expert(request()).reason
 
 
@@ -117,7 +122,13 @@ def test_teleop_expert_node_follows_joy_with_deadman_and_staleness(harness, ros_
         TeleopExpertNode(
             context=ros_context,
             parameter_overrides=params(
-                source='joy', axes=[1], scales=[3.0], offsets=[0.0], enable_button=2, stale_after_s=0.3
+                source='joy',
+                axes=[1],
+                scales=[3.0],
+                offsets=[0.0],
+                enable_button=2,
+                stale_after_s=0.3,
+                answer_mode='instant',
             ),
         )
     )
@@ -157,6 +168,7 @@ def test_teleop_expert_node_follows_twist(harness, ros_context):
                 axes=[0, 1],
                 scales=[1.0, -1.0],
                 offsets=[0.0, 0.0],
+                answer_mode='instant',
             ),
         )
     )
@@ -194,7 +206,9 @@ def test_advice_from_a_person_is_marked_in_stats_and_csv(harness, ros_context, t
     harness.add(
         TeleopExpertNode(
             context=ros_context,
-            parameter_overrides=params(source='array', axes=[0], scales=[2.0], offsets=[0.0], stale_after_s=5.0),
+            parameter_overrides=params(
+                source='array', axes=[0], scales=[2.0], offsets=[0.0], stale_after_s=5.0, answer_mode='instant'
+            ),
         )
     )
     probe = harness.add(rclpy.create_node('person', context=ros_context))

@@ -1,0 +1,106 @@
+"""A simulated person: a controller or policy answering with a person's limits.
+
+A real person takes time to react, steers imprecisely, skips a request now and then and
+misses others entirely. ``SimulatedHuman`` puts those limits around any expert, so that the
+whole human path can be tested headless and experiments can ask what the method costs a
+person. No ROS and no sleeping here: ``plan`` says what the person will do and when; the
+in-process loop counts the delay as time spent, the ROS nodes wait it out on the clock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from .config import check_fields, hyper
+from .experts import SKIPPED, Advice, AdviceRequest
+
+PLAN_KINDS = ('answer', 'skip', 'miss')
+
+
+@dataclass
+class HumanLimits:
+    """How the simulated person behaves (each field is also an `expert` node parameter)."""
+
+    reaction_median_s: float = hyper(
+        0.8, "Median reaction time, seconds (log-normal; a person's choice reaction is 0.5-1.5 s)", range=(0.0, 600.0)
+    )
+    reaction_sigma: float = hyper(0.35, 'Spread of the reaction time: sigma of its logarithm', range=(0.0, 5.0))
+    action_noise: float = hyper(
+        0.1, 'Steering noise: standard deviation as a fraction of each action half-range', range=(0.0, 10.0)
+    )
+    skip_probability: float = hyper(0.05, 'Chance that the person looks and declines (skip)', range=(0.0, 1.0))
+    miss_probability: float = hyper(0.1, 'Chance that the person does not notice the request', range=(0.0, 1.0))
+    answer_window_s: float = hyper(
+        3.0, 'Seconds the person is given; a later reaction is a missed request (timeout)', range=(0.01, 600.0)
+    )
+
+    def __post_init__(self):
+        check_fields(self)
+        if self.skip_probability + self.miss_probability > 1.0:
+            raise ValueError(
+                f'skip_probability + miss_probability must be at most 1, got '
+                f'{self.skip_probability} + {self.miss_probability}'
+            )
+
+
+@dataclass(frozen=True)
+class HumanPlan:
+    """What the simulated person will do about one request, and after how many seconds."""
+
+    kind: str  # one of PLAN_KINDS; 'miss': never acts, the answer window passes
+    delay_s: float  # reaction time (inf for a miss)
+    action: Optional[np.ndarray] = None  # for 'answer': the noisy action, inside the bounds
+
+
+class SimulatedHuman:
+    """An Expert (core interface) that answers as ``expert`` would, with a person's limits.
+
+    Calling it answers at once with the time the person would have taken
+    (``Advice.response_time_s``); a reaction later than the answer window is a timeout.
+    """
+
+    human = True
+
+    def __init__(self, expert, limits: Optional[HumanLimits] = None, seed: int = 0, name: str = ''):
+        self.expert = expert
+        self.limits = limits or HumanLimits()
+        self.rng = np.random.default_rng(seed)
+        self.name = name or f'simulated_human({getattr(expert, "name", type(expert).__name__)})'
+        # The spaces it answers for are its expert's (checked against the env's).
+        self.observation_size = getattr(expert, 'observation_size', None)
+        self.action_size = getattr(expert, 'action_size', None)
+
+    def plan(self, request: AdviceRequest) -> HumanPlan:
+        """Draw what the person does about ``request``: one uniform draw picks miss, skip or
+        answer; a log-normal draw gives the reaction time; Gaussian noise perturbs the action."""
+        limits = self.limits
+        draw = self.rng.random()
+        delay = float(limits.reaction_median_s * math.exp(limits.reaction_sigma * self.rng.standard_normal()))
+        if draw < limits.miss_probability:
+            return HumanPlan('miss', math.inf)
+        if draw < limits.miss_probability + limits.skip_probability:
+            return HumanPlan('skip', delay)
+        advice = self.expert(request)
+        if not advice.advised:
+            return HumanPlan('skip', delay)  # the person's model has no answer either
+        low = np.asarray(request.action_low, dtype=np.float32)
+        high = np.asarray(request.action_high, dtype=np.float32)
+        noise = self.rng.standard_normal(low.shape[0]) * limits.action_noise * (high - low) / 2.0
+        action = np.clip(np.asarray(advice.action, dtype=np.float32) + noise.astype(np.float32), low, high)
+        return HumanPlan('answer', delay, action)
+
+    def outcome(self, plan: HumanPlan, window_s: Optional[float] = None) -> Advice:
+        """What ``plan`` comes to when the person is given ``window_s`` (default: answer_window_s)."""
+        window = self.limits.answer_window_s if window_s is None else window_s
+        if plan.kind == 'miss' or plan.delay_s > window:
+            return Advice.no_answer(window, self.name)
+        if plan.kind == 'skip':
+            return Advice.decline(SKIPPED, self.name, human=True, response_time_s=plan.delay_s)
+        return Advice(plan.action, expert_name=self.name, human=True, response_time_s=plan.delay_s)
+
+    def __call__(self, request: AdviceRequest) -> Advice:
+        return self.outcome(self.plan(request))

@@ -1,0 +1,166 @@
+"""A person as the expert, without ROS: the answer window of TeleopExpert, the simulated
+person, and what the learner counts of a person's time."""
+
+import math
+
+import numpy as np
+import pytest
+
+from eqhrl_ros.core.experts import SKIPPED, Advice, AdviceRequest, make_expert
+from eqhrl_ros.core.learner import EQSACLearner, LearnerConfig
+from eqhrl_ros.core.simulated_human import HumanLimits, SimulatedHuman
+from eqhrl_ros.core.teleop import Command, TeleopExpert
+
+
+def request(step=0, n=1):
+    return AdviceRequest(
+        np.zeros(3, np.float32), np.zeros(n, np.float32), -2 * np.ones(n, np.float32), 2 * np.ones(n, np.float32),
+        1.0, -1.0, 0, step,
+    )  # fmt: skip
+
+
+class FakeClock:
+    def __init__(self):
+        self.now = 50.0
+
+    def __call__(self):
+        return self.now
+
+
+def command(value, enabled=True, answer=False, skip=False):
+    return Command(np.array([value], np.float32), enabled, '' if enabled else 'deadman released', answer, skip)
+
+
+# ------------------------------------------------------------------ the answer window
+
+
+def test_a_held_command_does_not_answer_a_request_a_changed_one_does_with_its_reaction_time():
+    clock = FakeClock()
+    expert = TeleopExpert(name='person', clock=clock, answer_change=0.05)
+    expert.update(command(0.5))
+    expert.open(request())
+    clock.now += 0.4
+    assert expert.update(command(0.52)) is None  # the same stick position, re-published
+    clock.now += 0.9
+    advice = expert.update(command(3.0))  # the person moves: the answer, clipped to the bounds
+    assert advice.advised and advice.human and advice.action.tolist() == [2.0]
+    assert advice.response_time_s == pytest.approx(1.3)
+    assert expert.pending is None and expert.update(command(-1.0)) is None  # nothing open any more
+
+
+def test_the_answer_button_answers_with_the_held_command_and_skip_declines():
+    clock = FakeClock()
+    expert = TeleopExpert(name='person', clock=clock)
+    expert.update(command(0.5, answer=True))  # held before the request: not a press
+    expert.open(request())
+    assert expert.update(command(0.5, answer=True)) is None
+    expert.update(command(0.5))
+    clock.now += 0.7
+    advice = expert.update(command(0.5, answer=True))  # pressed
+    assert advice.advised and advice.action.tolist() == [0.5] and advice.response_time_s == pytest.approx(0.7)
+
+    expert.open(request(1))
+    clock.now += 0.2
+    skipped = expert.update(command(0.5, skip=True))
+    assert not skipped.advised and skipped.reason == SKIPPED and skipped.human and not skipped.timed_out
+    assert skipped.response_time_s == pytest.approx(0.2)
+
+
+def test_without_the_deadman_nothing_answers_and_pressing_it_does():
+    clock = FakeClock()
+    expert = TeleopExpert(name='person', clock=clock)
+    expert.update(command(0.0, enabled=False))
+    expert.open(request())
+    assert expert.update(command(1.0, enabled=False, answer=True)) is None
+    clock.now += 1.0
+    advice = expert.update(command(1.0, enabled=True))
+    assert advice.advised and advice.action.tolist() == [1.0] and advice.response_time_s == pytest.approx(1.0)
+
+
+def test_silence_times_out_and_a_newer_request_supersedes_an_open_one():
+    clock = FakeClock()
+    expert = TeleopExpert(name='person', clock=clock)
+    assert expert.expire(3.0) is None  # nothing open
+    expert.open(request())
+    late = expert.expire(3.0)
+    assert late.timed_out and late.human and not late.advised and late.response_time_s == 3.0
+    expert.open(request(1))
+    clock.now += 0.3
+    withdrawn = expert.withdraw('superseded by a newer request')
+    assert not withdrawn.advised and not withdrawn.timed_out and withdrawn.response_time_s == pytest.approx(0.3)
+
+
+def test_a_wrongly_sized_command_is_declined_when_the_person_answers():
+    expert = TeleopExpert(name='person', clock=FakeClock())
+    expert.open(request(n=2))
+    advice = expert.update(command(1.0))
+    assert not advice.advised and 'has 1 values' in advice.reason
+
+
+# ------------------------------------------------------------------ the simulated person
+
+
+def test_the_simulated_persons_draws_follow_its_limits():
+    limits = HumanLimits(
+        reaction_median_s=0.8, reaction_sigma=0.3, skip_probability=0.1, miss_probability=0.2, action_noise=0.5
+    )
+    human = SimulatedHuman(make_expert('heuristic', 'Pendulum-v1'), limits, seed=3)
+    plans = [human.plan(request()) for _ in range(4000)]
+    kinds = [p.kind for p in plans]
+    assert kinds.count('miss') / 4000 == pytest.approx(0.2, abs=0.025)
+    assert kinds.count('skip') / 4000 == pytest.approx(0.1, abs=0.02)
+    delays = [p.delay_s for p in plans if p.kind != 'miss']
+    assert np.median(delays) == pytest.approx(0.8, rel=0.05)
+    assert np.std(np.log(delays)) == pytest.approx(0.3, rel=0.1)
+    actions = np.array([p.action[0] for p in plans if p.kind == 'answer'])
+    assert actions.min() >= -2.0 and actions.max() <= 2.0 and actions.std() > 0.3  # noisy, inside the bounds
+
+
+def test_the_simulated_persons_outcome_respects_the_answer_window():
+    human = SimulatedHuman(make_expert('heuristic', 'Pendulum-v1'), HumanLimits(answer_window_s=2.0), seed=0)
+    from eqhrl_ros.core.simulated_human import HumanPlan
+
+    answer = HumanPlan('answer', 1.5, np.array([0.3], np.float32))
+    assert human.outcome(answer).advised and human.outcome(answer).response_time_s == 1.5
+    late = human.outcome(answer, window_s=1.0)
+    assert late.timed_out and late.response_time_s == 1.0
+    missed = human.outcome(HumanPlan('miss', math.inf))
+    assert missed.timed_out and missed.response_time_s == 2.0
+    skip = human.outcome(HumanPlan('skip', 0.4))
+    assert skip.reason == SKIPPED and not skip.timed_out
+    with pytest.raises(ValueError, match='skip_probability \\+ miss_probability'):
+        HumanLimits(skip_probability=0.6, miss_probability=0.6)
+    with pytest.raises(ValueError, match='HumanLimits.reaction_sigma'):
+        HumanLimits(reaction_sigma=-1.0)
+
+
+# ------------------------------------------------------------------ what the learner counts
+
+
+def test_the_learner_counts_a_persons_time_and_a_window_let_pass_as_a_timeout():
+    learner = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(mode='qasac', hidden=(8,), seed=0))
+    obs = np.zeros(3, np.float32)
+    proposal = learner.propose(obs)
+    answers = [
+        Advice(np.array([1.0], np.float32), expert_name='p', human=True, response_time_s=1.25),
+        Advice.decline(SKIPPED, 'p', human=True, response_time_s=0.5),
+        Advice.no_answer(3.0, 'p'),
+        Advice(np.array([1.0], np.float32), expert_name='controller', response_time_s=9.0),  # not a person
+    ]
+    outcomes = [learner.resolve_advice(proposal, a).outcome for a in answers]
+    assert outcomes == ['given', 'declined', 'failed', 'given']
+    counts = learner.episode_advice
+    assert counts.failed['timeout'] == 1 and counts.human == 1
+    assert counts.human_time_s == pytest.approx(4.75)
+    for t in range(3):
+        summary = learner.step(obs, [0.0], 0.0, obs, False, t == 2)
+    assert summary.human_time_s == pytest.approx(4.75) and summary.human_time_total_s == pytest.approx(4.75)
+    row = dict(zip(summary.CSV_FIELDS, summary.csv_row()))
+    assert row['human_time_s'] == '4.750' and row['human_time_total_s'] == '4.750'
+    learner.resolve_advice(learner.propose(obs), answers[1])
+    for t in range(3):
+        summary = learner.step(obs, [0.0], 0.0, obs, False, t == 2)
+    assert summary.human_time_s == pytest.approx(0.5) and summary.human_time_total_s == pytest.approx(5.25)
+    restored = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(mode='qasac', hidden=(8,), seed=0))
+    restored.load_state_dict(learner.state_dict())
+    assert restored.advice_total.human_time_s == pytest.approx(5.25)

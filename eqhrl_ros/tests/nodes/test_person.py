@@ -1,0 +1,143 @@
+"""A person in the loop through ROS, played by the simulated person: teleop_expert's answer
+window (answered, skipped and timed-out requests, reaction times) and the expert node's
+simulated_human backend."""
+
+import numpy as np
+import pytest
+import rclpy
+from std_msgs.msg import Float32MultiArray
+
+from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
+from eqhrl_ros.core.experts import AdviceRequest, make_expert
+from eqhrl_ros.core.simulated_human import HumanLimits, SimulatedHuman
+from eqhrl_ros.nodes import messages
+from eqhrl_ros.nodes.expert_node import ExpertNode
+from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+from eqhrl_ros.nodes.learner_node import LearnerNode
+from eqhrl_ros.nodes.spinning import steady_clock
+from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
+
+from ros_helpers import params, small_learner_params
+
+PENDULUM_LOW, PENDULUM_HIGH = np.array([-2.0], np.float32), np.array([2.0], np.float32)
+
+
+class PersonAtAConsole:
+    """A simulated person in front of a UI (keyboard_teleop, advice_console): sees each request on
+    learner/advice_request and, after their reaction time, publishes on teleop_command what the
+    UI sends for a key press: the command with the answer button pressed, or the skip button.
+    A missed request gets nothing."""
+
+    def __init__(self, harness, human: SimulatedHuman, scale: float):
+        self.node = harness.add(rclpy.create_node('simulated_person', context=harness.context))
+        self.human, self.scale = human, scale
+        self.plans = []  # one per request, in order
+        self.seen = set()
+        self.publisher = self.node.create_publisher(Float32MultiArray, 'teleop_command', 10)
+        self.node.create_subscription(
+            AdviceRequestMsg, 'learner/advice_request', self._on_request, messages.LATCHED_QOS
+        )
+        self.clock = steady_clock()
+
+    def _on_request(self, msg):
+        key = (msg.episode, msg.step)
+        if msg.outcome != AdviceRequestMsg.PENDING or key in self.seen:
+            return
+        self.seen.add(key)
+        request = AdviceRequest(
+            np.asarray(msg.observation, np.float32), np.asarray(msg.proposed_action, np.float32),
+            PENDULUM_LOW, PENDULUM_HIGH, msg.discrepancy, msg.entropy, msg.episode, msg.step,
+        )  # fmt: skip
+        plan = self.human.plan(request)
+        self.plans.append(plan)
+        if plan.kind == 'miss':
+            return
+        timer = None
+
+        def act():
+            self.node.destroy_timer(timer)
+            command = [0.0] if plan.action is None else (plan.action / self.scale).tolist()
+            answer, skip = plan.kind == 'answer', plan.kind == 'skip'
+            self.publisher.publish(messages.command_msg(command, True, answer, skip))  # press
+            self.publisher.publish(messages.command_msg(command, True, False, False))  # release
+
+        timer = self.node.create_timer(plan.delay_s, act, clock=self.clock)
+
+
+def test_teleop_expert_holds_each_request_for_the_person_and_counts_what_they_did(harness, ros_context, tmp_path):
+    window = 1.0
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(
+                source='array', axes=[0], scales=[2.0], offsets=[0.0], answer_window_s=window, answer_mode='window'
+            ),
+        )
+    )
+    limits = HumanLimits(reaction_median_s=0.25, reaction_sigma=0.3, skip_probability=0.25, miss_probability=0.25)
+    person = PersonAtAConsole(harness, SimulatedHuman(make_expert('heuristic', 'Pendulum-v1'), limits, seed=1), 2.0)
+    assert harness.spin_until(lambda: person.publisher.get_subscription_count() > 0)
+    env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=small_learner_params(tmp_path, mode='qasac', max_episodes=2, advice_timeout_s=1.5),
+        )
+    )
+    assert harness.spin_until(lambda: learner.done, timeout=90)
+
+    kinds = [p.kind for p in person.plans]
+    assert {'answer', 'skip', 'miss'} <= set(kinds), kinds  # the seed gives every kind
+    assert max(p.delay_s for p in person.plans if p.kind != 'miss') < window - 0.2  # none borderline
+    assert teleop.answers == {
+        'answered': kinds.count('answer'),
+        'skipped': kinds.count('skip'),
+        'timed_out': kinds.count('miss'),
+        'declined': 0,
+    }
+    totals = learner.learner.advice_total
+    assert totals.asked == len(kinds)
+    assert totals.given == totals.human == kinds.count('answer')
+    assert totals.declined == kinds.count('skip') and totals.failed['timeout'] == kinds.count('miss')
+    # Reaction times as teleop_expert measured them: the simulated delays, give or take transport.
+    delays = [p.delay_s for p in person.plans if p.kind != 'miss']
+    assert teleop.reaction_times == pytest.approx(delays, abs=0.08)
+    person_time = sum(delays) + window * kinds.count('miss')
+    assert totals.human_time_s == pytest.approx(person_time, abs=0.08 * len(kinds))
+    assert learner.summaries[-1].human_time_total_s == pytest.approx(totals.human_time_s, rel=1e-4)
+    # The lock-step env waited: every episode whole.
+    assert [s.length for s in learner.summaries] == [25, 25] and not any(s.interrupted for s in learner.summaries)
+    assert env.params['realtime'] is False
+
+
+def test_the_expert_node_plays_a_person_with_the_simulated_human_backend(harness, ros_context, tmp_path):
+    expert = harness.add(
+        ExpertNode(
+            context=ros_context,
+            parameter_overrides=params(
+                backend='simulated_human',
+                env_id='Pendulum-v1',
+                reaction_median_s=0.2,
+                reaction_sigma=0.2,
+                miss_probability=0.3,
+                skip_probability=0.0,
+                answer_window_s=0.6,
+                seed=4,
+            ),
+        )
+    )
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=small_learner_params(tmp_path, mode='qasac', max_episodes=2, advice_timeout_s=1.0),
+        )
+    )
+    assert harness.spin_until(lambda: learner.done, timeout=90)
+    totals = learner.learner.advice_total
+    assert expert.requests == totals.asked > 0
+    assert totals.given == totals.human > 0 and totals.failed['timeout'] > 0
+    assert totals.given + totals.failed['timeout'] == totals.asked
+    # The person's time was waited out for real: each answer came after its reaction time.
+    assert min(learner.advice_latencies) > 0.05
+    assert totals.human_time_s == pytest.approx(sum(learner.advice_latencies), abs=0.05 * totals.asked)
