@@ -1,9 +1,11 @@
 """keyboard_teleop: advise the learner from a terminal, no joystick needed.
 
-Keys act at once (no Enter). The node publishes the current command on
-``teleop_command`` (std_msgs/Float32MultiArray, values in [-1, 1]) at ``rate_hz``
-for a teleop_expert with ``source: array``, and shows when the learner is asking
-for advice (from ``learner/advice_request``). q or Ctrl-C quits and restores the
+Keys act at once. The node publishes the current command on ``teleop_command``
+(std_msgs/Float32MultiArray: command values in [-1, 1], then the enabled, answer and skip
+buttons; see nodes/messages.py) at ``rate_hz`` and on every key, for a teleop_expert with
+``source: array``, and shows when the learner is asking for advice (from
+``learner/advice_request``). A key that changes the command answers an open request with
+it, Enter answers with the command as it is, x skips. q or Ctrl-C quits and restores the
 terminal.
 """
 
@@ -45,6 +47,8 @@ class KeyboardTeleop(Node):
         self.command = np.zeros(self.params['dimensions'], dtype=np.float32)
         self.sending = True
         self.quit = False
+        self.answers = 0  # presses of Enter and x (shown, so that the person sees a key landed)
+        self.skips = 0
         self.request = None  # the latest advice_request fields
         self.request_seen = 0.0
         self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
@@ -68,9 +72,9 @@ class KeyboardTeleop(Node):
         self.request_seen = time.monotonic()
         self.draw()
 
-    def _publish(self) -> None:
+    def _publish(self, answer: bool = False, skip: bool = False) -> None:
         if self.sending and len(self.command):
-            self.publisher.publish(messages.build([('command', self.command)]))
+            self.publisher.publish(messages.command_msg(self.command, True, answer, skip))
 
     def _read_keys(self) -> None:
         while select.select([self.fd], [], [], 0)[0]:
@@ -94,6 +98,13 @@ class KeyboardTeleop(Node):
             self.sending = not self.sending
         elif key in ('q', '\x03'):
             self.quit = True
+        elif key in ('\r', '\n', 'x') and self.sending and len(self.command):
+            # A press: the button held in one message, released in the next (teleop_expert
+            # acts on the press).
+            answer = key != 'x'
+            self.answers += answer
+            self.skips += not answer
+            self._publish(answer=answer, skip=not answer)
         self._publish()
         self.draw()
 
@@ -103,6 +114,7 @@ class KeyboardTeleop(Node):
             'eqhrl_ros keyboard teleop: you are the expert',
             '',
             '  a / d : action[0] - / +' + ('      w / s : action[1] + / -' if n > 1 else ''),
+            '  Enter : answer with this command     x : skip (no advice)',
             '  space : zero        p : pause/resume sending        q : quit',
             '',
             f'  command: [{", ".join(f"{v:+.2f}" for v in self.command)}]   '
@@ -122,8 +134,12 @@ class KeyboardTeleop(Node):
                 f'{REVERSE}  >>> THE LEARNER ASKS FOR ADVICE: episode {request.episode}, '
                 f'step {request.step}, {waited:.1f} s of {request.timeout_s:.1f} s <<<  {RESET}'
             )
+            lines.append('  move (a/d, w/s) or press Enter to answer, x to skip')
         elif request:
-            lines.append(f'  learner: no request pending (last one: {OUTCOME_NAMES.get(request.outcome, "?")})')
+            last = OUTCOME_NAMES.get(request.outcome, '?')
+            if request.human:
+                last += f' after {request.response_time_s:.1f} s'
+            lines.append(f'  learner: no request pending (last one: {last})')
         else:
             lines.append('  learner: no request yet')
         self.out.write(HOME + CLEAR + '\r\n'.join(lines) + '\r\n')

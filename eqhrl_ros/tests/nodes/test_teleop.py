@@ -316,20 +316,31 @@ def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
             harness.spin_until(lambda: False, timeout=0.3)
             return list(commands[-1].data) if commands else None
 
+        def command():
+            return messages.read_fields(commands[-1])['command'] if commands else None
+
         tmux.send('d', 'd', 'w')
-        assert harness.spin_until(lambda: commands and list(commands[-1].data) == [0.5, 0.25])
+        assert harness.spin_until(lambda: command() == [0.5, 0.25])
         assert tmux.wait_for('command: [+0.50, +0.25]'), tmux.screen()
         tmux.send('a', 'a', 'a', 'a', 'a', 'a')  # clipped at -1
-        assert harness.spin_until(lambda: list(commands[-1].data) == [-1.0, 0.25])
+        assert harness.spin_until(lambda: command() == [-1.0, 0.25])
         tmux.send('Space')
-        assert harness.spin_until(lambda: list(commands[-1].data) == [0.0, 0.0])
+        assert harness.spin_until(lambda: command() == [0.0, 0.0])
+        # Enter and x are presses of the answer and skip buttons: held in one message.
+        count = len(commands)
+        tmux.send('Enter')
+        assert harness.spin_until(lambda: any(messages.read_fields(m)['answer'] == [1.0] for m in commands[count:]))
+        tmux.send('x')
+        assert harness.spin_until(lambda: any(messages.read_fields(m)['skip'] == [1.0] for m in commands[count:]))
+        assert messages.read_fields(commands[-1])['enabled'] == [1.0]
         tmux.send('p')
         assert tmux.wait_for('PAUSED'), tmux.screen()
+        latest()  # what was sent before the pause arrives
         count = len(commands)
         assert latest() is not None and len(commands) - count <= 1  # nothing sent while paused
 
-        request_pub.publish(messages.advice_request_msg('given', ask, 2.0))
-        assert tmux.wait_for('no request pending (last one: given)'), tmux.screen()
+        request_pub.publish(messages.advice_request_msg('given', ask, 2.0, human=True, response_time_s=1.25))
+        assert tmux.wait_for('no request pending (last one: given after 1.2 s)'), tmux.screen()
 
         tmux.send('q')
         deadline = time.monotonic() + 20
