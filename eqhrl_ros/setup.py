@@ -8,6 +8,7 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['tests']),
+    package_data={package_name: ['web/*.html', 'web/*.js']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml', 'README.md']),
@@ -28,6 +29,7 @@ setup(
             'expert = eqhrl_ros.cli.nodes:expert',
             'teleop_expert = eqhrl_ros.cli.nodes:teleop_expert',
             'keyboard_teleop = eqhrl_ros.cli.nodes:keyboard_teleop',
+            'advice_console = eqhrl_ros.cli.nodes:advice_console',
             'double_integrator_env = eqhrl_ros.cli.nodes:double_integrator_env',
             'eqhrl-train = eqhrl_ros.cli.train:main',
             'eqhrl-demo = eqhrl_ros.cli.demo:main',

@@ -7,16 +7,7 @@ tests/test_docs.py fails when a declared parameter is missing from the README.
 
 from pathlib import Path
 
-from eqhrl_ros.nodes.double_integrator_env_node import PARAMETERS as DOUBLE_INTEGRATOR_PARAMETERS
-from eqhrl_ros.nodes.params import (
-    EXPERT_PARAMS,
-    GYM_ENV_PARAMS,
-    KEYBOARD_PARAMS,
-    LEARNER_CONFIG_PARAMS,
-    LEARNER_NODE_PARAMS,
-    TELEOP_EXPERT_PARAMS,
-    Param,
-)
+from eqhrl_ros.cli.nodes import NODES, node_tables
 
 README = Path(__file__).resolve().parents[1] / 'eqhrl_ros' / 'README.md'
 
@@ -44,20 +35,8 @@ def table(title, params) -> str:
 def main():
     text = README.read_text()
     start, end = text.index('#### gym_env'), text.index('## Benchmarks')
-    tables = '\n\n'.join(
-        [
-            table('gym_env', GYM_ENV_PARAMS),
-            table('expert', EXPERT_PARAMS),
-            table('learner: algorithm (core.LearnerConfig)', LEARNER_CONFIG_PARAMS),
-            table('learner: node', LEARNER_NODE_PARAMS),
-            table('teleop_expert', TELEOP_EXPERT_PARAMS),
-            table('keyboard_teleop', KEYBOARD_PARAMS),
-            table(
-                'double_integrator_env (the example; its own PARAMETERS)',
-                [Param(n, d, text, r) for n, d, text, r in DOUBLE_INTEGRATOR_PARAMETERS],
-            ),
-        ]
-    )
+    # One table per parameter table of each node, in the order of cli/nodes.NODES.
+    tables = '\n\n'.join(table(title, params) for name in NODES for title, params in node_tables(name))
     README.write_text(text[:start] + tables + '\n\n' + text[end:])
 
 

@@ -5,32 +5,20 @@ from pathlib import Path
 import pytest
 
 from eqhrl_ros.nodes import messages
-from eqhrl_ros.nodes.params import (
-    EXPERT_PARAMS,
-    GYM_ENV_PARAMS,
-    KEYBOARD_PARAMS,
-    LEARNER_CONFIG_PARAMS,
-    LEARNER_NODE_PARAMS,
-    TELEOP_EXPERT_PARAMS,
-)
+from eqhrl_ros.cli.nodes import NODES, node_tables
 
 README = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
 
 
-@pytest.mark.parametrize(
-    'param',
-    [
-        *GYM_ENV_PARAMS,
-        *EXPERT_PARAMS,
-        *LEARNER_CONFIG_PARAMS,
-        *LEARNER_NODE_PARAMS,
-        *TELEOP_EXPERT_PARAMS,
-        *KEYBOARD_PARAMS,
-    ],
-    ids=lambda p: p.name,
-)
-def test_parameter_is_in_the_readme_table(param):
-    assert f'| `{param.name}` |' in README
+TABLED = [(title, param) for name in NODES for title, params in node_tables(name) for param in params]
+
+
+@pytest.mark.parametrize('title, param', TABLED, ids=[f'{title}:{param.name}' for title, param in TABLED])
+def test_parameter_is_in_its_nodes_readme_table(title, param):
+    """Each node's parameter is a row of that node's table (tools/update_param_tables.py)."""
+    start = README.index(f'#### {title}\n')
+    section = README[start : README.index('\n#', start + 5)]
+    assert f'| `{param.name}` |' in section
 
 
 def test_the_example_env_parameters_have_their_table():

@@ -46,6 +46,11 @@ NODES = {
         ('KEYBOARD_PARAMS',),
         'A terminal teleop for teleop_expert (source: array); needs a terminal.',
     ),
+    'advice_console': NodeProgram(
+        'advice_console_node',
+        ('CONSOLE_PARAMS',),
+        "The person's page in a browser: frames, requests, plots; keyboard and gamepad to teleop_expert.",
+    ),
     # An example written as a user would write an env node: its parameters are its own PARAMETERS.
     'double_integrator_env': NodeProgram(
         'double_integrator_env_node',
@@ -55,14 +60,31 @@ NODES = {
 }
 
 
+# Titles of the README's parameter tables where a node has more than one table.
+TABLE_TITLES = {
+    'LEARNER_CONFIG_PARAMS': 'learner: algorithm (core.LearnerConfig)',
+    'LEARNER_NODE_PARAMS': 'learner: node',
+}
+
+
+def node_tables(name: str) -> list:
+    """[(title, params)] of a node: what --help prints and the package README's tables hold."""
+    from ..nodes import params
+
+    program = NODES[name]
+    tables = [(TABLE_TITLES.get(table, name), getattr(params, table)) for table in program.params]
+    if not tables:  # the node's own PARAMETERS: (name, default, description, range)
+        module = importlib.import_module(f'eqhrl_ros.nodes.{program.module}')
+        own = tuple(params.Param(n, d, text, r) for n, d, text, r in module.PARAMETERS)
+        tables = [(f'{name} (the example; its own PARAMETERS)', own)]
+    return tables
+
+
 def help_text(name: str) -> str:
     from ..nodes import params
 
     program = NODES[name]
-    tables = [getattr(params, table) for table in program.params]
-    if not tables:  # the node's own PARAMETERS: (name, default, description, range)
-        module = importlib.import_module(f'eqhrl_ros.nodes.{program.module}')
-        tables = [tuple(params.Param(n, d, text, r) for n, d, text, r in module.PARAMETERS)]
+    tables = [table for _, table in node_tables(name)]
     return (
         f'usage: {name} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r FROM:=TO ...]]\n\n'
         f'{program.summary}\n\n'
@@ -107,6 +129,10 @@ def teleop_expert() -> int:
 
 def keyboard_teleop() -> int:
     return run('keyboard_teleop')
+
+
+def advice_console() -> int:
+    return run('advice_console')
 
 
 def double_integrator_env() -> int:

@@ -389,3 +389,21 @@ KEYBOARD_PARAMS = (
     Param('step', 0.25, 'Change per key press, in [-1, 1] units', (0.01, 1.0)),
     Param('rate_hz', 10.0, 'Publishing rate of teleop_command', (0.5, 100.0)),
 )
+
+CONSOLE_PARAMS = (
+    *ENV_PARAMS,
+    Param(
+        'host',
+        '127.0.0.1',
+        'Address the page is served on: localhost only by default; another address lets other '
+        'machines steer the robot and needs a token',
+    ),
+    Param('port', 8080, 'TCP port of the page (0: any free port, logged at start)', (0, 65535)),
+    Param('token', '', 'Secret the page address must carry (?token=...); required when host is not localhost'),
+    Param('image_topic', 'gym_env/image', 'sensor_msgs/Image topic with the env frames (rgb8, bgr8 or mono8)'),
+    Param('image_rate_hz', 15.0, 'Most frames per second sent to each page', (0.1, 60.0)),
+    Param('jpeg_quality', 75, 'JPEG quality of the frames sent to the page', (10, 95)),
+    Param('rate_hz', 20.0, 'Publishing rate of teleop_command while a page is open', (1.0, 100.0)),
+    Param('learner_node', 'learner', "Node whose advice_enabled and advising_budget the page's controls set"),
+    Param('require_deadman', True, 'Commands count only while the deadman (Shift, gamepad LB) is held'),
+)

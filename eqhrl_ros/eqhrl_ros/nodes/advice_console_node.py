@@ -1,0 +1,447 @@
+"""advice_console: the person's page in a browser, for teleop_expert (source: array).
+
+The node serves one page (aiohttp, in its own thread with its own asyncio loop) and talks
+to it over one websocket per open page:
+- to the page: the env's frames (JPEG, from the image topic), the learner's requests
+  (``learner/advice_request``), episode statistics (``learner/episode_stats``), the env's
+  spaces (``env_info``) and the learner's advising parameters;
+- from the page: the person's command, deadman, answer and skip (keyboard or gamepad),
+  published on ``teleop_command`` exactly as keyboard_teleop publishes it, and parameter
+  sets on the learner (pause advice, budget), range-checked by the learner itself.
+
+Whoever reaches the page can steer the robot: it binds to localhost unless ``host`` says
+otherwise, and then a ``token`` is required in the page's address. A websocket from a
+page of another origin is refused, so a web site open in the same browser cannot steer.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import io
+import ipaddress
+import json
+import math
+import threading
+import time
+from importlib import resources
+from typing import Optional
+
+import numpy as np
+from aiohttp import WSMsgType, web
+from rcl_interfaces.msg import ParameterType
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from sensor_msgs.msg import Image
+from std_msgs.msg import Float32MultiArray
+
+from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
+
+from ..core.env_spec import EnvSpec
+from . import messages
+from .env_info import EnvInfoWatcher, configured_spec, shown
+from .params import CONSOLE_PARAMS, declare, reject_unknown_overrides
+from .spinning import run_node, steady_clock
+
+OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
+# The learner parameters the page shows and may set.
+LEARNER_CONTROLS = ('advice_enabled', 'advising_budget')
+# A page's input older than this is not the person's any more (the tab was closed or hidden).
+INPUT_STALE_S = 1.0
+MAX_PAGE_MESSAGE = 4096  # bytes; the page sends small JSON only
+EPISODES_KEPT = 10_000
+
+
+def is_loopback(host: str) -> bool:
+    if host == 'localhost':
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def jpeg(frame: Image, quality: int) -> Optional[bytes]:
+    """An rgb8/bgr8/mono8 sensor_msgs/Image as JPEG bytes (None for other encodings)."""
+    from PIL import Image as PILImage  # pillow (a matplotlib dependency)
+
+    channels = {'rgb8': 3, 'bgr8': 3, 'mono8': 1}.get(frame.encoding)
+    if channels is None or frame.height == 0 or frame.width == 0:
+        return None
+    pixels = np.frombuffer(bytes(frame.data), np.uint8)
+    if pixels.size < frame.step * frame.height:
+        return None
+    rows = pixels[: frame.step * frame.height].reshape(frame.height, frame.step)
+    array = rows[:, : frame.width * channels].reshape(frame.height, frame.width, channels)
+    if frame.encoding == 'bgr8':
+        array = array[:, :, ::-1]
+    out = io.BytesIO()
+    PILImage.fromarray(array.squeeze()).save(out, format='JPEG', quality=quality)
+    return out.getvalue()
+
+
+class PageInput:
+    """What the person's page says now: the command in [-1, 1] and the deadman."""
+
+    def __init__(self):
+        self.command: list[float] = []
+        self.deadman = False
+        self.received = 0.0  # time.monotonic() of the page's latest input
+
+
+class AdviceConsole(Node):
+    def __init__(self, **kwargs):
+        super().__init__('advice_console', **kwargs)
+        reject_unknown_overrides(self, CONSOLE_PARAMS)
+        self.params = p = declare(self, CONSOLE_PARAMS)
+        if not is_loopback(p['host']) and not p['token']:
+            raise ValueError(
+                f'host {p["host"]!r} lets other machines reach the page, and whoever reaches it can steer '
+                'the robot: set a token (the page is then opened with ?token=...)'
+            )
+        self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)
+        self.version = 0  # bumped on every change the page must see
+        self.spec: Optional[EnvSpec] = None
+        self.request: Optional[dict] = None
+        self.request_seen = 0.0
+        self.episodes: list[dict] = []
+        self.learner_params: dict = {}
+        self.frame: Optional[Image] = None
+        self.frame_number = 0
+        self.input = PageInput()
+        self.pages = 0  # open websockets
+        self._sockets: set = set()  # (web thread only) closed at shutdown
+        self.published = 0
+
+        self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
+        self.create_subscription(AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS)
+        self.create_subscription(EpisodeStats, 'learner/episode_stats', self._on_stats, 100)
+        self.create_subscription(Image, p['image_topic'], self._on_frame, 2)
+        self.env_info = EnvInfoWatcher(self, configured_spec(p), self._on_env)
+        self.learner_client = AsyncParameterClient(self, p['learner_node'])
+        steady = steady_clock()
+        self.create_timer(1.0 / p['rate_hz'], self._publish_held, clock=steady)
+        self.create_timer(1.0, self._refresh_learner_params, clock=steady)
+
+        self._loop = asyncio.new_event_loop()
+        self._runner: Optional[web.AppRunner] = None
+        self._server_ready = threading.Event()
+        self._server_error: Optional[BaseException] = None
+        self._thread = threading.Thread(target=self._serve, name='advice_console_http', daemon=True)
+        self._thread.start()
+        self._server_ready.wait(10.0)
+        if self._server_error is not None:
+            raise OSError(f'cannot serve on {p["host"]}:{p["port"]}: {self._server_error}')
+        self.get_logger().info(f'the person opens {self.url} (whoever reaches it can steer the robot)')
+
+    @property
+    def url(self) -> str:
+        host = self.params['host']
+        shown_host = f'[{host}]' if ':' in host else host
+        token = f'?token={self.params["token"]}' if self.params['token'] else ''
+        return f'http://{shown_host}:{self.port}/{token}'
+
+    # ------------------------------------------------------------------ ROS side
+
+    def _bump(self) -> None:
+        self.version += 1
+        self._changed.notify_all()
+
+    def _on_env(self, spec: EnvSpec) -> None:
+        with self._lock:
+            self.spec = spec
+            self.input.command = [0.0] * spec.action_size
+            self._bump()
+
+    def _on_request(self, msg: AdviceRequest) -> None:
+        with self._lock:
+            self.request = {
+                'outcome': OUTCOME_NAMES.get(msg.outcome, '?'),
+                'detail': msg.detail,
+                'episode': msg.episode,
+                'step': msg.step,
+                'discrepancy': _finite(msg.discrepancy),
+                'entropy': _finite(msg.entropy),
+                'timeout_s': float(msg.timeout_s),
+                'human': bool(msg.human),
+                'response_time_s': float(msg.response_time_s),
+                'proposed_action': [float(v) for v in msg.proposed_action],
+            }
+            self.request_seen = time.monotonic()
+            self._bump()
+
+    def _on_stats(self, msg: EpisodeStats) -> None:
+        with self._lock:
+            self.episodes.append(
+                {
+                    'episode': msg.episode,
+                    'return': float(msg.episode_return),
+                    'asked': msg.advice_asked,
+                    'given': msg.advice_given,
+                    'human': msg.advice_human,
+                    'human_time_s': float(msg.human_time_s),
+                    'human_time_total_s': float(msg.human_time_total_s),
+                    'success': bool(msg.success),
+                }
+            )
+            del self.episodes[:-EPISODES_KEPT]
+            self._bump()
+
+    def _on_frame(self, msg: Image) -> None:
+        with self._lock:
+            self.frame = msg
+            self.frame_number += 1
+            self._changed.notify_all()
+
+    def _publish_held(self) -> None:
+        """Keep the person's command fresh on teleop_command while a page is open and live."""
+        with self._lock:
+            live = self.pages and self.input.command and time.monotonic() - self.input.received < INPUT_STALE_S
+            if live:
+                self._publish(False, False)
+
+    def _publish(self, answer: bool, skip: bool) -> None:
+        """(with the lock held) The page's command and buttons, as keyboard_teleop sends them."""
+        enabled = self.input.deadman or not self.params['require_deadman']
+        self.publisher.publish(messages.command_msg(self.input.command, enabled, answer, skip))
+        self.published += 1
+
+    def _refresh_learner_params(self) -> None:
+        if not self.learner_client.services_are_ready():
+            return
+        future = self.learner_client.get_parameters(list(LEARNER_CONTROLS))
+        future.add_done_callback(self._on_learner_params)
+
+    def _on_learner_params(self, future) -> None:
+        try:
+            values = future.result().values
+        except Exception:  # the learner went away meanwhile: shown as unknown
+            return
+        read = {}
+        for name, value in zip(LEARNER_CONTROLS, values):
+            if value.type == ParameterType.PARAMETER_BOOL:
+                read[name] = value.bool_value
+            elif value.type == ParameterType.PARAMETER_INTEGER:
+                read[name] = value.integer_value
+        with self._lock:
+            if read != self.learner_params:
+                self.learner_params = read
+                self._bump()
+
+    # ------------------------------------------------------------------ the page's input
+
+    def take_input(self, data: dict) -> Optional[str]:
+        """A message from the page; returns an error text for the page, or None."""
+        kind = data.get('type')
+        if kind == 'input':
+            with self._lock:
+                size = len(self.input.command)
+                command = data.get('command')
+                if not isinstance(command, list) or len(command) != size:
+                    return f'command must be a list of {size} numbers'
+                try:
+                    values = [float(v) for v in command]
+                except (TypeError, ValueError):
+                    return 'command must hold numbers'
+                if not all(math.isfinite(v) for v in values):
+                    return 'command must be finite'
+                self.input.command = [min(1.0, max(-1.0, v)) for v in values]
+                self.input.deadman = data.get('deadman') is True
+                self.input.received = time.monotonic()
+                answer, skip = data.get('answer') is True, data.get('skip') is True
+                if answer or skip:
+                    self._publish(answer, skip)  # the press, then its release
+                self._publish(False, False)
+            return None
+        if kind == 'set':
+            return 'parameter sets are answered asynchronously'  # handled by the websocket loop
+        return f'unknown message type {kind!r}'
+
+    def state(self) -> dict:
+        """(with the lock held) Everything the page shows, as JSON-able data."""
+        spec = self.spec
+        request = dict(self.request) if self.request else None
+        if request and request['outcome'] == 'pending':
+            request['waited_s'] = time.monotonic() - self.request_seen
+        return {
+            'type': 'state',
+            'version': self.version,
+            'env': None
+            if spec is None
+            else {
+                'name': shown(spec.name),
+                'action_low': [float(v) for v in spec.action_low],
+                'action_high': [float(v) for v in spec.action_high],
+                'action_labels': list(spec.action_labels or []),
+            },
+            'request': request,
+            'episodes': self.episodes[-500:],
+            'learner': self.learner_params,
+            'require_deadman': self.params['require_deadman'],
+            'command': list(self.input.command),
+        }
+
+    def set_learner_parameter(self, name: str, value) -> tuple[bool, str]:
+        """Set one of LEARNER_CONTROLS on the learner (from the web thread); (ok, reason)."""
+        if name not in LEARNER_CONTROLS:
+            return False, f'{name!r} is not one of {LEARNER_CONTROLS}'
+        if name == 'advice_enabled' and not isinstance(value, bool):
+            return False, 'advice_enabled must be true or false'
+        if name == 'advising_budget' and (isinstance(value, bool) or not isinstance(value, int)):
+            return False, 'advising_budget must be an integer'
+        if not self.learner_client.services_are_ready():
+            return False, f'no learner parameter service at {self.params["learner_node"]}'
+        future = self.learner_client.set_parameters([Parameter(name, value=value)])
+        deadline = time.monotonic() + 5.0
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if not future.done():
+            return False, 'the learner did not answer within 5 s'
+        result = future.result().results[0]
+        if result.successful:
+            with self._lock:
+                self.learner_params[name] = value
+                self._bump()
+        return result.successful, result.reason
+
+    # ------------------------------------------------------------------ web side (own thread)
+
+    def _serve(self) -> None:
+        asyncio.set_event_loop(self._loop)
+        try:
+            self._loop.run_until_complete(self._start_server())
+        except BaseException as error:  # the port is taken, the host is unknown: said at start-up
+            self._server_error = error
+            self._server_ready.set()
+            return
+        self._server_ready.set()
+        self._loop.run_forever()
+
+    async def _start_server(self) -> None:
+        app = web.Application(client_max_size=MAX_PAGE_MESSAGE)
+        app.router.add_get('/', self._page)
+        app.router.add_get('/console.js', self._script)
+        app.router.add_get('/ws', self._websocket)
+        self._runner = web.AppRunner(app, access_log=None)
+        await self._runner.setup()
+        site = web.TCPSite(self._runner, self.params['host'], self.params['port'])
+        await site.start()
+        self.port = self._runner.addresses[0][1]  # the port given, or the one chosen for port 0
+
+    def _authorized(self, request: web.Request) -> bool:
+        token = self.params['token']
+        return not token or hmac.compare_digest(request.query.get('token', ''), token)
+
+    async def _page(self, request: web.Request) -> web.Response:
+        if not self._authorized(request):
+            raise web.HTTPForbidden(text='advice_console: a token is required (?token=...)')
+        return web.Response(text=_static('console.html'), content_type='text/html')
+
+    async def _script(self, request: web.Request) -> web.Response:
+        # The script holds no secret and steers nothing by itself: served without the token.
+        return web.Response(text=_static('console.js'), content_type='application/javascript')
+
+    async def _websocket(self, request: web.Request) -> web.WebSocketResponse:
+        if not self._authorized(request):
+            raise web.HTTPForbidden(text='advice_console: a token is required (?token=...)')
+        origin = request.headers.get('Origin')
+        if origin is not None and origin != f'{request.scheme}://{request.host}':
+            # A page of another site, open in the same browser, must not steer the robot.
+            raise web.HTTPForbidden(text=f'advice_console: websocket from another origin ({origin}) refused')
+        socket = web.WebSocketResponse(max_msg_size=MAX_PAGE_MESSAGE, heartbeat=10.0)
+        await socket.prepare(request)
+        self._sockets.add(socket)
+        with self._lock:
+            self.pages += 1
+        sender = asyncio.ensure_future(self._send_updates(socket))
+        try:
+            async for message in socket:
+                if message.type != WSMsgType.TEXT:
+                    continue
+                await self._on_page_message(socket, message.data)
+        finally:
+            sender.cancel()
+            self._sockets.discard(socket)
+            with self._lock:
+                self.pages -= 1
+        return socket
+
+    async def _on_page_message(self, socket: web.WebSocketResponse, text: str) -> None:
+        try:
+            data = json.loads(text)
+            if not isinstance(data, dict):
+                raise ValueError('not an object')
+        except ValueError:
+            await socket.send_json({'type': 'error', 'error': 'messages must be JSON objects'})
+            return
+        if data.get('type') == 'set':
+            ok, reason = await self._loop.run_in_executor(
+                None, self.set_learner_parameter, data.get('name'), data.get('value')
+            )
+            await socket.send_json(
+                {'type': 'set_result', 'name': data.get('name'), 'value': data.get('value'), 'ok': ok, 'reason': reason}
+            )
+            return
+        error = self.take_input(data)
+        if error:
+            await socket.send_json({'type': 'error', 'error': error})
+
+    async def _send_updates(self, socket: web.WebSocketResponse) -> None:
+        """State when it changes (and 5 times a second while a request is pending, for its
+        countdown); frames at most image_rate_hz."""
+        sent_version, sent_frame, last_frame_time, last_state_time = -1, 0, 0.0, 0.0
+        frame_period = 1.0 / self.params['image_rate_hz']
+        while not socket.closed:
+            now = time.monotonic()
+            with self._lock:
+                pending = self.request is not None and self.request['outcome'] == 'pending'
+                state = None
+                if self.version != sent_version or (pending and now - last_state_time > 0.2):
+                    state, sent_version, last_state_time = self.state(), self.version, now
+                frame = None
+                if self.frame_number != sent_frame and now - last_frame_time >= frame_period:
+                    frame, sent_frame, last_frame_time = self.frame, self.frame_number, now
+            if state is not None:
+                await socket.send_str(json.dumps(state))
+            if frame is not None:
+                data = await self._loop.run_in_executor(None, jpeg, frame, self.params['jpeg_quality'])
+                if data:
+                    await socket.send_bytes(data)
+            await asyncio.sleep(0.03)
+
+    def destroy_node(self) -> None:
+        if self._loop.is_running():
+
+            async def stop():
+                for socket in list(self._sockets):  # the page shows "disconnected" and retries
+                    await socket.close(code=1001, message=b'advice_console is stopping')
+                if self._runner is not None:
+                    await self._runner.cleanup()
+
+            try:
+                asyncio.run_coroutine_threadsafe(stop(), self._loop).result(timeout=5.0)
+            except Exception:  # already stopping: the thread is a daemon either way
+                pass
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join(timeout=5.0)
+        if not self._thread.is_alive() and not self._loop.is_closed():
+            self._loop.close()
+        super().destroy_node()
+
+
+def _finite(value: float) -> Optional[float]:
+    return float(value) if math.isfinite(value) else None  # JSON has no NaN (QASAC's E(s))
+
+
+def _static(name: str) -> str:
+    return resources.files('eqhrl_ros').joinpath('web', name).read_text()
+
+
+def main(args=None):
+    run_node(AdviceConsole, args, name='advice_console')
+
+
+if __name__ == '__main__':
+    main()

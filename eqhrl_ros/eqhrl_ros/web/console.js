@@ -1,0 +1,253 @@
+// eqhrl_ros advice console: shows the env and the learner's requests, sends the person's input.
+// One websocket to the advice_console node (same origin); see nodes/advice_console_node.py.
+'use strict';
+
+const STEP = 0.1;           // change of the command per key press, in [-1, 1] units
+const DEADZONE = 0.08;      // gamepad stick values below this read as 0
+const GAMEPAD_DEADMAN = 4;  // LB on the standard mapping
+const GAMEPAD_ANSWER = 0;   // A
+const GAMEPAD_SKIP = 1;     // B
+
+const $ = (id) => document.getElementById(id);
+const state = { env: null, request: null, episodes: [], learner: {}, require_deadman: true };
+const input = { command: [], deadman: false, keyDeadman: false, padDeadman: false };
+let socket = null;
+let lastRequestKey = null;
+let padButtons = [];
+let budgetEdited = false;  // the person is typing a budget: the learner's value does not overwrite it
+
+function connect() {
+  const url = new URL('ws', window.location.href);
+  url.protocol = url.protocol === 'https:' ? 'wss:' : 'ws:';
+  socket = new WebSocket(url);
+  socket.binaryType = 'blob';
+  socket.onopen = () => { $('connection').textContent = 'connected'; $('connection').className = ''; };
+  socket.onclose = () => {
+    $('connection').textContent = 'disconnected: reconnecting...';
+    $('connection').className = 'bad';
+    setTimeout(connect, 1000);
+  };
+  socket.onmessage = (event) => {
+    if (event.data instanceof Blob) { showFrame(event.data); return; }
+    const message = JSON.parse(event.data);
+    if (message.type === 'state') onState(message);
+    else if (message.type === 'set_result') {
+      if (message.name === 'advising_budget') budgetEdited = false;
+      say(message.ok ? `${message.name} set to ${message.value}` : `refused: ${message.reason}`);
+    }
+    else if (message.type === 'error') say(`console: ${message.error}`);
+  };
+}
+
+function send(data) {
+  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(data));
+}
+
+function say(text) { $('message').textContent = text; }
+
+// ------------------------------------------------------------------ what the node sends
+
+function showFrame(blob) {
+  const frame = $('frame');
+  const old = frame.src;
+  frame.src = URL.createObjectURL(blob);
+  if (old.startsWith('blob:')) URL.revokeObjectURL(old);
+  frame.dataset.frames = String(Number(frame.dataset.frames || 0) + 1);
+}
+
+function onState(message) {
+  Object.assign(state, message);
+  if (state.env && input.command.length !== state.env.action_low.length) {
+    input.command = state.env.action_low.map(() => 0);
+  }
+  $('env').textContent = state.env ? `env: ${state.env.name}` : 'env: waiting for env_info';
+  showRequest();
+  drawBars();
+  drawPlots();
+  const learner = state.learner || {};
+  $('pause').textContent = learner.advice_enabled === false ? 'resume advice' : 'pause advice';
+  if (!budgetEdited && learner.advising_budget !== undefined) {
+    $('budget').value = learner.advising_budget;
+  }
+  const last = state.episodes[state.episodes.length - 1];
+  $('person').textContent = `your time: ${last ? last.human_time_total_s.toFixed(1) : '0.0'} s over ` +
+    `${state.episodes.length} episodes`;
+}
+
+function showRequest() {
+  const box = $('request');
+  const r = state.request;
+  if (!r) { box.className = ''; box.textContent = 'no request yet'; return; }
+  const key = `${r.episode}/${r.step}`;
+  if (r.outcome === 'pending') {
+    const left = Math.max(0, r.timeout_s - r.waited_s);
+    const d = r.discrepancy === null ? 'n/a' : r.discrepancy.toFixed(3);
+    const e = r.entropy === null ? 'n/a (QASAC)' : r.entropy.toFixed(3);
+    box.innerHTML = `THE LEARNER ASKS FOR ADVICE<br>episode ${r.episode}, step ${r.step}` +
+      `<div id="countdown">${left.toFixed(1)} s</div>` +
+      `<small>D(s) = ${d} &nbsp; E(s) = ${e}</small>`;
+    box.className = 'pending';
+    if (key !== lastRequestKey) { alertPerson(box); lastRequestKey = key; }
+  } else {
+    box.className = '';
+    const took = r.human ? ` after ${r.response_time_s.toFixed(1)} s` : '';
+    const detail = r.detail ? `: ${r.detail}` : '';
+    box.textContent = `last request (episode ${r.episode}, step ${r.step}): ${r.outcome}${took}${detail}`;
+    box.dataset.outcome = r.outcome;
+  }
+}
+
+function alertPerson(box) {
+  box.classList.add('flash');
+  setTimeout(() => box.classList.remove('flash'), 1100);
+  if (!$('sound').checked) return;
+  try {
+    const audio = new (window.AudioContext || window.webkitAudioContext)();
+    const tone = audio.createOscillator();
+    tone.frequency.value = 880;
+    tone.connect(audio.destination);
+    tone.start();
+    tone.stop(audio.currentTime + 0.15);
+  } catch (error) { /* no audio device: the flash remains */ }
+}
+
+function drawBars() {
+  const bars = $('bars');
+  if (!state.env) { bars.innerHTML = ''; return; }
+  const low = state.env.action_low, high = state.env.action_high;
+  const proposed = state.request && state.request.outcome === 'pending' ? state.request.proposed_action : null;
+  const at = (i, value) => 100 * (value - low[i]) / ((high[i] - low[i]) || 1);
+  // The command is in [-1, 1]; teleop_expert maps it with its scales and clips to the bounds.
+  const yours = (i) => at(i, low[i] + (input.command[i] + 1) / 2 * (high[i] - low[i]));
+  bars.innerHTML = low.map((_, i) => {
+    const label = (state.env.action_labels[i] || `action[${i}]`);
+    const p = proposed ? `<div class="mark proposed" style="left:${at(i, proposed[i])}%"></div>` : '';
+    return `<div>${label} [${low[i]}, ${high[i]}]</div><div class="bar">` +
+      `<div class="mark zero" style="left:${at(i, 0)}%"></div>${p}` +
+      `<div class="mark yours" style="left:${yours(i)}%"></div></div>`;
+  }).join('');
+}
+
+function drawPlots() {
+  const episodes = state.episodes;
+  const budget = (state.learner || {}).advising_budget;
+  plot($('returns'), 'return per episode', episodes.map((e) => e.return), budget, '#2ecc71', false);
+  plot($('advice'), 'advice given per episode (blue: by you), your seconds (orange)',
+    episodes.map((e) => e.given), budget, '#3498db', true,
+    episodes.map((e) => e.human_time_s));
+}
+
+function plot(canvas, title, values, budget, color, bars, second) {
+  const g = canvas.getContext('2d');
+  const w = canvas.width, h = canvas.height, pad = 36;
+  g.clearRect(0, 0, w, h);
+  g.fillStyle = '#ccc';
+  g.font = '14px sans-serif';
+  g.fillText(title, pad, 16);
+  const n = Math.max(values.length, (budget || 0) + 1, 2);
+  const all = values.concat(second || []);
+  let lo = Math.min(0, ...all), hi = Math.max(1, ...all);
+  if (!bars && values.length) { lo = Math.min(...values); hi = Math.max(...values, lo + 1); }
+  const x = (i) => pad + (w - 2 * pad) * i / (n - 1);
+  const y = (v) => h - pad + (v - lo) / (hi - lo) * (2 * pad - h);
+  g.strokeStyle = '#555';
+  g.strokeRect(pad, pad, w - 2 * pad, h - 2 * pad);
+  g.fillText(hi.toFixed(0), 2, pad + 4);
+  g.fillText(lo.toFixed(0), 2, h - pad);
+  if (budget !== undefined) {  // the early-advising budget ends here (Eq. 7)
+    g.strokeStyle = '#e74c3c';
+    g.setLineDash([6, 4]);
+    g.beginPath(); g.moveTo(x(budget), pad); g.lineTo(x(budget), h - pad); g.stroke();
+    g.setLineDash([]);
+    g.fillStyle = '#e74c3c';
+    g.fillText(`budget ${budget}`, Math.min(x(budget) + 4, w - 90), pad + 14);
+  }
+  g.strokeStyle = color; g.fillStyle = color;
+  if (bars) {
+    values.forEach((v, i) => g.fillRect(x(i) - 2, y(v), 4, y(lo) - y(v)));
+  } else {
+    g.beginPath();
+    values.forEach((v, i) => (i ? g.lineTo(x(i), y(v)) : g.moveTo(x(i), y(v))));
+    g.stroke();
+  }
+  if (second) {
+    g.strokeStyle = '#f39c12';
+    g.beginPath();
+    second.forEach((v, i) => (i ? g.lineTo(x(i), y(v)) : g.moveTo(x(i), y(v))));
+    g.stroke();
+  }
+}
+
+// ------------------------------------------------------------------ the person's input
+
+function sendInput(extra) {
+  input.deadman = input.keyDeadman || input.padDeadman;
+  $('deadman').className = input.deadman ? 'held' : '';
+  send(Object.assign({ type: 'input', command: input.command, deadman: input.deadman }, extra || {}));
+  drawBars();
+}
+
+function nudge(index, sign) {
+  if (index >= input.command.length) return;
+  input.command[index] = Math.max(-1, Math.min(1, Math.round((input.command[index] + sign * STEP) * 100) / 100));
+}
+
+const KEYS = {
+  ArrowLeft: [0, -1], KeyA: [0, -1], ArrowRight: [0, 1], KeyD: [0, 1],
+  ArrowUp: [1, 1], KeyW: [1, 1], ArrowDown: [1, -1], KeyS: [1, -1],
+};
+
+document.addEventListener('keydown', (event) => {
+  if (event.target.tagName === 'INPUT') return;
+  if (event.key === 'Shift') { input.keyDeadman = true; sendInput(); return; }
+  if (KEYS[event.code]) { nudge(...KEYS[event.code]); sendInput(); event.preventDefault(); return; }
+  if (event.code === 'Digit0' || event.code === 'Numpad0') { input.command.fill(0); sendInput(); return; }
+  if (event.repeat) return;
+  if (event.code === 'Enter' || event.code === 'NumpadEnter') { sendInput({ answer: true }); event.preventDefault(); }
+  if (event.code === 'Escape' || event.code === 'KeyX') { sendInput({ skip: true }); event.preventDefault(); }
+});
+document.addEventListener('keyup', (event) => {
+  if (event.key === 'Shift') { input.keyDeadman = false; sendInput(); }
+});
+window.addEventListener('blur', () => { input.keyDeadman = false; sendInput(); });
+
+// The browser's Gamepad API: any pad the browser knows, no driver on the robot's machine.
+function pollGamepad() {
+  const pads = navigator.getGamepads ? Array.from(navigator.getGamepads()).filter(Boolean) : [];
+  const pad = pads[0];
+  $('gamepad').textContent = pad ? `gamepad: ${pad.id}` : 'no gamepad';
+  if (pad) {
+    const pressed = pad.buttons.map((b) => Boolean(b && b.pressed));
+    const edge = (i) => pressed[i] && !padButtons[i];
+    let changed = pressed[GAMEPAD_DEADMAN] !== input.padDeadman;
+    input.padDeadman = Boolean(pressed[GAMEPAD_DEADMAN]);
+    [0, 1].forEach((axis) => {
+      if (axis >= input.command.length || axis >= pad.axes.length) return;
+      const raw = pad.axes[axis] * (axis === 1 ? -1 : 1);  // stick up is negative on the standard mapping
+      const value = Math.abs(raw) < DEADZONE ? 0 : Math.round(raw * 100) / 100;
+      if (value !== input.command[axis]) { input.command[axis] = value; changed = true; }
+    });
+    const extra = {};
+    if (edge(GAMEPAD_ANSWER)) extra.answer = true;
+    if (edge(GAMEPAD_SKIP)) extra.skip = true;
+    if (changed || extra.answer || extra.skip) sendInput(extra);
+    padButtons = pressed;
+  }
+}
+
+// Keep the node's view of this page fresh (it stops publishing for a page gone quiet).
+setInterval(() => { if (input.command.length) sendInput(); }, 300);
+
+$('pause').addEventListener('click', () => {
+  const enabled = (state.learner || {}).advice_enabled !== false;
+  send({ type: 'set', name: 'advice_enabled', value: !enabled });
+});
+$('budget').addEventListener('input', () => { budgetEdited = true; });
+$('set-budget').addEventListener('click', () => {
+  const value = Number($('budget').value);
+  if (!Number.isInteger(value)) { say('the budget is a whole number of episodes'); return; }
+  send({ type: 'set', name: 'advising_budget', value });
+});
+
+connect();
+setInterval(pollGamepad, 20);

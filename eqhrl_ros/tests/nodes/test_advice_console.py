@@ -1,0 +1,271 @@
+"""advice_console in a real browser: Debian's chromium, headless, driven by selenium.
+
+The whole person's path runs: gym_env (lock-step, frames on) -> learner (QASAC) -> advise ->
+teleop_expert (answer window) <- teleop_command <- advice_console <- the page <- keys and a
+gamepad. The nodes spin in a thread of this process, so the test reads the learner's counts.
+"""
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from rclpy.executors import SingleThreadedExecutor
+
+from eqhrl_ros.core.experts import SKIPPED
+from eqhrl_ros.nodes.advice_console_node import AdviceConsole, is_loopback
+from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+from eqhrl_ros.nodes.learner_node import LearnerNode
+from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
+
+from ros_helpers import params, small_learner_params
+
+CHROMIUM, CHROMEDRIVER = '/usr/bin/chromium', '/usr/bin/chromedriver'
+# The screenshot in the docs comes from this test: EQHRL_CONSOLE_SCREENSHOT=docs/images/advice_console.png
+SCREENSHOT = os.environ.get('EQHRL_CONSOLE_SCREENSHOT')
+
+
+@pytest.fixture
+def browser():
+    if not (os.path.exists(CHROMIUM) and os.path.exists(CHROMEDRIVER)):
+        pytest.fail("this test needs Debian's chromium and chromium-driver: apt-get install chromium chromium-driver")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    options = Options()
+    options.binary_location = CHROMIUM
+    for argument in ('--headless=new', '--no-sandbox', '--disable-gpu', '--disable-dev-shm-usage'):
+        options.add_argument(argument)
+    options.add_argument('--window-size=1400,1000')
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+class Graph:
+    """Nodes spun by one executor in a background thread."""
+
+    def __init__(self, context, nodes):
+        self.nodes = nodes
+        self.executor = SingleThreadedExecutor(context=context)
+        for node in nodes:
+            self.executor.add_node(node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self):
+        try:
+            self.executor.spin()
+        except Exception:  # the context shuts down at the end of the test
+            pass
+
+    def close(self):
+        self.executor.shutdown()
+        self.thread.join(timeout=5)
+        for node in self.nodes:
+            if isinstance(node, LearnerNode):
+                node.close()
+            node.destroy_node()
+
+
+def wait_for(condition, timeout=20.0, what=''):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f'timed out waiting for {what() if callable(what) else what or condition}')
+
+
+def test_a_person_advises_from_the_browser(browser, ros_context, tmp_path):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    env = GymEnvNode(
+        context=ros_context, parameter_overrides=params(max_episode_steps=40, publish_images=True, image_rate_hz=10.0)
+    )
+    teleop = TeleopExpertNode(
+        context=ros_context,
+        parameter_overrides=params(source='array', axes=[0], scales=[2.0], offsets=[0.0], answer_window_s=2.5),
+    )
+    learner = LearnerNode(
+        context=ros_context,
+        parameter_overrides=small_learner_params(tmp_path, mode='qasac', advising_budget=100, advice_timeout_s=3.0),
+    )
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0))
+    graph = Graph(ros_context, [env, teleop, learner, console])
+    try:
+
+        def text(element_id):  # read in the page: the request box is redrawn 5 times a second
+            return browser.execute_script(
+                'const e = document.getElementById(arguments[0]); return e ? e.textContent : "";', element_id
+            )
+
+        browser.get(console.url)
+        wait_for(lambda: text('connection') == 'connected', what='the websocket')
+        # A frame of the env is shown.
+        wait_for(
+            lambda: browser.execute_script("return document.getElementById('frame').naturalWidth") == 500,
+            what='a frame',
+        )
+
+        class Counted:
+            """The learner's advice counts so far: finished episodes and the current one."""
+
+            def __getattr__(self, kind):
+                done, current = learner.learner.advice_total, learner.learner.episode_advice
+                if kind == 'timeouts':
+                    return done.failed['timeout'] + current.failed['timeout']
+                return getattr(done, kind) + getattr(current, kind)
+
+        totals = Counted()
+
+        def pending():
+            return browser.execute_script("return document.getElementById('request').className") == 'pending'
+
+        def keys(*sequence):
+            chain = ActionChains(browser)
+            for key in sequence:
+                if isinstance(key, tuple):  # ('down', Keys.SHIFT) / ('up', Keys.SHIFT)
+                    (chain.key_down if key[0] == 'down' else chain.key_up)(key[1])
+                else:
+                    chain.send_keys(key)
+            chain.perform()
+
+        # A request appears, large, with its countdown running down.
+        wait_for(pending, what='a request')
+        assert 'THE LEARNER ASKS FOR ADVICE' in text('request')
+        first = float(text('countdown').split()[0])
+        time.sleep(0.6)
+        second = float(text('countdown').split()[0])
+        assert 0 < second < first <= 3.0
+        # Enter without the deadman answers nothing; with Shift held it answers.
+        keys(Keys.ENTER)
+        time.sleep(0.3)
+        assert totals.human == 0 and pending()
+        keys(('down', Keys.SHIFT), Keys.ENTER, ('up', Keys.SHIFT))
+        wait_for(lambda: totals.human == 1, what='human advice counted')
+        wait_for(lambda: 'given after' in text('request') or pending(), what='the answer shown')
+
+        # Skip declines with its reason.
+        declined = totals.declined
+        wait_for(pending, what='the next request')
+        keys('x')
+        wait_for(lambda: totals.declined == declined + 1, what='a skip')
+        assert teleop.answers['skipped'] >= 1
+        wait_for(lambda: SKIPPED in text('request') or pending(), what='the skip shown')
+
+        # Silence times out.
+        timeouts = totals.timeouts
+        wait_for(lambda: totals.timeouts == timeouts + 1, timeout=15, what='a timeout')
+        assert teleop.answers['timed_out'] >= 1
+
+        # A gamepad through the Gamepad API: a synthetic pad, LB held (deadman), then A.
+        browser.execute_script(
+            """
+            window.fakePad = {id: 'synthetic pad', axes: [0.5, 0, 0, 0],
+              buttons: Array.from({length: 16}, () => ({pressed: false, value: 0}))};
+            navigator.getGamepads = () => [window.fakePad];
+            """
+        )
+        wait_for(lambda: 'synthetic pad' in text('gamepad'), what='the gamepad')
+        human = totals.human
+        wait_for(pending, what='a request for the gamepad')
+        if SCREENSHOT:
+            Path(SCREENSHOT).parent.mkdir(parents=True, exist_ok=True)
+            browser.save_screenshot(SCREENSHOT)
+        browser.execute_script('window.fakePad.buttons[4].pressed = true;')
+        time.sleep(0.1)
+        browser.execute_script('window.fakePad.buttons[0].pressed = true;')
+        wait_for(lambda: totals.human == human + 1, what='gamepad advice')
+        browser.execute_script('window.fakePad.buttons[0].pressed = false; window.fakePad.buttons[4].pressed = false;')
+
+        # The controls set the learner's parameters, range-checked by the learner.
+        def type_budget(text):
+            budget = browser.find_element(By.ID, 'budget')
+            budget.click()
+            budget.send_keys(Keys.CONTROL, 'a')
+            budget.send_keys(text)
+            assert budget.get_attribute('value') == text
+            browser.find_element(By.ID, 'set-budget').click()
+
+        type_budget('-3')
+        wait_for(
+            lambda: 'refused' in text('message'),
+            what=lambda: f'the refusal (page says {text("message")!r})',
+        )
+        assert learner.config.advising_budget == 100
+        type_budget('7')
+        wait_for(lambda: learner.learner.gates.advising_budget == 7, what='the budget set')
+        browser.find_element(By.ID, 'pause').click()
+        wait_for(lambda: learner.params['advice_enabled'] is False, what='advice paused')
+        wait_for(lambda: text('pause') == 'resume advice', what='the pause shown')
+        # The plots have the finished episodes.
+        wait_for(lambda: learner.summaries, timeout=30, what='an episode')
+        wait_for(lambda: browser.execute_script('return state.episodes.length') >= 1, what='the plot data')
+    finally:
+        graph.close()
+
+
+def test_the_console_refuses_another_host_without_a_token_and_checks_the_token(ros_context):
+    import urllib.error
+    import urllib.request
+
+    assert is_loopback('127.0.0.1') and is_loopback('::1') and is_loopback('localhost')
+    assert not is_loopback('0.0.0.0') and not is_loopback('192.168.1.4')
+    with pytest.raises(ValueError, match='set a token'):
+        AdviceConsole(context=ros_context, parameter_overrides=params(host='0.0.0.0', port=0))
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, token='s3cret'))
+    try:
+        base = f'http://127.0.0.1:{console.port}/'
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(base, timeout=5)
+        assert refused.value.code == 403
+        with pytest.raises(urllib.error.HTTPError) as wrong:
+            urllib.request.urlopen(base + '?token=guess', timeout=5)
+        assert wrong.value.code == 403
+        assert b'advice console' in urllib.request.urlopen(base + '?token=s3cret', timeout=5).read()
+        # A websocket opened by a page of another origin is refused, even with the token.
+        request = urllib.request.Request(
+            base + 'ws?token=s3cret',
+            headers={
+                'Origin': 'http://evil.example',
+                'Connection': 'Upgrade',
+                'Upgrade': 'websocket',
+                'Sec-WebSocket-Version': '13',
+                'Sec-WebSocket-Key': 'dGhlIHNhbXBsZSBub25jZQ==',
+            },
+        )
+        with pytest.raises(urllib.error.HTTPError) as cross:
+            urllib.request.urlopen(request, timeout=5)
+        assert cross.value.code == 403
+    finally:
+        console.destroy_node()
+
+
+def test_the_console_checks_what_the_page_sends(ros_context):
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    try:
+        assert console.take_input({'type': 'input', 'command': [0.2, 0.1]}) == 'command must be a list of 1 numbers'
+        assert console.take_input({'type': 'input', 'command': ['x']}) == 'command must hold numbers'
+        assert console.take_input({'type': 'input', 'command': [float('nan')]}) == 'command must be finite'
+        assert console.take_input({'type': 'teleport'}) == "unknown message type 'teleport'"
+        assert console.take_input({'type': 'input', 'command': [7.0], 'deadman': True}) is None
+        assert console.input.command == [1.0] and console.input.deadman  # clipped to [-1, 1]
+        ok, reason = console.set_learner_parameter('max_episodes', 3)
+        assert not ok and 'not one of' in reason
+    finally:
+        console.destroy_node()
+
+
+def test_the_page_is_installed_with_the_package():
+    from importlib import resources
+
+    web = resources.files('eqhrl_ros').joinpath('web')
+    assert 'console.js' in web.joinpath('console.html').read_text()
