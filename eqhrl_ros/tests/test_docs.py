@@ -4,8 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from eqhrl_ros.nodes import messages
 from eqhrl_ros.cli.nodes import NODES, node_tables
+from eqhrl_ros.nodes import messages
 
 README = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
 
