@@ -5,9 +5,12 @@
     eqhrl-train --params double_integrator --env-node double_integrator_env --output runs/di
     eqhrl-train --params my.yaml --env-node none    (your own env node, started apart)
 
-The three nodes are the same classes `ros2 run` starts; here one executor spins
-them together. Ctrl-C saves a checkpoint; --resume continues from it. An output
-folder that holds a run is refused unless --resume or --overwrite is given.
+The nodes are the same classes `ros2 run` starts. Here each group (the env, the
+expert or the person's nodes, the learner) has its own executor and thread, so the
+learner's updates never delay a real-time env. With --expert-node teleop the person's
+page (advice_console) starts too, unless --no-console. Ctrl-C saves a checkpoint;
+--resume continues from it. An output folder that holds a run is refused unless
+--resume or --overwrite is given.
 
 Discovery: with the built-in expert the run is private to this process (ROS
 discovery off), so two runs on one machine never exchange messages. A person's
@@ -57,6 +60,11 @@ def parse_args(argv=None) -> argparse.Namespace:
         '(a person advises, e.g. with keyboard_teleop), or none',
     )
     parser.add_argument(
+        '--no-console',
+        action='store_true',
+        help='with --expert-node teleop: do not start advice_console (the browser page for the person)',
+    )
+    parser.add_argument(
         '--env-node',
         choices=ENV_NODES,
         default='gym_env',
@@ -68,7 +76,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         '--executor',
         choices=EXECUTORS,
         default=None,
-        help='rclpy executor for the three nodes (default: $EQHRL_EXECUTOR, else single)',
+        help='rclpy executor for each group of nodes (default: $EQHRL_EXECUTOR, else single)',
     )
     parser.add_argument(
         '--discovery',
@@ -128,6 +136,7 @@ def run(args):
         raise StartUpRefused(str(error)) from error
     stop = spinning.init(['--ros-args', '--params-file', str(path)], 'eqhrl-train')
     nodes = []
+    groups = []  # nodes spun together by one executor: env, experts, learner
     learner = None
     try:
         try:
@@ -140,23 +149,36 @@ def run(args):
                 from ..nodes.double_integrator_env_node import DoubleIntegratorEnv
 
                 nodes.append(DoubleIntegratorEnv(parameter_overrides=env_overrides))
+            groups.append(list(nodes))
             if args.expert_node == 'expert':
                 nodes.append(ExpertNode())
             elif args.expert_node == 'teleop':
                 nodes.append(TeleopExpertNode())
+                if not args.no_console:
+                    from ..nodes.advice_console_node import AdviceConsole
+
+                    nodes.append(AdviceConsole())
+            groups.append(nodes[len(groups[0]) :])
             learner = LearnerNode(parameter_overrides=learner_overrides(args))
             nodes.append(learner)
+            groups.append([learner])
         except spinning.start_up_errors() as error:
             raise StartUpRefused(str(error)) from error
-        executor = spinning.make_executor(args.executor)
-        for node in nodes:
-            executor.add_node(node)
+        executors = []
+        for group in [[learner], *(g for g in groups[:-1] if g)]:  # the learner's in the main thread
+            executor = spinning.make_executor(
+                args.executor, coroutines=any(spinning.needs_coroutines(node) for node in group)
+            )
+            for node in group:
+                executor.add_node(node)
+            executors.append(executor)
         learner.get_logger().info(
             f'discovery: {args.discovery}'
             + (' (no node outside this process can reach this run; see --discovery)' if args.discovery == 'off' else '')
         )
         start = time.monotonic()
-        spinning.spin(executor, stop)  # returns at max_episodes (the learner shuts the context down) or on a signal
+        # Returns at max_episodes (the learner shuts the context down) or on a signal.
+        spinning.spin_apart(executors, stop)
         refused = [node.exit_error for node in nodes if getattr(node, 'exit_error', None)]
         if refused:
             raise StartUpRefused(refused[0])  # e.g. the env's env_info disagrees with a node

@@ -59,6 +59,7 @@ class GymEnvNode(Node):
         self._held_action = ((self.env.action_space.low + self.env.action_space.high) / 2).astype(np.float32)
 
         self._subscribers_seen = 0
+        self._started = False  # real time: the first episode's clock has started
         # The one observation message, rewritten before each publish (and re-sent as is).
         self._last_msg = None
         self._observation_out = messages.observation_out(self.obs_dim)
@@ -133,9 +134,14 @@ class GymEnvNode(Node):
 
     def _realtime_tick(self) -> None:
         # The clock starts when the first subscriber (the learner, a person's viewer) has
-        # connected: stepping for nobody would only cut the first episode short.
-        if self._subscribers_seen or self.steps_taken:
+        # connected: stepping for nobody would only cut the first episode short. The first
+        # observation went out before anyone listened: it is sent again at that tick, and the
+        # stepping begins with the next, so the first episode is seen whole.
+        if self.steps_taken or self._started:
             self._step(self._held_action)
+        elif self._subscribers_seen:
+            self._started = True
+            self._publish()
 
     def _publish_image(self) -> None:
         if self.image_pub.get_subscription_count() == 0:

@@ -42,7 +42,15 @@ from .params import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, choices_validato
 from .spinning import ExitError, run_node, steady_clock
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-STATS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+# Observations wait here while the learner computes: a real-time env at 15 Hz sends 20 during
+# the first update (about 1.3 s), and at depth 10 the middleware delivered none of them.
+# 100 small messages bound the backlog a flood can leave (tests/nodes/test_faults.py).
+OBSERVATION_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# Observations wait here while the learner computes: a real-time env at 15 Hz sends 20 during
+# the first update (about 1.3 s), and at depth 10 the middleware delivered none of them.
+# 100 small messages bound the backlog a flood can leave (tests/nodes/test_faults.py).
+OBSERVATION_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
 
 @dataclass
@@ -106,7 +114,7 @@ class LearnerNode(Node):
         self.gate_pub = self.create_publisher(GateDecision, '~/gate_debug', QOS)
         self.request_pub = self.create_publisher(AdviceRequest, '~/advice_request', messages.LATCHED_QOS)
         # Observations arrive serialized (raw): see messages.SerializedReader.
-        self.create_subscription(Float32MultiArray, 'observation', self._on_observation, QOS, raw=True)
+        self.create_subscription(Float32MultiArray, 'observation', self._on_observation, OBSERVATION_QOS, raw=True)
         self.early_observations = 0  # observations before the spaces were known (ignored)
         self.advice_client = self.create_client(Advise, 'advise')
 

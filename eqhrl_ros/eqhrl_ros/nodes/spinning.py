@@ -172,6 +172,37 @@ def spin(node_or_executor, stop: Optional[StopSignals] = None) -> None:
             raise
 
 
+def spin_apart(executors: list, stop: Optional[StopSignals] = None) -> None:
+    """Spin several executors at once: the first in this thread (where signals land), each
+    other in a thread of its own; return when all have stopped. Why: a node whose callbacks
+    take long (the learner's gradient updates) then cannot delay another's timers (a
+    real-time env keeps its rate); torch releases the GIL while it computes."""
+    import threading
+
+    errors = []
+
+    def run(executor):
+        try:
+            spin(executor, stop)
+        except Exception as error:  # raised again in the main thread, after all have stopped
+            errors.append(error)
+            executor.context.try_shutdown()
+
+    threads = [
+        threading.Thread(target=run, args=(e,), name=f'executor-{i}', daemon=True)
+        for i, e in enumerate(executors[1:], 1)
+    ]
+    for thread in threads:
+        thread.start()
+    try:
+        spin(executors[0], stop)
+    finally:
+        for thread in threads:
+            thread.join()
+    if errors:
+        raise errors[0]
+
+
 def _spin_executor(executor, context, stop: Optional[StopSignals]) -> None:
     # spin_once in a loop for every executor kind: the EventsExecutor of rclpy 7.1 (Jazzy)
     # never runs timers inside spin(), and the loop is where a stop request is read.
