@@ -25,9 +25,21 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: setup lint test test-fast demo bench bench-learner bench-ros bench-flood bench-variants profile clean lock
+.PHONY: system-deps setup lint test test-fast demo bench bench-learner bench-ros bench-flood bench-variants profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
+
+# What the tests drive besides Python: tmux (keyboard_teleop in a real terminal) and Debian's
+# chromium and chromium-driver (advice_console in a real browser). apt, as root; only what is missing.
+SYSTEM_TOOLS := tmux:tmux chromium:chromium chromedriver:chromium-driver
+system-deps:
+	@missing=""; for pair in $(SYSTEM_TOOLS); do \
+	  command -v $${pair%%:*} >/dev/null || missing="$$missing $${pair#*:}"; done; \
+	if [ -n "$$missing" ]; then \
+	  command -v apt-get >/dev/null || { echo "error: install$$missing (no apt-get here)"; exit 1; }; \
+	  echo "installing$$missing (apt)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
+	fi
 
 $(VENV)/.stamp-deps: requirements.txt constraints.txt
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; the ROS 2 wheels need CPython 3.11 (set PYTHON=...)"; exit 1; }

@@ -6,6 +6,8 @@ ros2 launch eqhrl_ros train.launch.py params_file:=/path/to/my.yaml
 ros2 launch eqhrl_ros train.launch.py env:=double_integrator env_node:=double_integrator_env
 ros2 launch eqhrl_ros train.launch.py params_file:=/path/to/my.yaml env_node:=none   (your own env node)
 ros2 launch eqhrl_ros train.launch.py env:=teleop_pendulum expert:=teleop   (a person advises)
+    with expert:=teleop the person's page starts too (advice_console, http://127.0.0.1:8080/);
+    console:=false leaves it out (keyboard_teleop or a joystick instead)
 """
 
 import os
@@ -33,6 +35,9 @@ def _nodes(context):
     expert = LaunchConfiguration('expert').perform(context)
     if expert not in EXPERT_NODES:
         raise ValueError(f'expert:={expert} is not one of {", ".join(EXPERT_NODES)}')
+    console = LaunchConfiguration('console').perform(context).lower()
+    if console not in ('true', 'false'):
+        raise ValueError(f'console:={console} is not true or false')
     learner_params = [params_file] + ([{'mode': mode}] if mode else [])
     experts = (
         [
@@ -47,6 +52,16 @@ def _nodes(context):
         if EXPERT_NODES[expert]
         else []
     )
+    if expert == 'teleop' and console == 'true':  # the person's page in a browser
+        experts.append(
+            Node(
+                package='eqhrl_ros',
+                executable='advice_console',
+                name='advice_console',
+                parameters=[params_file],
+                output='screen',
+            )
+        )
     env = (
         [Node(package='eqhrl_ros', executable=env_node, name=env_node, parameters=[params_file], output='screen')]
         if env_node != 'none'
@@ -85,6 +100,11 @@ def generate_launch_description():
                 default_value='expert',
                 description='who advises: expert (the built-in controller or a policy), teleop (a person, '
                 'through teleop_expert; start keyboard_teleop or a joystick apart), or none (your own)',
+            ),
+            DeclareLaunchArgument(
+                'console',
+                default_value='true',
+                description="with expert:=teleop: start advice_console, the person's page in a browser",
             ),
             DeclareLaunchArgument(
                 'env_node',

@@ -259,6 +259,7 @@ def test_launch_file_is_valid_python_naming_the_executables():
     compile(source, 'train.launch.py', 'exec')
     assert "executable='learner'" in source
     assert 'executable=env_node' in source and 'executable=EXPERT_NODES[expert]' in source
+    assert "executable='advice_console'" in source  # with expert:=teleop
     # Its choices are eqhrl-train's (checked here: the launch file imports nothing of ours).
     from eqhrl_ros.cli.train import ENV_NODES, EXPERT_NODES
 
