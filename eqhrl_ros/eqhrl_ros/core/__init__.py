@@ -10,6 +10,9 @@
 - env_spec.py    EnvSpec: an env's spaces, pace and success rule, whoever announces it
 - envs.py        gymnasium envs: construction, their EnvSpec, action scaling
 - training.py    the in-process training loop
+- trainer.py     Trainer: learning fed by actor nodes (acting and learning apart)
+- transitions.py batches of transitions on their way to the trainer; the actor's outbox
+- weights.py     the networks an actor needs, as safetensors bytes
 - summary.py     one episode's statistics (the record's fields)
 - records.py     a run's folder: episodes.csv and where saves go
 """

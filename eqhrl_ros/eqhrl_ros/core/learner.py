@@ -32,7 +32,7 @@ from .env_spec import SuccessCriterion
 from .envs import ActionScaler
 from .experts import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
 from .networks import SquashedGaussianActor, TwinCritic
-from .replay import Batch, ReplayBuffer
+from .replay import Batch, ReplayBuffer, checked_transition
 from .summary import EpisodeSummary
 
 
@@ -327,6 +327,17 @@ class EQSACLearner:
 
     # ------------------------------------------------------------------ storing and learning
 
+    def normalize(self, action) -> np.ndarray:
+        """An action in env units as stored in D: mapped to [-1, 1] and clipped there."""
+        return np.clip(self.scaler.to_normalized(action), -1.0, 1.0)
+
+    def store(self, obs, normalized_action, reward: float, next_obs, terminated: bool, advised: bool) -> None:
+        """(s_t, a_t, r_t, s_{t+1}) into D, and into D_advising when advised (QASAC, EQSAC).
+        ``normalized_action`` in [-1, 1] (normalize()). A bad transition raises ValueError."""
+        self.replay.add(obs, normalized_action, reward, next_obs, terminated)
+        if advised and self.mode != 'sac':
+            self.advice_replay.add(obs, normalized_action, reward, next_obs, terminated)
+
     def step(
         self,
         obs,
@@ -337,18 +348,22 @@ class EQSACLearner:
         truncated: bool,
         advised: bool = False,
         success: Optional[bool] = None,
+        learn: bool = True,
     ) -> Optional[EpisodeSummary]:
         """Store (s_t, a_t, r_t, s_{t+1}) in D, and in D_advising when advised; update.
 
         Returns the episode's summary when this transition ended it. A non-finite or
         wrongly sized transition raises ValueError and changes nothing. ``success``: the
         env's own verdict, where it reports one; the last one given in an episode decides
-        its success over the learner's criterion.
+        its success over the learner's criterion. ``learn=False`` (an actor node, whose
+        trainer learns elsewhere): the transition is checked and counted in the episode, not
+        stored and not learned from.
         """
-        normalized = np.clip(self.scaler.to_normalized(action), -1.0, 1.0)
-        self.replay.add(obs, normalized, reward, next_obs, terminated)
-        if advised and self.mode != 'sac':
-            self.advice_replay.add(obs, normalized, reward, next_obs, terminated)
+        normalized = self.normalize(action)
+        if learn:
+            self.store(obs, normalized, reward, next_obs, terminated, advised)
+        else:
+            checked_transition(obs, normalized, reward, next_obs, self.obs_dim, self.action_dim)
 
         self._episode_return += float(reward)
         self.episode_step += 1
@@ -357,7 +372,7 @@ class EQSACLearner:
         if success is not None:
             self._reported_success = bool(success)
 
-        if len(self.replay) >= self.config.learning_starts:
+        if learn and len(self.replay) >= self.config.learning_starts:
             for _ in range(self.config.updates_per_step):
                 self.update()
 

@@ -17,6 +17,23 @@ class Batch:
     terminated: torch.Tensor  # 1.0 where the episode ended by termination (no bootstrap)
 
 
+def checked_transition(obs, action, reward, next_obs, obs_dim: int, action_dim: int):
+    """(obs, action, next_obs) as flat float32 arrays, or a ValueError if a size is wrong or a
+    value is not finite (a NaN that reaches the critics poisons every later update)."""
+    obs = np.asarray(obs, dtype=np.float32).reshape(-1)
+    action = np.asarray(action, dtype=np.float32).reshape(-1)
+    next_obs = np.asarray(next_obs, dtype=np.float32).reshape(-1)
+    if obs.shape[0] != obs_dim or next_obs.shape[0] != obs_dim:
+        raise ValueError(f'observation has {obs.shape[0]}/{next_obs.shape[0]} values, the buffer holds {obs_dim}')
+    if action.shape[0] != action_dim:
+        raise ValueError(f'action has {action.shape[0]} values, the buffer holds {action_dim}')
+    if not (
+        np.isfinite(obs).all() and np.isfinite(action).all() and np.isfinite(next_obs).all() and np.isfinite(reward)
+    ):
+        raise ValueError('transition holds a non-finite value (NaN or inf); not stored')
+    return obs, action, next_obs
+
+
 class ReplayBuffer:
     """A fixed-capacity ring buffer of transitions (s, a, r, s', terminated), preallocated.
 
@@ -58,19 +75,7 @@ class ReplayBuffer:
         return self.size
 
     def add(self, obs, action, reward: float, next_obs, terminated: bool) -> None:
-        obs = np.asarray(obs, dtype=np.float32).reshape(-1)
-        action = np.asarray(action, dtype=np.float32).reshape(-1)
-        next_obs = np.asarray(next_obs, dtype=np.float32).reshape(-1)
-        if obs.shape[0] != self.obs_dim or next_obs.shape[0] != self.obs_dim:
-            raise ValueError(
-                f'observation has {obs.shape[0]}/{next_obs.shape[0]} values, the buffer holds {self.obs_dim}'
-            )
-        if action.shape[0] != self.action_dim:
-            raise ValueError(f'action has {action.shape[0]} values, the buffer holds {self.action_dim}')
-        if not (
-            np.isfinite(obs).all() and np.isfinite(action).all() and np.isfinite(next_obs).all() and np.isfinite(reward)
-        ):
-            raise ValueError('transition holds a non-finite value (NaN or inf); not stored')
+        obs, action, next_obs = checked_transition(obs, action, reward, next_obs, self.obs_dim, self.action_dim)
         i = self.position
         self._np['obs'][i] = obs
         self._np['action'][i] = action

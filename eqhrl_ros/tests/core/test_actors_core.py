@@ -1,0 +1,195 @@
+"""Acting apart from learning (issue 20), without ROS: an actor-side learner that only acts,
+the trainer that learns from its transitions, the outbox, sequences and the weights codec."""
+
+import numpy as np
+import pytest
+import torch
+
+from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
+from eqhrl_ros.core.summary import EpisodeSummary
+from eqhrl_ros.core.trainer import TRAINER_CSV_FIELDS, Trainer
+from eqhrl_ros.core.training import ask_expert
+from eqhrl_ros.core.transitions import Outbox, SequenceTracker, TransitionBatch
+from eqhrl_ros.core.weights import WeightsError, apply_weights, encode_weights
+
+SETTINGS = dict(
+    mode='eqsac',
+    hidden=(32, 32),
+    batch_size=16,
+    learning_starts=40,
+    replay_capacity=5000,
+    queue_length=3,
+    advising_budget=3,
+)
+
+
+def pendulum_learner(**overrides) -> EQSACLearner:
+    return EQSACLearner(3, [-2.0], [2.0], LearnerConfig(**{**SETTINGS, **overrides}))
+
+
+def run_split(env, actor: EQSACLearner, trainer: Trainer, outbox: Outbox, expert, seed) -> EpisodeSummary:
+    """One episode with acting and learning apart, in the order the nodes run it when weights
+    go out after every update: act, send the transition, the trainer stores and updates,
+    the actor applies the new weights before its next step."""
+    obs, _ = env.reset(seed=seed)
+    while True:
+        proposal = actor.propose(obs)
+        if proposal.decision.fire:
+            action, advised = ask_expert(actor, proposal, expert).take()
+        else:
+            action, advised = proposal.action, False
+        next_obs, reward, terminated, truncated, _ = env.step(action)
+        summary = actor.step(obs, action, reward, next_obs, terminated, truncated, advised, learn=False)
+        outbox.add(obs, actor.normalize(action), reward, next_obs, terminated, advised)
+        if summary is not None:
+            outbox.end_episode(summary)
+        while (batch := outbox.take()) is not None:
+            trainer.receive(batch)
+        for _ in range(trainer.owed()):
+            trainer.update()
+        if trainer.weights_due():
+            apply_weights(actor, encode_weights(trainer.learner))
+            trainer.weights_sent()
+        if summary is not None:
+            return summary
+        obs = next_obs
+
+
+def test_acting_apart_with_fresh_weights_is_algorithm_1_exactly():
+    """Same seed, weights after every update: the split computes what the lock-step learner
+    does, to the bit: the same actions, gates, advice, returns and final networks."""
+    expert = heuristic_expert('Pendulum-v1')
+    lock_env, split_env = make_env('Pendulum-v1', 60), make_env('Pendulum-v1', 60)
+    lock = pendulum_learner()
+    actor, trainer_learner = pendulum_learner(), pendulum_learner()
+    trainer = Trainer(trainer_learner, updates_per_transition=1.0, weights_every=1)
+    outbox = Outbox('a0', 3, 1, batch_transitions=1, limit=100)
+    for episode in range(4):
+        seed = 7 if episode == 0 else None
+        expected = run_episode(lock_env, lock, expert, seed=seed)
+        got = run_split(split_env, actor, trainer, outbox, expert, seed)
+        assert got.episode_return == expected.episode_return
+        assert (got.advice_asked, got.advice_given) == (expected.advice_asked, expected.advice_given)
+    assert lock.advice_total.given > 0  # the gates fired and advice went to D_advising
+    assert trainer_learner.updates == lock.updates > 100
+    assert len(trainer_learner.advice_replay) == len(lock.advice_replay) > 0
+    for a, b in zip(lock.actor.state_dict().values(), trainer_learner.actor.state_dict().values()):
+        assert torch.equal(a, b)
+    for a, b in zip(lock.critic_target.state_dict().values(), trainer_learner.critic_target.state_dict().values()):
+        assert torch.equal(a, b)
+    assert trainer_learner.episode == lock.episode == 4
+    assert len(actor.replay) == 0  # the actor stores nothing itself
+
+
+def test_updates_keep_the_ratio_once_learning_starts():
+    trainer = Trainer(pendulum_learner(learning_starts=10), updates_per_transition=0.5, weights_every=5)
+    outbox = Outbox('a', 3, 1, batch_transitions=7, limit=100)
+    for i in range(30):
+        outbox.add([0.1, 0.2, float(i)], [0.0], -1.0, [0.1, 0.2, i + 1.0], False, i % 3 == 0)
+    outbox.seal()
+    while (batch := outbox.take()) is not None:
+        trainer.receive(batch)
+    # 30 stored, the 10th filled D to learning_starts: 21 eligible, half of them due.
+    assert trainer.eligible == 21
+    assert trainer.owed() == 10
+    for _ in range(trainer.owed()):
+        trainer.update()
+    assert trainer.owed() == 0 and trainer.learner.updates == 10
+    assert trainer.weights_due()
+    trainer.weights_sent()
+    assert not trainer.weights_due()
+    assert len(trainer.learner.advice_replay) == 10  # i % 3 == 0: advised, also in D_advising
+
+
+def test_a_bad_batch_is_refused_whole():
+    trainer = Trainer(pendulum_learner())
+    n = 4
+    good = dict(
+        observations=np.zeros((n, 3), np.float32),
+        actions=np.zeros((n, 1), np.float32),
+        rewards=np.zeros(n, np.float32),
+        next_observations=np.zeros((n, 3), np.float32),
+        terminated=np.zeros(n, bool),
+        advised=np.zeros(n, bool),
+    )
+    wrong_size = {**good, 'observations': np.zeros((n, 8), np.float32)}
+    with pytest.raises(ValueError, match='observations of actor .a. has shape'):
+        trainer.receive(TransitionBatch('a', 0, **wrong_size))
+    nan = {**good, 'rewards': np.array([0, 0, np.nan, 0], np.float32)}
+    with pytest.raises(ValueError, match='non-finite'):
+        trainer.receive(TransitionBatch('a', 1, **nan))
+    assert len(trainer.learner.replay) == 0 and trainer.learner.total_steps == 0
+    assert trainer.rejected_batches == 2
+    trainer.receive(TransitionBatch('a', 2, **good))
+    assert len(trainer.learner.replay) == n and trainer.sequences.lost == 0
+
+
+def test_episode_rows_count_over_all_actors():
+    trainer = Trainer(pendulum_learner())
+    summary = EpisodeSummary(5, -100.0, 10, 2, 1, 1, 1, 0, False, 10, 0.2, human_time_s=1.5)
+    rows = [trainer.add_episode(summary), trainer.add_episode(summary)]
+    assert [r.episode for r in rows] == [0, 1]  # the trainer's index, not the actor's 5
+    assert rows[1].human_time_total_s == 3.0
+    assert trainer.learner.advice_total.given == 2 and trainer.learner.episode == 2
+    assert TRAINER_CSV_FIELDS[-1] == 'actor'
+
+
+def test_outbox_seals_at_size_and_episode_end_and_drops_the_oldest_past_its_limit():
+    outbox = Outbox('a', 2, 1, batch_transitions=3, limit=7)
+    for i in range(2):
+        outbox.add([i, i], [0.0], 0.0, [i, i], False, False)
+    assert not outbox.sealed and outbox.waiting == 2 and outbox.age() >= 0.0
+    outbox.end_episode(EpisodeSummary(0, 0.0, 2, 0, 0, 0, 0, 0, False, 2, 0.2))
+    assert [len(b) for b in outbox.sealed] == [2] and len(outbox.sealed[0].episodes) == 1
+    for i in range(9):  # three more batches of 3: 11 waiting, over the limit of 7
+        outbox.add([i, i], [0.0], 0.0, [i, i], False, False)
+    assert [b.sequence for b in outbox.sealed] == [2, 3]  # 0 and 1 dropped, oldest first
+    assert (outbox.dropped_batches, outbox.dropped_transitions, outbox.dropped_episodes) == (2, 5, 1)
+    assert outbox.take().sequence == 2 and outbox.waiting == 3
+    with pytest.raises(ValueError):
+        Outbox('a', 2, 1, batch_transitions=10, limit=5)
+
+
+def test_sequences_count_gaps_and_restarts():
+    tracker = SequenceTracker()
+    assert tracker.receive('a', 4) == 'first'  # a trainer that joins late starts where the stream is
+    assert tracker.receive('a', 5) == 'next'
+    assert tracker.receive('a', 9) == 'gap'
+    assert tracker.receive('b', 0) == 'first'
+    assert tracker.receive('a', 0) == 'restart'
+    assert tracker.lost == 3 and tracker.actors['a'].restarts == 1
+
+
+def test_weights_travel_whole_or_not_at_all():
+    source, target = pendulum_learner(seed=1), pendulum_learner(seed=2)
+    data = encode_weights(source)
+    assert data[:8] != b'\x80\x02\x8a\n' and b'actor.' in data[:4096]  # safetensors' JSON header, not pickle
+    before = [t.clone() for t in target.actor.state_dict().values()]
+
+    with pytest.raises(WeightsError, match='not safetensors'):
+        apply_weights(target, b'\x80\x04garbage')
+    with pytest.raises(WeightsError, match='other hidden_sizes'):
+        apply_weights(target, encode_weights(pendulum_learner(hidden=(16, 16))))
+    poisoned = pendulum_learner(seed=1)
+    with torch.no_grad():
+        next(poisoned.critic.parameters()).view(-1)[0] = float('nan')
+    with pytest.raises(WeightsError, match='non-finite'):
+        apply_weights(target, encode_weights(poisoned))
+    assert all(torch.equal(a, b) for a, b in zip(before, target.actor.state_dict().values()))
+
+    apply_weights(target, data)
+    for a, b in zip(source.critic.state_dict().values(), target.critic.state_dict().values()):
+        assert torch.equal(a, b)
+    obs = [0.3, -0.2, 0.5]
+    assert np.array_equal(source.act(obs, deterministic=True), target.act(obs, deterministic=True))
+
+
+def test_an_actor_step_counts_but_stores_nothing():
+    actor = pendulum_learner()
+    obs = [1.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match='non-finite'):
+        actor.step(obs, [0.5], float('nan'), obs, False, False, learn=False)
+    assert actor.total_steps == 0
+    summary = actor.step(obs, [0.5], -1.0, obs, False, True, learn=False)
+    assert summary.length == 1 and summary.episode_return == -1.0
+    assert len(actor.replay) == 0 and actor.updates == 0
