@@ -26,6 +26,8 @@ setup(
         'console_scripts': [
             'gym_env = eqhrl_ros.cli.nodes:gym_env',
             'learner = eqhrl_ros.cli.nodes:learner',
+            'actor = eqhrl_ros.cli.nodes:actor',
+            'trainer = eqhrl_ros.cli.nodes:trainer',
             'expert = eqhrl_ros.cli.nodes:expert',
             'teleop_expert = eqhrl_ros.cli.nodes:teleop_expert',
             'keyboard_teleop = eqhrl_ros.cli.nodes:keyboard_teleop',

@@ -35,8 +35,10 @@ def table(title, params) -> str:
 def main():
     text = README.read_text()
     start, end = text.index('#### gym_env'), text.index('## Benchmarks')
-    # One table per parameter table of each node, in the order of cli/nodes.NODES.
-    tables = '\n\n'.join(table(title, params) for name in NODES for title, params in node_tables(name))
+    # One table per parameter table of each node, in the order of cli/nodes.NODES; a table that
+    # several nodes declare (the algorithm's) once.
+    unique = {title: params for name in NODES for title, params in node_tables(name)}
+    tables = '\n\n'.join(table(title, params) for title, params in unique.items())
     README.write_text(text[:start] + tables + '\n\n' + text[end:])
 
 

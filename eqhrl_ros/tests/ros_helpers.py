@@ -14,6 +14,7 @@ from eqhrl_interfaces.srv import Advise
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
+from eqhrl_ros.nodes.run_files import RunFiles
 from eqhrl_ros.nodes.spinning import make_executor
 
 PARAMS_DIR = Path(__file__).resolve().parents[1] / 'params'
@@ -68,7 +69,7 @@ class Harness:
     def close(self):
         self.executor.shutdown()
         for node in self.nodes:
-            if isinstance(node, LearnerNode):
+            if isinstance(node, RunFiles):
                 node.close()
             node.destroy_node()
 

@@ -31,6 +31,16 @@ NODES = {
         ('LEARNER_CONFIG_PARAMS', 'LEARNER_NODE_PARAMS'),
         'SAC, QASAC or EQSAC on the observation topic; asks advise when the gates fire.',
     ),
+    'actor': NodeProgram(
+        'actor_node',
+        ('LEARNER_CONFIG_PARAMS', 'ACTOR_NODE_PARAMS'),
+        'Acts with the latest weights from a trainer, asks advise when the gates fire, sends its transitions.',
+    ),
+    'trainer': NodeProgram(
+        'trainer_node',
+        ('LEARNER_CONFIG_PARAMS', 'TRAINER_PARAMS'),
+        'Learns from the transitions of any number of actor nodes and publishes their weights.',
+    ),
     'expert': NodeProgram(
         'expert_node',
         ('EXPERT_PARAMS',),
@@ -62,8 +72,10 @@ NODES = {
 
 # Titles of the README's parameter tables where a node has more than one table.
 TABLE_TITLES = {
-    'LEARNER_CONFIG_PARAMS': 'learner: algorithm (core.LearnerConfig)',
+    'LEARNER_CONFIG_PARAMS': 'learner, actor and trainer: algorithm (core.LearnerConfig)',
     'LEARNER_NODE_PARAMS': 'learner: node',
+    'ACTOR_NODE_PARAMS': 'actor: node',
+    'TRAINER_PARAMS': 'trainer: node',
 }
 
 
@@ -117,6 +129,14 @@ def gym_env() -> int:
 
 def learner() -> int:
     return run('learner')
+
+
+def actor() -> int:
+    return run('actor')
+
+
+def trainer() -> int:
+    return run('trainer')
 
 
 def expert() -> int:

@@ -55,6 +55,11 @@ class GymEnvNode(Node):
         self.steps_taken = 0
         self.rejected_actions = 0
         self.stale_actions = 0
+        # Real time: steps taken with the previous action because the answer to the current
+        # observation had not come by the tick (late_steps; per episode in the log).
+        self.late_steps = 0
+        self._episode_late = 0
+        self._answered = False
         self._last_publish = time.monotonic()
         self._held_action = ((self.env.action_space.low + self.env.action_space.high) / 2).astype(np.float32)
 
@@ -111,6 +116,12 @@ class GymEnvNode(Node):
         self._last_msg = self._observation_out.fill(obs, reward, terminated, truncated, self.episode, self.step_index)
         self._publish()
         if terminated or truncated:
+            if self.params['realtime']:
+                self.get_logger().info(
+                    f'episode {self.episode}: {self.step_index} steps, {self._episode_late} with the previous '
+                    f'action (the answer came after the tick); {self.late_steps} in all'
+                )
+                self._episode_late = 0
             self.episode += 1
             self._reset()
 
@@ -126,6 +137,8 @@ class GymEnvNode(Node):
             return
         if self.params['realtime']:
             self._held_action = action
+            if tag is None or tag == (self.episode, self.step_index):
+                self._answered = True
             return
         if tag is not None and tag != (self.episode, self.step_index):
             self.stale_actions += 1  # an answer to an observation already stepped past
@@ -138,6 +151,10 @@ class GymEnvNode(Node):
         # observation went out before anyone listened: it is sent again at that tick, and the
         # stepping begins with the next, so the first episode is seen whole.
         if self.steps_taken or self._started:
+            if not self._answered:
+                self.late_steps += 1
+                self._episode_late += 1
+            self._answered = False
             self._step(self._held_action)
         elif self._subscribers_seen:
             self._started = True

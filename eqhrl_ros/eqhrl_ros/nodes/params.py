@@ -107,23 +107,12 @@ ENV_PARAMS = (
 # What a params file's shared `/**:` section may set: every node accepts these.
 SHARED_PARAM_NAMES = ('env_id', *(p.name for p in SPACE_PARAMS), 'use_sim_time')
 
-LEARNER_NODE_PARAMS = (
+# What the learner and the actor nodes share: acting and asking for advice (nodes/acting.py).
+ACTING_PARAMS = (
     *ENV_PARAMS,
     Param('advice_enabled', True, 'Ask the expert when the gates fire (off: the gates are only logged)', dynamic=True),
     Param('advice_timeout_s', 0.5, 'Seconds to wait for the expert before acting alone', (0.001, 600.0), dynamic=True),
     Param('accept_expert', '', 'Accept advice only from this expert name (empty: any)', dynamic=True),
-    Param('output_dir', 'runs/learner', 'Folder for episodes.csv, checkpoints and the exported policy'),
-    Param('checkpoint_every_episodes', 10, 'Save a checkpoint every N episodes (0: only on shutdown)', (0, INT_MAX)),
-    Param('save_replay', False, 'Also save the replay memories with each checkpoint (large)'),
-    Param('resume', False, 'Resume from output_dir/checkpoint.pt at start-up'),
-    Param(
-        'overwrite',
-        False,
-        'Replace a run already in output_dir (episodes.csv, checkpoint, replay, policy); '
-        'without it (or resume) such a folder is refused',
-    ),
-    Param('max_episodes', 0, 'Stop learning after this many episodes (0: never)', (0, INT_MAX)),
-    Param('shutdown_when_done', False, 'Shut the process down once max_episodes is reached'),
     Param(
         'stall_timeout_s',
         5.0,
@@ -133,8 +122,77 @@ LEARNER_NODE_PARAMS = (
         dynamic=True,
     ),
     Param('publish_gate_debug', False, 'Publish every gate decision on ~/gate_debug', dynamic=True),
-    Param('torch_threads', 0, 'torch intra-op threads (0: torch default)', (0, 256)),
 )
+TORCH_THREADS = Param('torch_threads', 0, 'torch intra-op threads (0: torch default)', (0, 256))
+
+
+def run_params(output_dir: str) -> tuple:
+    """A learning run's folder, saves and end (the learner and the trainer nodes)."""
+    return (
+        Param('output_dir', output_dir, 'Folder for episodes.csv, checkpoints and the exported policy'),
+        Param(
+            'checkpoint_every_episodes', 10, 'Save a checkpoint every N episodes (0: only on shutdown)', (0, INT_MAX)
+        ),
+        Param('save_replay', False, 'Also save the replay memories with each checkpoint (large)'),
+        Param('resume', False, 'Resume from output_dir/checkpoint.pt at start-up'),
+        Param(
+            'overwrite',
+            False,
+            'Replace a run already in output_dir (episodes.csv, checkpoint, replay, policy); '
+            'without it (or resume) such a folder is refused',
+        ),
+        Param('max_episodes', 0, 'Stop learning after this many episodes (0: never)', (0, INT_MAX)),
+        Param('shutdown_when_done', False, 'Shut the process down once max_episodes is reached'),
+    )
+
+
+LEARNER_NODE_PARAMS = (*ACTING_PARAMS, *run_params('runs/learner'), TORCH_THREADS)
+
+ACTOR_NODE_PARAMS = (
+    *ACTING_PARAMS,
+    Param('actor_name', '', "This actor's name in the trainer's record and log (empty: the node's full name)"),
+    Param(
+        'batch_transitions',
+        50,
+        'Send transitions to the trainer in batches of this many (an episode end or flush_period_s sends sooner)',
+        (1, 100_000),
+    ),
+    Param('flush_period_s', 0.5, 'Send a batch at most this long after its first transition', (0.001, 3600.0)),
+    Param(
+        'outbox_limit',
+        100_000,
+        'Transitions kept while no trainer listens; past it the oldest batch is dropped and counted',
+        (1, INT_MAX),
+    ),
+    TORCH_THREADS,
+)
+
+TRAINER_PARAMS = (
+    *ENV_PARAMS,
+    *run_params('runs/trainer'),
+    Param(
+        'updates_per_transition',
+        1.0,
+        'Gradient updates per transition received once D holds learning_starts (the lock-step '
+        "learner's updates_per_step)",
+        (0.01, 100.0),
+    ),
+    Param('weights_every_updates', 50, 'Publish the networks on weights every N updates', (1, INT_MAX)),
+    Param(
+        'actor_silence_s', 10.0, 'Log an actor that sent nothing for this long (it may have stopped)', (0.1, 86400.0)
+    ),
+    Param('report_period_s', 10.0, 'Log transitions, updates and weights per second this often', (0.1, 86400.0)),
+    TORCH_THREADS,
+)
+
+
+def learner_section_for(section: dict, node_params: tuple) -> dict:
+    """The keys of a params file's ``learner:`` section that an actor or a trainer takes: the
+    algorithm's (the same for all three) and those of its own table. Launch files use it, so
+    that one params file configures the lock-step learner and the actor/trainer split alike."""
+    names = {p.name for p in (*LEARNER_CONFIG_PARAMS, *node_params)}
+    return {key: value for key, value in section.items() if key in names}
+
 
 GYM_ENV_PARAMS = (
     Param('env_id', 'Pendulum-v1', 'Gymnasium env id (any Box action space)'),

@@ -1,0 +1,468 @@
+"""ActingNode: what the learner node and an actor node share: acting on the env node's
+observations with EQSACLearner.propose, asking the expert service when the gates fire, and
+turning each observation into a transition. What becomes of a transition is the subclass's:
+the learner node learns from it at once (Algorithm 1 in lock-step), an actor node sends it to
+a trainer (nodes/actor_node.py).
+
+Executor design: nothing in this node ever blocks waiting for another node. When
+the gates fire, the advice request goes out with ``call_async``; whichever comes
+first, the response (a done-callback) or a one-shot timeout timer, decides the
+action. So a slow or absent expert cannot wedge the env, the statistics or
+shutdown, under a single-threaded executor or a multi-threaded one. (A synchronous
+``call`` inside a subscription callback deadlocks a single-threaded executor.)
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import torch
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float32MultiArray
+
+from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
+from eqhrl_interfaces.srv import Advise
+
+from ..core.env_spec import EnvSpec
+from ..core.experts import Advice
+from ..core.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
+from . import advise_msgs, messages
+from .env_info import EnvInfoWatcher, configured_spec, shown
+from .params import LEARNER_CONFIG_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .spinning import steady_clock
+
+QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# Observations wait here while the learner computes: a real-time env at 15 Hz sends 20 during
+# the first update (about 1.3 s), and at depth 10 the middleware delivered none of them.
+# 100 small messages bound the backlog a flood can leave (tests/nodes/test_faults.py).
+OBSERVATION_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+@dataclass
+class PendingAdvice:
+    token: int
+    proposal: Proposal
+    key: tuple  # (env episode, env step) the advice is for
+    timer: object
+    sent: float = 0.0  # time.monotonic() when the request went out
+
+
+# Expert names come from other nodes: cap them before they reach a log line or a count.
+EXPERT_NAME_MAX = 64
+EXPERT_NAMES_KEPT = 8
+
+
+def printable_name(name: str) -> str:
+    """``name`` as one safe log token: printable ASCII only, at most EXPERT_NAME_MAX characters."""
+    text = ''.join(c if c.isprintable() and c.isascii() else '?' for c in (name or '')[: EXPERT_NAME_MAX + 1])
+    if len(text) > EXPERT_NAME_MAX:
+        text = text[: EXPERT_NAME_MAX - 3] + '...'
+    return text or '(unnamed)'
+
+
+class ActingNode(Node):
+    """The acting half, shared by the learner and actor nodes. A subclass gives its node name
+    and parameter table, and says what a transition and an episode's end become."""
+
+    def __init__(self, node_name: str, node_params: tuple, **kwargs):
+        super().__init__(node_name, **kwargs)
+        reject_unknown_overrides(self, LEARNER_CONFIG_PARAMS, node_params)
+        values = declare(self, LEARNER_CONFIG_PARAMS)
+        self.params = declare(self, node_params)
+        # Check in the on-set callback (a later one may still refuse the change), act in the
+        # post-set one, once every check has passed (ros2/demos set_parameters_callback.py).
+        self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))
+        self.add_post_set_parameters_callback(self._after_set_parameters)
+        p = self.params
+        if p['torch_threads'] > 0:
+            torch.set_num_threads(p['torch_threads'])
+
+        self.config = LearnerConfig.from_params(values)
+        self._before_start()
+        # Made once the env's spaces are known (_configure): at once from env_id or the spaces
+        # parameters, else from the env's env_info.
+        self.learner: Optional[EQSACLearner] = None
+        self.spec = None
+
+        self.action_pub = self.create_publisher(Float32MultiArray, 'action', QOS)
+        self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', STATS_QOS)
+        self.gate_pub = self.create_publisher(GateDecision, '~/gate_debug', QOS)
+        self.request_pub = self.create_publisher(AdviceRequest, '~/advice_request', messages.LATCHED_QOS)
+        # Observations arrive serialized (raw): see messages.SerializedReader.
+        self.create_subscription(Float32MultiArray, 'observation', self._on_observation, OBSERVATION_QOS, raw=True)
+        self.early_observations = 0  # observations before the spaces were known (ignored)
+        self.advice_client = self.create_client(Advise, 'advise')
+
+        self._lock = threading.RLock()  # callbacks may run on several threads
+        self._state: Optional[np.ndarray] = None  # s_t the last action answered
+        self._key: Optional[tuple] = None  # its (env episode, env step)
+        self._last_action: Optional[np.ndarray] = None
+        self._last_advised = False
+        self._pending: Optional[PendingAdvice] = None
+        self._token = 0
+        self.dropped_messages = 0
+        self.stalls = 0  # times no observation came for stall_timeout_s mid-episode
+        self._stalled_since: Optional[float] = None
+        self.observation_gaps = 0  # an observation that skipped steps (a message was lost)
+        self.repeated_observations = 0  # the env re-sent an observation (our action did not arrive in time)
+        self.advice_latencies: deque = deque(maxlen=100_000)  # seconds, request to answer
+        self.experts_heard: Counter = Counter()  # expert_name -> advice answers this episode
+        self._advise_servers = 1
+        self._servers_checked = 0.0
+        self._last_observation_time = time.monotonic()
+        # Timers on the steady clock: with use_sim_time and a /clock that stops (or never
+        # starts), ROS time stands still, and an advice timeout or a stall must still fire.
+        self._steady = steady_clock()
+        self.create_timer(0.25, self._check_stall, clock=self._steady)
+        self.done = False
+        self.summaries: list[EpisodeSummary] = []
+        self.env_info = EnvInfoWatcher(
+            self, configured_spec(p), self._configure, working=lambda: bool(self.learner and self.learner.total_steps)
+        )
+
+    def _before_start(self) -> None:
+        """The subclass's own set-up, before the learner can exist (its output folder)."""
+
+    def _configure(self, spec: EnvSpec) -> None:
+        """Build the learner for the env's spaces (and what the subclass needs with it). From
+        __init__ its errors refuse the start; from env_info they stop the node (exit 1)."""
+        learner = EQSACLearner(
+            spec.observation_size, spec.action_low, spec.action_high, self.config, spec.success_criterion()
+        )
+        self._prepare(learner)
+        with self._lock:
+            self._action_out = messages.action_out(learner.action_dim)  # rewritten per step
+            self._observation_reader = messages.SerializedReader(
+                messages.observation_layouts(spec.observation_size), 'observation'
+            )
+            self.spec, self.learner = spec, learner
+        self.get_logger().info(
+            f'{self.config.mode} on {shown(spec.name)} ({spec.source}): obs {spec.observation_size}, '
+            f'action {spec.action_size}, success {spec.success_rule}, '
+            f'budget {self.config.advising_budget} episodes{self._describe()}'
+        )
+
+    def _prepare(self, learner: EQSACLearner) -> None:
+        """The subclass's use of a new learner before it acts (a checkpoint to load, a record)."""
+
+    def _describe(self) -> str:
+        """The end of the start-up log line."""
+        return ''
+
+    # ------------------------------------------------------------------ parameters at run time
+
+    def _after_set_parameters(self, changes) -> None:
+        with self._lock:
+            for change in changes:
+                if change.name == 'advising_budget':
+                    if self.learner is not None:
+                        self.learner.set_advising_budget(int(change.value))
+                    else:
+                        self.config.advising_budget = int(change.value)
+                elif change.name in self.params:
+                    self.params[change.name] = change.value
+
+    # ------------------------------------------------------------------ observations
+
+    def _on_observation(self, data: bytes) -> None:
+        with self._lock:
+            if self.done:
+                return
+            if self.learner is None:
+                self.early_observations += 1  # the env re-sends it; acted on once the spaces are known
+                return
+            self._last_observation_time = time.monotonic()
+            if self._stalled_since is not None:
+                self.get_logger().info(f'observations are back after {time.monotonic() - self._stalled_since:.1f} s')
+                self._stalled_since = None
+            try:
+                env_step = messages.parse_observation(self._observation_reader.values(data), self.learner.obs_dim)
+            except messages.MessageError as error:
+                self.dropped_messages += 1
+                self.get_logger().error(f'dropped observation: {error}', throttle_duration_sec=5.0)
+                return
+            key = (env_step.episode, env_step.step)
+            if key == self._key:
+                self.repeated_observations += 1
+                # The env sent the same observation again: our action did not reach it.
+                if self._pending is None and self._last_action is not None:
+                    self._publish_action(self._last_action)
+                return
+            if self._pending is not None:
+                self._observe_while_waiting(env_step, key)
+                return
+
+            if self._follows(key):
+                if self._store(env_step):
+                    return  # the episode ended; the env's reset message starts the next
+            else:
+                self._start_from(env_step, key)
+            if env_step.done:
+                # A final observation with no predecessor we acted on: nothing to store or act on.
+                self._key = key
+                self._state = None
+                return
+            self._act(env_step.obs, key)
+
+    def _start_from(self, env_step: messages.EnvStep, key: tuple) -> None:
+        """An observation that does not continue the transition we acted on. What the
+        record gets: a new env episode (step 0) abandons an unfinished one of ours (no row,
+        its index reused: the env restarted); a later step of the same env episode marks
+        ours interrupted (a message was lost); any other step > 0 is a mid-episode start,
+        also marked interrupted. No transition is ever made across the gap."""
+        same_episode = self._key is not None and key[0] == self._key[0] and key[1] > self._key[1]
+        if env_step.step == 0:
+            if self.learner.episode_step > 0:
+                self.get_logger().warn(
+                    f'the env started a new episode: abandoning episode '
+                    f'{self.learner.episode} after {self.learner.episode_step} steps '
+                    '(no row is written; the index is reused)'
+                )
+            self.learner.abandon_episode()  # a fresh start, also of an interrupted mark
+            return
+        if same_episode and self.learner.episode_step > 0:
+            self.observation_gaps += 1
+            self.get_logger().warn(
+                f'observation {key} does not follow {self._key}: episode '
+                f'{self.learner.episode} continues, marked interrupted',
+                throttle_duration_sec=5.0,
+            )
+        else:
+            if self.learner.episode_step > 0:
+                self.get_logger().warn(
+                    f'observation {key} is from another env episode than {self._key}: '
+                    f'abandoning episode {self.learner.episode}',
+                    throttle_duration_sec=5.0,
+                )
+                self.learner.abandon_episode()
+            self.get_logger().info(
+                f'joining the env mid-episode at {key}: episode {self.learner.episode} is marked interrupted',
+                throttle_duration_sec=5.0,
+            )
+        self.learner.mark_interrupted()
+
+    def _follows(self, key: tuple) -> bool:
+        return (
+            key[1] > 0 and self._state is not None and self._key is not None and key == (self._key[0], self._key[1] + 1)
+        )
+
+    def _observe_while_waiting(self, env_step: messages.EnvStep, key: tuple) -> None:
+        """A real-time env keeps stepping with the held (previous) action while the person
+        decides: those are real transitions, stored as such; the advice, when it comes,
+        applies to the latest observation. (A lock-step env sends nothing meanwhile.)"""
+        if not self._follows(key) or self._last_action is None:
+            return
+        if env_step.done:
+            # The episode ends before the answer: the request counts as timed out in it.
+            pending = self._take_pending(self._pending.token)
+            self.learner.resolve_advice(pending.proposal, failure='timeout')  # acted on already
+            self.request_pub.publish(
+                messages.advice_request_msg(
+                    'failed', pending.proposal.request, self.params['advice_timeout_s'], 'timeout'
+                )
+            )
+        self._last_advised = False
+        if not self._store(env_step):
+            self._state, self._key = env_step.obs, key
+
+    def _store(self, env_step: messages.EnvStep) -> bool:
+        """Hand on the transition the message completes; returns True when the episode ended."""
+        try:
+            summary = self._transition(
+                self._state,
+                self._last_action,
+                env_step.reward,
+                env_step.obs,
+                env_step.terminated,
+                env_step.truncated,
+                self._last_advised,
+                env_step.success,
+            )
+        except ValueError as error:
+            self.dropped_messages += 1
+            self.get_logger().error(f'transition not stored: {error}', throttle_duration_sec=5.0)
+            return False
+        if summary is None:
+            return False
+        self._key = (env_step.episode, env_step.step)
+        self._state = None
+        self._on_episode_end(summary)
+        return True
+
+    def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success):
+        """(s_t, a_t, r_t, s_{t+1}) is complete: count it in the episode and learn from it or send
+        it. Returns the episode's summary when it ended the episode; ValueError on a bad one."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ acting and advice
+
+    def _act(self, obs: np.ndarray, key: tuple) -> None:
+        self._state, self._key = obs, key
+        proposal = self.learner.propose(obs)
+        if self.params['publish_gate_debug']:
+            self.gate_pub.publish(messages.gate_msg(self.learner.episode, self.learner.episode_step, proposal.decision))
+        if not (proposal.decision.fire and self.params['advice_enabled']):
+            self._finish_step(proposal.action, advised=False)
+            return
+        if not self.advice_client.service_is_ready():
+            self._finish_step(*self.learner.resolve_advice(proposal, failure='unavailable').take())
+            return
+        self._token += 1
+        token = self._token
+        request = advise_msgs.request_msg(proposal.request, self.params['advice_timeout_s'])
+        timer = self.create_timer(
+            self.params['advice_timeout_s'], lambda: self._on_advice_timeout(token), clock=self._steady
+        )
+        self._check_advise_servers()
+        self._pending = PendingAdvice(token, proposal, key, timer, time.monotonic())
+        self.request_pub.publish(
+            messages.advice_request_msg('pending', proposal.request, self.params['advice_timeout_s'])
+        )
+        future = self.advice_client.call_async(request)
+        future.add_done_callback(lambda f: self._on_advice_response(token, f))
+
+    def _check_advise_servers(self) -> None:
+        """Warn when several nodes serve 'advise': rclpy keeps the first answer to a request
+        and drops the others, so with accept_expert set, a request the other server answers
+        first counts as 'untrusted' even if the accepted expert answers it too."""
+        now = time.monotonic()
+        if now - self._servers_checked < 5.0:
+            return
+        self._servers_checked = now
+        servers = self.count_services(self.advice_client.srv_name)
+        if servers > 1 and servers != self._advise_servers:
+            self.get_logger().warn(
+                f"{servers} nodes serve '{self.advice_client.srv_name}': the first answer "
+                'to each request is used, the others are dropped'
+            )
+        self._advise_servers = servers
+
+    def _take_pending(self, token: int) -> Optional[PendingAdvice]:
+        pending = self._pending
+        if pending is None or pending.token != token:
+            return None  # already resolved (a late answer after the timeout, or the reverse)
+        self._pending = None
+        self.destroy_timer(pending.timer)
+        return pending
+
+    def _resolve(self, pending: PendingAdvice, advice: Optional[Advice] = None, failure: str = '') -> None:
+        """Count the outcome, tell the person's UI, and act."""
+        resolution = self.learner.resolve_advice(pending.proposal, advice, failure)
+        human = advice is not None and advice.human
+        if resolution.outcome == 'declined' and resolution.detail:
+            # A person's "why not" is worth seeing (a declining controller says why too).
+            self.get_logger().info(f'advice declined: {printable_name(resolution.detail)}', throttle_duration_sec=2.0)
+        self.request_pub.publish(
+            messages.advice_request_msg(
+                resolution.outcome,
+                pending.proposal.request,
+                self.params['advice_timeout_s'],
+                resolution.detail,
+                human,
+                advice.response_time_s if human else time.monotonic() - pending.sent,
+            )
+        )
+        self._finish_step(*resolution.take())
+
+    def _on_advice_timeout(self, token: int) -> None:
+        with self._lock:
+            pending = self._take_pending(token)
+            if pending is None:
+                return
+            self._resolve(pending, failure='timeout')
+
+    def _on_advice_response(self, token: int, future) -> None:
+        with self._lock:
+            pending = self._take_pending(token)
+            if pending is None:
+                return
+            self.advice_latencies.append(time.monotonic() - pending.sent)
+            try:
+                response = future.result()
+            except Exception as error:
+                self.get_logger().warn(f'advice call failed: {error!r}', throttle_duration_sec=5.0)
+                self._resolve(pending, failure='error')
+                return
+            name = printable_name(response.expert_name)
+            if name in self.experts_heard or len(self.experts_heard) < EXPERT_NAMES_KEPT:
+                self.experts_heard[name] += 1
+            else:
+                self.experts_heard['(others)'] += 1
+            accept = self.params['accept_expert']
+            if accept and response.expert_name != accept:
+                self.get_logger().warn(
+                    f"ignored advice from '{name}' (accept_expert is '{accept}')", throttle_duration_sec=5.0
+                )
+                self._resolve(pending, failure='untrusted')
+            else:
+                self._resolve(pending, advise_msgs.advice_from_response(response, name))
+
+    def _finish_step(self, action: np.ndarray, advised: bool) -> None:
+        self._last_action = np.asarray(action, dtype=np.float32)
+        self._last_advised = advised
+        self._publish_action(self._last_action)
+
+    def _publish_action(self, action: np.ndarray) -> None:
+        self.action_pub.publish(self._action_out.fill(action, *self._key))
+
+    # ------------------------------------------------------------------ a vanished env
+
+    def _check_stall(self) -> None:
+        """Say, once per silence, that the env has gone quiet. Nothing is dropped here: a
+        paused or starved env (or this process itself starved) comes back with the next step
+        of the same episode, which then simply continues; an env that restarted comes back
+        with step 0, which abandons the unfinished episode (see _start_from)."""
+        with self._lock:
+            if self.done or self._state is None or self._pending is not None or self._stalled_since is not None:
+                return
+            silent = time.monotonic() - self._last_observation_time
+            if silent < self.params['stall_timeout_s']:
+                return
+            self.stalls += 1
+            self._stalled_since = self._last_observation_time
+            self.get_logger().warn(
+                f'no observation for {silent:.1f} s in episode {self.learner.episode} (step '
+                f'{self.learner.episode_step}): waiting for the env; the episode continues if its next '
+                'step comes, and is abandoned if the env starts a new one'
+            )
+
+    # ------------------------------------------------------------------ episodes
+
+    def _on_episode_end(self, summary: EpisodeSummary) -> None:
+        self.summaries.append(summary)
+        self.stats_pub.publish(messages.stats_msg(summary))
+        self._episode_done(summary)
+        failed = self.learner.advice_total.failed
+        failures = ', '.join(f'{k} {v}' for k, v in failed.items() if v)
+        experts = ', '.join(f'{name} {n}' for name, n in self.experts_heard.items())
+        person = (
+            f'  person {summary.human_time_s:.1f} s (total {summary.human_time_total_s:.1f} s)'
+            if summary.human_time_total_s
+            else ''
+        )
+        self.experts_heard.clear()
+        self.get_logger().info(
+            f'episode {summary.episode:4d}  return {summary.episode_return:9.2f}  len {summary.length:4d}  '
+            f'advice {summary.advice_given}/{summary.advice_asked}'
+            f'{" (%d from a person)" % summary.advice_human if summary.advice_human else ""}'
+            f'{"  declined %d" % summary.advice_declined if summary.advice_declined else ""}'
+            f'{"  failed %d (total: %s)" % (summary.advice_failed, failures) if summary.advice_failed else ""}'
+            f'  success {int(summary.success)}  steps {summary.total_steps}  alpha {summary.alpha:.3f}'
+            f'{"  INTERRUPTED (not seen whole)" if summary.interrupted else ""}'
+            f'{person}'
+            f'{"  answered by: " + experts if experts else ""}'
+        )
+        self._after_episode(summary)
+
+    def _episode_done(self, summary: EpisodeSummary) -> None:
+        """Keep the finished episode (a row of the record, or the trainer's batch): before the log line."""
+
+    def _after_episode(self, summary: EpisodeSummary) -> None:
+        """After the log line: saves, and stopping at max_episodes."""

@@ -1,0 +1,189 @@
+"""actor: acts on the env node's observations with the latest weights; a trainer learns.
+
+It holds the policy and the twin critics, evaluates D(s), E(s) and the gates, asks the
+`advise` service as the learner node does (nodes/acting.py), and publishes each action at
+the env's pace: no gradient update ever runs in its callbacks. Every transition, with its
+advised flag, goes to the trainer on /transitions in batches with sequence numbers; new
+weights from /weights are applied between two steps (callbacks share one lock).
+
+With no trainer listening (not started yet, restarting, gone), it goes on acting with the
+weights it has and keeps its transitions, up to outbox_limit, for when a trainer appears.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from typing import Optional
+
+import numpy as np
+from rclpy.time import Time
+
+from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
+
+from ..core.learner import EpisodeSummary, EQSACLearner
+from ..core.transitions import Outbox
+from ..core.weights import WeightsError, apply_weights
+from . import trainer_msgs
+from .acting import ActingNode
+from .params import ACTOR_NODE_PARAMS
+from .spinning import run_node
+
+
+class ActorNode(ActingNode):
+    def __init__(self, **kwargs):
+        self.outbox: Optional[Outbox] = None
+        self.weights_applied = 0
+        self.weights_refused = 0
+        self.weights_version: Optional[int] = None
+        self.trainer_id = ''
+        self.weights_latencies: deque = deque(maxlen=100_000)  # seconds, published to applied
+        self.sent_batches = 0
+        self.sent_transitions = 0
+        self._waiting_weights: Optional[PolicyWeights] = None  # arrived before the spaces were known
+        self._trainer_away_since: Optional[float] = None
+        super().__init__('actor', ACTOR_NODE_PARAMS, **kwargs)
+        self.actor_name = self.params['actor_name'] or self.get_fully_qualified_name()
+        self.transitions_pub = self.create_publisher(
+            TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, trainer_msgs.TRANSITIONS_QOS
+        )
+        self.create_subscription(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, self._on_weights, trainer_msgs.WEIGHTS_QOS)
+        period = min(self.params['flush_period_s'] / 2, 0.1)
+        self.create_timer(period, self._flush_if_due, clock=self._steady)
+
+    def _prepare(self, learner: EQSACLearner) -> None:
+        p = self.params
+        self.outbox = Outbox(
+            p['actor_name'] or self.get_fully_qualified_name(),
+            learner.obs_dim,
+            learner.action_dim,
+            min(p['batch_transitions'], p['outbox_limit']),
+            p['outbox_limit'],
+        )
+
+    def _describe(self) -> str:
+        return f', transitions to {trainer_msgs.TRANSITIONS_TOPIC}, weights from {trainer_msgs.WEIGHTS_TOPIC}'
+
+    # ------------------------------------------------------------------ transitions out
+
+    def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success):
+        summary = self.learner.step(obs, action, reward, next_obs, terminated, truncated, advised, success, learn=False)
+        self.outbox.add(obs, self.learner.normalize(action), reward, next_obs, terminated, advised)
+        self._send()
+        return summary
+
+    def _episode_done(self, summary: EpisodeSummary) -> None:
+        self.outbox.end_episode(summary)
+        self._send()
+
+    def _flush_if_due(self) -> None:
+        with self._lock:
+            if self.outbox is None:
+                return
+            if self.outbox.age() >= self.params['flush_period_s']:
+                self.outbox.seal()
+            self._send()
+
+    def _send(self) -> None:
+        """Publish sealed batches while a trainer listens; otherwise keep them (bounded)."""
+        outbox = self.outbox
+        if not outbox.sealed:
+            return
+        if self.transitions_pub.get_subscription_count() == 0:
+            if self._trainer_away_since is None:
+                self._trainer_away_since = time.monotonic()
+                self.get_logger().warn(
+                    f'no trainer on {self.transitions_pub.topic_name}: acting with the weights I have, '
+                    f'keeping up to {self.params["outbox_limit"]} transitions'
+                )
+            return
+        if self._trainer_away_since is not None:
+            self.get_logger().info(
+                f'a trainer listens on {self.transitions_pub.topic_name} after '
+                f'{time.monotonic() - self._trainer_away_since:.1f} s: sending {outbox.waiting} transitions'
+                f'{"; %d dropped meanwhile" % outbox.dropped_transitions if outbox.dropped_transitions else ""}'
+            )
+            self._trainer_away_since = None
+        for _ in range(trainer_msgs.SEND_AT_ONCE):
+            batch = outbox.take()
+            if batch is None:
+                break
+            self.transitions_pub.publish(
+                trainer_msgs.batch_msg(batch, self.learner.scaler.low, self.learner.scaler.high)
+            )
+            self.sent_batches += 1
+            self.sent_transitions += len(batch)
+
+    # ------------------------------------------------------------------ weights in
+
+    def _on_weights(self, msg: PolicyWeights) -> None:
+        with self._lock:
+            if self.learner is None:
+                self._waiting_weights = msg
+                return
+            self._apply(msg)
+
+    def _configure(self, spec) -> None:
+        super()._configure(spec)
+        with self._lock:
+            if self._waiting_weights is not None:
+                msg, self._waiting_weights = self._waiting_weights, None
+                self._apply(msg)
+
+    def _apply(self, msg: PolicyWeights) -> None:
+        """Between two steps (under the node's lock): the networks whole, or not at all."""
+        new_trainer = msg.trainer_id != self.trainer_id
+        if not new_trainer and self.weights_version is not None and msg.version <= self.weights_version:
+            return  # older than what we act with
+        try:
+            apply_weights(self.learner, msg.tensors.tobytes() if hasattr(msg.tensors, 'tobytes') else msg.tensors)
+        except WeightsError as error:
+            self.weights_refused += 1
+            self.get_logger().error(f'weights v{msg.version} refused: {error}', throttle_duration_sec=5.0)
+            return
+        if new_trainer:
+            self.get_logger().info(f"weights from trainer '{msg.trainer_id}' (v{msg.version})")
+        self.trainer_id, self.weights_version = msg.trainer_id, int(msg.version)
+        self.weights_applied += 1
+        published = Time.from_msg(msg.stamp, clock_type=self.get_clock().clock_type)
+        self.weights_latencies.append((self.get_clock().now() - published).nanoseconds / 1e9)
+        # Eq. 7's budget counts episodes over all actors: the trainer's count, or ours if larger.
+        self.learner.episode = max(self.learner.episode, int(msg.episodes))
+
+    # ------------------------------------------------------------------ exit
+
+    def report(self) -> str:
+        """One line: what went out, what was dropped, the weights and how long they took."""
+        latency = ''
+        if self.weights_latencies:
+            ms = np.asarray(self.weights_latencies) * 1000.0
+            latency = f' (latency p50 {np.percentile(ms, 50):.1f} ms, p99 {np.percentile(ms, 99):.1f} ms)'
+        outbox = self.outbox
+        dropped = outbox.dropped_transitions if outbox else 0
+        waiting = outbox.waiting if outbox else 0
+        steps = self.learner.total_steps if self.learner else 0
+        return (
+            f'{steps} steps; sent {self.sent_batches} batches ({self.sent_transitions} transitions), '
+            f'{waiting} unsent, {dropped} dropped; weights applied {self.weights_applied}{latency}, '
+            f'refused {self.weights_refused}'
+        )
+
+
+def _flush_and_report(node: ActorNode) -> None:
+    """At exit: send what is waiting if a trainer listens (a last partial batch included)."""
+    with node._lock:
+        if node.outbox is not None:
+            node.outbox.seal()
+            for _ in range(100):
+                if not node.outbox.sealed or node.transitions_pub.get_subscription_count() == 0:
+                    break
+                node._send()
+    node.get_logger().info(f'actor {node.actor_name}: {node.report()}')
+
+
+def main(args=None):
+    run_node(ActorNode, args, on_exit=_flush_and_report, name='actor')
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,88 @@
+"""A learning run's files for a node (the learner, the trainer): the run folder, episodes.csv,
+checkpoints and the exported policy; periodic saves that survive a full disk; the save at exit."""
+
+from __future__ import annotations
+
+from ..core.checkpoint import CheckpointWriteError, check_checkpoint_file, export_policy, save_checkpoint
+from ..core.records import RunFolder
+from .spinning import ExitError
+
+
+class RunFiles:
+    """Mixed into a node that has ``params`` (nodes/params.run_params), ``_lock``, and, once its
+    spaces are known, ``learner`` and ``record``."""
+
+    record = None
+    failed_saves = 0
+
+    def _open_run_folder(self) -> None:
+        p = self.params
+        # Refuses, with one line, a folder that is a file, cannot be written, or holds a run
+        # that neither resume nor overwrite was asked for.
+        self.run_folder = RunFolder(p['output_dir'], resume=p['resume'], overwrite=p['overwrite'])
+        self.output_dir = self.run_folder.path
+        self.checkpoint_path = self.run_folder.checkpoint
+        self.replay_path = self.run_folder.replay if p['save_replay'] else None
+        self.csv_path = self.run_folder.episodes
+        for tmp in self.run_folder.removed_temporaries:
+            self.get_logger().info(f'removed {tmp}, left by a save that was interrupted')
+        if p['resume']:
+            # A missing or corrupt checkpoint is refused now, not after waiting for the env.
+            check_checkpoint_file(self.checkpoint_path)
+
+    def _append_row(self, row: list) -> None:
+        error = self.record.append(row)
+        if error is not None:
+            self.get_logger().error(
+                f'{self.csv_path}: {error.strerror or error}; '
+                f'{self.record.unwritten_rows} row(s) kept, written with the next one'
+            )
+
+    def save(self) -> None:
+        """Checkpoint (with the replay memories if asked) and exported policy, written whole
+        and renamed into place. Raises CheckpointWriteError; the previous files stay intact."""
+        with self._lock:
+            if self.learner is None:
+                return  # the env's spaces never came: nothing learned, nothing to save
+            save_checkpoint(self.learner, self.checkpoint_path, self.replay_path)
+            export_policy(self.learner, self.run_folder.policy)
+            self.record.flush()
+
+    def save_or_log(self) -> bool:
+        """A periodic save: a failure (a full disk, a read-only folder) is one log line and
+        training goes on; the next period tries again."""
+        try:
+            self.save()
+        except CheckpointWriteError as error:
+            self.failed_saves += 1
+            self.get_logger().error(
+                f'checkpoint not saved at episode {self.learner.episode}: {error} '
+                '(training goes on; the previous checkpoint is intact; '
+                'the next save tries again)'
+            )
+            return False
+        return True
+
+    def close(self) -> None:
+        with self._lock:
+            if self.record is None:
+                return
+            error = self.record.close()
+            if error is not None:
+                raise ExitError(
+                    f'{self.csv_path}: {error.strerror or error}: the last '
+                    f'{self.record.unwritten_rows} row(s) could not be written'
+                )
+
+
+def save_and_close(node: RunFiles) -> None:
+    """At exit (the end, Ctrl-C or SIGTERM): a save that fails makes the exit code non-zero."""
+    try:
+        node.save()
+    except CheckpointWriteError as error:
+        try:
+            node.close()
+        except ExitError as close_error:
+            node.get_logger().error(str(close_error))
+        raise ExitError(f'checkpoint not saved at exit: {error}; the last saved checkpoint is intact') from error
+    node.close()

@@ -1,0 +1,104 @@
+"""The actor nodes' and the trainer's topics: names, QoS, and conversions to and from the
+core's TransitionBatch and the networks' bytes (eqhrl_interfaces TransitionBatch, PolicyWeights).
+
+Both topics are absolute (``/transitions``, ``/weights``): actors usually run in namespaces of
+their own (one env each) and all talk to one trainer. Remap them (``-r /weights:=/team/weights``)
+to run several trainers in one ROS domain.
+"""
+
+from __future__ import annotations
+
+import array
+import dataclasses
+
+import numpy as np
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionBatch
+
+from ..core.summary import EpisodeSummary
+from ..core.transitions import TransitionBatch as Batch
+
+TRANSITIONS_TOPIC = '/transitions'
+WEIGHTS_TOPIC = '/weights'
+# Reliable, and deep enough that an actor's backlog sent at once after the trainer (re)appears
+# is not overwritten in the writer's history before it is acknowledged.
+TRANSITIONS_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
+# The latest weights only, kept for actors that start (or restart) later.
+WEIGHTS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Batches an actor publishes per call: a backlog goes out over several calls, within the QoS depth.
+SEND_AT_ONCE = 20
+
+_STATS_FIELDS = tuple(f.name for f in dataclasses.fields(EpisodeSummary))
+
+
+def _floats(values) -> array.array:
+    out = array.array('f')
+    out.frombytes(np.ascontiguousarray(values, dtype=np.float32).tobytes())
+    return out
+
+
+def batch_msg(batch: Batch, action_low, action_high) -> TransitionBatch:
+    return TransitionBatch(
+        actor=batch.actor,
+        sequence=int(batch.sequence),
+        observation_size=int(batch.observations.shape[1]),
+        action_low=_floats(action_low),
+        action_high=_floats(action_high),
+        observations=_floats(batch.observations),
+        actions=_floats(batch.actions),
+        rewards=_floats(batch.rewards),
+        next_observations=_floats(batch.next_observations),
+        terminated=[bool(v) for v in batch.terminated],
+        advised=[bool(v) for v in batch.advised],
+        episodes=[EpisodeStats(**dataclasses.asdict(s)) for s in batch.episodes],
+    )
+
+
+class BatchError(ValueError):
+    """A TransitionBatch whose sizes do not fit together."""
+
+
+def batch_from_msg(msg: TransitionBatch) -> tuple[Batch, np.ndarray, np.ndarray]:
+    """(the core's batch, action_low, action_high). Sizes that do not add up raise BatchError;
+    values are checked by the trainer (Trainer.receive)."""
+    obs_dim = int(msg.observation_size)
+    action_dim = len(msg.action_low)
+    n = len(msg.rewards)
+    if obs_dim < 1 or action_dim < 1 or len(msg.action_high) != action_dim:
+        raise BatchError(
+            f'observation_size {obs_dim}, action_low {len(msg.action_low)} and action_high '
+            f'{len(msg.action_high)} values do not describe spaces'
+        )
+    sizes = {
+        'observations': (len(msg.observations), n * obs_dim),
+        'next_observations': (len(msg.next_observations), n * obs_dim),
+        'actions': (len(msg.actions), n * action_dim),
+        'terminated': (len(msg.terminated), n),
+        'advised': (len(msg.advised), n),
+    }
+    for name, (got, expected) in sizes.items():
+        if got != expected:
+            raise BatchError(f'{name} has {got} values, {n} transitions need {expected}')
+    batch = Batch(
+        actor=msg.actor,
+        sequence=int(msg.sequence),
+        observations=np.frombuffer(msg.observations, dtype=np.float32).reshape(n, obs_dim),
+        actions=np.frombuffer(msg.actions, dtype=np.float32).reshape(n, action_dim),
+        rewards=np.frombuffer(msg.rewards, dtype=np.float32),
+        next_observations=np.frombuffer(msg.next_observations, dtype=np.float32).reshape(n, obs_dim),
+        terminated=np.asarray(msg.terminated, dtype=bool),
+        advised=np.asarray(msg.advised, dtype=bool),
+        episodes=[EpisodeSummary(**{name: getattr(e, name) for name in _STATS_FIELDS}) for e in msg.episodes],
+    )
+    return batch, np.asarray(msg.action_low, dtype=np.float32), np.asarray(msg.action_high, dtype=np.float32)
+
+
+def weights_msg(trainer_id: str, version: int, episodes: int, stamp, tensors: bytes) -> PolicyWeights:
+    return PolicyWeights(
+        trainer_id=trainer_id,
+        version=int(version),
+        episodes=int(episodes),
+        stamp=stamp,
+        tensors=array.array('B', tensors),
+    )

@@ -1,0 +1,237 @@
+"""trainer: learns from the transitions of any number of actor nodes; sends them weights.
+
+Transitions arrive on /transitions (nodes/actor_node.py) and go into D, and advised ones
+into D_advising too (core/trainer.py). Updates run in a timer, a slice at a time, so that
+arriving batches are stored between slices; they keep updates_per_transition updates per
+transition once D holds learning_starts. Every weights_every_updates updates, the actor's and
+the critics' weights go out on /weights (latched: an actor that starts later gets them).
+The record (episodes.csv with an `actor` column), checkpoints and resume are the learner
+node's; each row is an episode an actor finished, indexed over all actors.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import time
+from typing import Optional
+
+import numpy as np
+import torch
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionBatch
+
+from ..core.checkpoint import load_checkpoint
+from ..core.learner import EQSACLearner, LearnerConfig
+from ..core.records import EpisodeRecord
+from ..core.summary import EpisodeSummary
+from ..core.trainer import TRAINER_CSV_FIELDS, Trainer
+from ..core.weights import encode_weights
+from . import messages, trainer_msgs
+from .acting import printable_name
+from .env_info import configured_spec
+from .params import LEARNER_CONFIG_PARAMS, TRAINER_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .run_files import RunFiles, save_and_close
+from .spinning import run_node, steady_clock, stop_with_error
+
+STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# Updates run in slices of at most this long, so that batches are stored in between.
+UPDATE_SLICE_S = 0.05
+
+
+class TrainerNode(RunFiles, Node):
+    def __init__(self, **kwargs):
+        super().__init__('trainer', **kwargs)
+        reject_unknown_overrides(self, LEARNER_CONFIG_PARAMS, TRAINER_PARAMS)
+        values = declare(self, LEARNER_CONFIG_PARAMS)
+        self.params = p = declare(self, TRAINER_PARAMS)
+        self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))
+        if p['torch_threads'] > 0:
+            torch.set_num_threads(p['torch_threads'])
+        self.config = LearnerConfig.from_params(values)
+        self._lock = threading.RLock()
+        self._open_run_folder()
+
+        # A new id for every trainer process: actors take its weights even at a lower version.
+        self.trainer_id = f'{socket.gethostname()}:{os.getpid()}:{time.time_ns() % 10**12}'
+        self.trainer: Optional[Trainer] = None
+        self.learner: Optional[EQSACLearner] = None
+        self.record: Optional[EpisodeRecord] = None
+        self.spaces: Optional[tuple] = None  # (obs_dim, action_low, action_high)
+        self.done = False
+        self.refused_batches = 0
+        self.weights_published = 0
+        self.summaries: list[tuple[EpisodeSummary, str]] = []
+        self._silent: set = set()
+        self._report_mark = (time.monotonic(), 0, 0)  # (time, transitions, updates) at the last report
+
+        self.weights_pub = self.create_publisher(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, trainer_msgs.WEIGHTS_QOS)
+        self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', STATS_QOS)
+        self.create_subscription(
+            TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, self._on_batch, trainer_msgs.TRANSITIONS_QOS
+        )
+        steady = steady_clock()
+        self.create_timer(0.005, self._train, clock=steady)
+        self.create_timer(p['report_period_s'], self._report, clock=steady)
+
+        spec = configured_spec(p)
+        if spec is not None:
+            self._build(spec.observation_size, spec.action_low, spec.action_high)
+
+    def _build(self, obs_dim: int, action_low, action_high) -> None:
+        """The learner for these spaces (with resume, from the checkpoint); weights go out at once."""
+        learner = EQSACLearner(obs_dim, action_low, action_high, self.config)
+        if self.params['resume']:
+            load_checkpoint(learner, self.checkpoint_path, self.replay_path)
+            self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')
+        p = self.params
+        self.record = EpisodeRecord(
+            self.csv_path, TRAINER_CSV_FIELDS, keep_before=learner.episode if p['resume'] else None
+        )
+        self.learner = learner
+        self.spaces = (learner.obs_dim, learner.scaler.low.copy(), learner.scaler.high.copy())
+        self.trainer = Trainer(learner, p['updates_per_transition'], p['weights_every_updates'])
+        self.get_logger().info(
+            f'{self.config.mode} trainer {self.trainer_id}: obs {obs_dim}, action {learner.action_dim}, '
+            f'{p["updates_per_transition"]:g} updates per transition from {self.config.learning_starts} on, '
+            f'weights every {p["weights_every_updates"]} updates, output {self.output_dir}'
+        )
+        self._publish_weights()
+
+    # ------------------------------------------------------------------ transitions in
+
+    def _on_batch(self, msg: TransitionBatch) -> None:
+        with self._lock:
+            try:
+                batch, low, high = trainer_msgs.batch_from_msg(msg)
+                if self.trainer is None and not self._build_from(batch, low, high):
+                    return
+                self._check_spaces(batch.observations.shape[1], low, high)
+                verdict, rows = self.trainer.receive(batch)
+            except ValueError as error:
+                self.refused_batches += 1
+                self.get_logger().error(
+                    f'batch {msg.sequence} of actor {printable_name(msg.actor)} refused: {error}',
+                    throttle_duration_sec=5.0,
+                )
+                return
+            actor = printable_name(batch.actor)
+            if verdict == 'first':
+                self.get_logger().info(f'actor {actor} joined at batch {batch.sequence}')
+            elif verdict == 'gap':
+                self.get_logger().warn(
+                    f'actor {actor}: batches lost before batch {batch.sequence} '
+                    f'({self.trainer.sequences.actors[batch.actor].lost} so far)'
+                )
+            elif verdict == 'restart':
+                self.get_logger().info(f'actor {actor} started again')
+            if batch.actor in self._silent:
+                self._silent.discard(batch.actor)
+                self.get_logger().info(f'actor {actor} is sending again')
+            for row, who in rows:
+                self._on_episode(row, who)
+
+    def _build_from(self, batch, low, high) -> bool:
+        """The first batch gives the spaces (no env_id or spaces parameters were set)."""
+        try:
+            self._build(batch.observations.shape[1], low, high)
+        except Exception as error:  # a checkpoint for other spaces, bad bounds: stop, say why
+            stop_with_error(self, f'cannot learn from actor {printable_name(batch.actor)}: {error}')
+            return False
+        return True
+
+    def _check_spaces(self, obs_dim: int, low, high) -> None:
+        own_obs, own_low, own_high = self.spaces
+        if (
+            obs_dim != own_obs
+            or len(low) != len(own_low)
+            or not (np.allclose(low, own_low) and np.allclose(high, own_high))
+        ):
+            raise ValueError(
+                f"spaces obs {obs_dim}, action [{list(low)}, {list(high)}] differ from the trainer's "
+                f'obs {own_obs}, action [{own_low.tolist()}, {own_high.tolist()}]'
+            )
+
+    def _on_episode(self, row: EpisodeSummary, actor: str) -> None:
+        self.summaries.append((row, actor))
+        self.stats_pub.publish(messages.stats_msg(row))
+        self._append_row([*row.csv_row(), actor])
+        self.get_logger().info(
+            f'episode {row.episode:4d}  return {row.episode_return:9.2f}  len {row.length:4d}  '
+            f'advice {row.advice_given}/{row.advice_asked}  success {int(row.success)}  '
+            f'steps {row.total_steps}  updates {self.learner.updates}  alpha {row.alpha:.3f}  '
+            f'{"INTERRUPTED  " if row.interrupted else ""}from {printable_name(actor)}'
+        )
+        p = self.params
+        limit, every = p['max_episodes'], p['checkpoint_every_episodes']
+        if limit and self.learner.episode >= limit and not self.done:
+            self.done = True
+            self.save_or_log()
+            self.get_logger().info(f'reached max_episodes={limit}; learning stopped')
+            if p['shutdown_when_done']:
+                self.context.try_shutdown()
+        elif every and self.learner.episode % every == 0:
+            self.save_or_log()
+
+    # ------------------------------------------------------------------ learning
+
+    def _train(self) -> None:
+        """A slice of the updates owed; weights out when due."""
+        with self._lock:
+            if self.trainer is None or self.done:
+                return
+            deadline = time.monotonic() + UPDATE_SLICE_S
+            while self.trainer.owed() > 0 and time.monotonic() < deadline:
+                self.trainer.update()
+                if self.trainer.weights_due():
+                    self._publish_weights()
+
+    def _publish_weights(self) -> None:
+        learner = self.learner
+        self.weights_pub.publish(
+            trainer_msgs.weights_msg(
+                self.trainer_id,
+                learner.updates,
+                learner.episode,
+                self.get_clock().now().to_msg(),
+                encode_weights(learner),
+            )
+        )
+        self.trainer.weights_sent()
+        self.weights_published += 1
+
+    def _report(self) -> None:
+        with self._lock:
+            if self.trainer is None:
+                return
+            now, transitions, updates = time.monotonic(), self.learner.total_steps, self.learner.updates
+            then, before_t, before_u = self._report_mark
+            self._report_mark = (now, transitions, updates)
+            seconds = max(now - then, 1e-9)
+            sequences = self.trainer.sequences.actors
+            self.get_logger().info(
+                f'{transitions} transitions from {len(sequences)} actor(s) '
+                f'({(transitions - before_t) / seconds:.1f}/s), '
+                f'{updates} updates ({(updates - before_u) / seconds:.1f}/s), {self.trainer.owed()} owed, '
+                f'weights v{updates} sent {self.weights_published} times, '
+                f'{self.trainer.sequences.lost} batches lost, {self.refused_batches} refused'
+            )
+            limit = self.params['actor_silence_s']
+            for actor, state in sequences.items():
+                if actor not in self._silent and now - state.last_heard > limit:
+                    self._silent.add(actor)
+                    self.get_logger().warn(
+                        f'actor {printable_name(actor)} has sent nothing for {now - state.last_heard:.1f} s '
+                        '(stopped, paused or cut off); the others go on'
+                    )
+
+
+def main(args=None):
+    run_node(TrainerNode, args, on_exit=save_and_close, name='trainer')
+
+
+if __name__ == '__main__':
+    main()

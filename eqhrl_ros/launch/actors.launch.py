@@ -1,0 +1,94 @@
+"""Acting apart from learning: N actors, each with its own env and expert, and one trainer.
+
+ros2 launch eqhrl_ros actors.launch.py env:=pendulum actors:=2
+ros2 launch eqhrl_ros actors.launch.py env:=pendulum actors:=2 trainer:=false   (actors only: the
+    trainer runs on another machine in the same ROS domain)
+ros2 launch eqhrl_ros actors.launch.py env:=pendulum actors:=0                   (the trainer only)
+
+Actor i runs in namespace /actor<i>: /actor<i>/gym_env, /actor<i>/expert, /actor<i>/actor.
+All actors send to /transitions and take /weights. One params file configures everything:
+its learner: section gives the algorithm to the actors and the trainer (and each the keys of
+its own table); gym_env: and expert: go to every actor's env and expert; /**: to all. Actor i
+runs with seed + i (its env's start states and its action noise differ from the others').
+"""
+
+import os
+
+import yaml
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+from eqhrl_ros.nodes.params import ACTOR_NODE_PARAMS, TRAINER_PARAMS, learner_section_for
+
+
+def _section(data: dict, name: str) -> dict:
+    return dict((data.get(name) or {}).get('ros__parameters') or {})
+
+
+def _nodes(context):
+    env = LaunchConfiguration('env').perform(context)
+    params_file = LaunchConfiguration('params_file').perform(context) or os.path.join(
+        get_package_share_directory('eqhrl_ros'), 'params', f'{env}.yaml'
+    )
+    with open(params_file) as f:
+        data = yaml.safe_load(f) or {}
+    shared = _section(data, '/**')
+    learner = _section(data, 'learner')
+    actors = int(LaunchConfiguration('actors').perform(context))
+    if actors < 0:
+        raise ValueError(f'actors:={actors} must be 0 or more')
+    with_trainer = LaunchConfiguration('trainer').perform(context).lower()
+    with_expert = LaunchConfiguration('expert').perform(context).lower()
+    for name, value in (('trainer', with_trainer), ('expert', with_expert)):
+        if value not in ('true', 'false'):
+            raise ValueError(f'{name}:={value} is not true or false')
+
+    nodes = []
+    if with_trainer == 'true':
+        trainer = {**shared, **learner_section_for(learner, TRAINER_PARAMS)}
+        nodes.append(
+            Node(package='eqhrl_ros', executable='trainer', name='trainer', parameters=[trainer], output='screen')
+        )
+    env_params = {**shared, **_section(data, 'gym_env')}
+    actor_params = {**shared, **learner_section_for(learner, ACTOR_NODE_PARAMS)}
+    for i in range(actors):
+        ns = f'actor{i}'
+        env_i = {**env_params, 'seed': int(env_params.get('seed', 42)) + i}
+        actor_i = {**actor_params, 'seed': int(actor_params.get('seed', 42)) + i}
+        nodes.append(Node(package='eqhrl_ros', executable='gym_env', name='gym_env', namespace=ns, parameters=[env_i]))
+        if with_expert == 'true':
+            expert = {**shared, **_section(data, 'expert')}
+            nodes.append(
+                Node(package='eqhrl_ros', executable='expert', name='expert', namespace=ns, parameters=[expert])
+            )
+        nodes.append(
+            Node(
+                package='eqhrl_ros',
+                executable='actor',
+                name='actor',
+                namespace=ns,
+                parameters=[actor_i],
+                output='screen',
+            )
+        )
+    return nodes
+
+
+def generate_launch_description():
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                'env', default_value='pendulum', description='params file name: pendulum, lunar_lander or demo'
+            ),
+            DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
+            DeclareLaunchArgument('actors', default_value='2', description='actors to start, each with env and expert'),
+            DeclareLaunchArgument('trainer', default_value='true', description='start the trainer here'),
+            DeclareLaunchArgument(
+                'expert', default_value='true', description="start each actor's expert (false: your own, per actor)"
+            ),
+            OpaqueFunction(function=_nodes),
+        ]
+    )

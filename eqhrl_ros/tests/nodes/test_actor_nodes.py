@@ -1,0 +1,196 @@
+"""Actor nodes and a trainer over ROS topics, in the test process (issue 20).
+
+Each actor has its own env (and expert) in a namespace of its own; all send to one trainer on
+/transitions and take its weights from /weights, as on several machines."""
+
+import array
+
+import numpy as np
+import rclpy
+
+from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
+from eqhrl_ros.nodes import trainer_msgs
+from eqhrl_ros.nodes.actor_node import ActorNode
+from eqhrl_ros.nodes.expert_node import ExpertNode
+from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+from eqhrl_ros.nodes.trainer_node import TrainerNode
+
+from ros_helpers import params
+
+ALGORITHM = dict(
+    env_id='Pendulum-v1',
+    mode='eqsac',
+    hidden_sizes=[16, 16],
+    batch_size=16,
+    learning_starts=60,
+    queue_length=3,
+    advising_budget=2,
+)
+
+
+def add_actor(harness, ros_context, namespace, **extra):
+    """gym_env, expert and actor in ``namespace``; returns the actor node."""
+    harness.add(
+        GymEnvNode(
+            context=ros_context,
+            namespace=namespace,
+            parameter_overrides=params(max_episode_steps=30, seed=len(namespace)),
+        )
+    )
+    harness.add(ExpertNode(context=ros_context, namespace=namespace, parameter_overrides=params(env_id='Pendulum-v1')))
+    values = dict(ALGORITHM, advice_timeout_s=1.0, batch_transitions=10, flush_period_s=0.2)
+    values.update(extra)
+    return harness.add(ActorNode(context=ros_context, namespace=namespace, parameter_overrides=params(**values)))
+
+
+def add_trainer(harness, ros_context, tmp_path, **extra):
+    values = dict(ALGORITHM, output_dir=str(tmp_path / 'trainer'), weights_every_updates=5, checkpoint_every_episodes=0)
+    values.update(extra)
+    return harness.add(TrainerNode(context=ros_context, parameter_overrides=params(**values)))
+
+
+def test_two_actors_feed_one_trainer_and_act_with_its_weights(harness, ros_context, tmp_path):
+    actors = [add_actor(harness, ros_context, f'/a{i}') for i in range(2)]
+    trainer = add_trainer(harness, ros_context, tmp_path)
+    assert harness.spin_until(lambda: len(trainer.summaries) >= 8, timeout=90)
+
+    by_actor = {}
+    for row, actor in trainer.summaries:
+        by_actor.setdefault(actor, []).append(row)
+    assert sorted(by_actor) == ['/a0/actor', '/a1/actor']
+    assert [row.episode for row, _ in trainer.summaries] == list(range(len(trainer.summaries)))
+    assert trainer.learner.updates > 20  # learning from both actors' transitions
+    assert trainer.trainer.sequences.lost == 0 and trainer.refused_batches == 0
+    for actor in actors:
+        assert actor.weights_applied >= 2 and actor.weights_version > 0
+        assert actor.learner.updates == 0 and len(actor.learner.replay) == 0  # no learning in an actor
+        assert actor.trainer_id == trainer.trainer_id
+    # Advice reached D_advising through the batches' advised flags.
+    assert trainer.learner.advice_total.given == len(trainer.learner.advice_replay) > 0
+    # The budget (2 episodes) counts episodes over both actors: once the trainer had counted 2
+    # (and told the actors with its weights), nobody asks; each actor may have one in flight.
+    asked_late = [row.episode for row, _ in trainer.summaries if row.advice_asked and row.episode >= 2 + len(actors)]
+    assert asked_late == []
+    rows = (tmp_path / 'trainer' / 'episodes.csv').read_text().splitlines()
+    assert rows[0].endswith(',actor') and rows[1].endswith('/actor')
+
+
+def test_an_actor_keeps_its_transitions_until_a_trainer_listens(harness, ros_context, tmp_path):
+    actor = add_actor(harness, ros_context, '/solo', advising_budget=0)
+    assert harness.spin_until(lambda: actor.learner is not None and actor.learner.total_steps >= 45, timeout=30)
+    assert actor.sent_transitions == 0 and actor.outbox.waiting >= 40  # nobody to send to
+    trainer = add_trainer(harness, ros_context, tmp_path, advising_budget=0)
+    assert harness.spin_until(lambda: trainer.learner is not None and trainer.learner.total_steps >= 45, timeout=30)
+    assert trainer.trainer.sequences.actors['/solo/actor'].lost == 0
+    # Every transition the actor made reached the trainer, in order, the early ones too.
+    assert harness.spin_until(lambda: trainer.learner.total_steps + actor.outbox.waiting >= actor.learner.total_steps)
+    assert actor.outbox.dropped_transitions == 0
+
+
+def test_bad_batches_and_bad_weights_are_refused_and_nothing_stops(harness, ros_context, tmp_path):
+    actor = add_actor(harness, ros_context, '/x', advising_budget=0)
+    trainer = add_trainer(harness, ros_context, tmp_path, weights_every_updates=1000)
+    assert harness.spin_until(lambda: trainer.learner is not None and trainer.learner.total_steps >= 20, timeout=30)
+    rogue = harness.add(rclpy.create_node('rogue', context=ros_context))
+    batches = rogue.create_publisher(TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, trainer_msgs.TRANSITIONS_QOS)
+    weights = rogue.create_publisher(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, trainer_msgs.WEIGHTS_QOS)
+    assert harness.spin_until(lambda: batches.get_subscription_count() > 0 and weights.get_subscription_count() > 0)
+    # Sizes that do not add up, and a NaN reward.
+    batches.publish(
+        TransitionBatch(
+            actor='rogue',
+            sequence=0,
+            observation_size=3,
+            action_low=[-2.0],
+            action_high=[2.0],
+            observations=[0.0] * 5,
+            rewards=[0.0],
+        )
+    )
+    nan = trainer_msgs.batch_msg(_one_transition_batch(np.nan), [-2.0], [2.0])
+    batches.publish(nan)
+    # Weights that are not safetensors, from a "new trainer".
+    weights.publish(PolicyWeights(trainer_id='rogue', version=99, tensors=array.array('B', b'\x80\x04not weights')))
+    steps = actor.learner.total_steps
+    assert harness.spin_until(lambda: trainer.refused_batches == 2 and actor.weights_refused == 1, timeout=10)
+    assert harness.spin_until(lambda: actor.learner.total_steps > steps + 20 and trainer.learner.total_steps > steps)
+    assert actor.trainer_id == trainer.trainer_id  # still the real trainer's weights
+    assert not np.isnan(trainer.learner.replay.reward[: len(trainer.learner.replay)].numpy()).any()
+
+
+def _one_transition_batch(reward):
+    from eqhrl_ros.core.transitions import Outbox
+
+    outbox = Outbox('rogue', 3, 1, 1, 10)
+    outbox.add([0.0, 0.0, 0.0], [0.0], reward, [0.0, 0.0, 0.0], False, False)
+    return outbox.take()
+
+
+def test_actor_and_trainer_help_lists_their_parameters():
+    from eqhrl_ros.cli.nodes import help_text
+
+    assert 'batch_transitions' in help_text('actor') and 'updates_per_transition' in help_text('trainer')
+
+
+def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeypatch):
+    """actors.launch.py run with stand-ins for the launch packages (not on PyPI): which nodes it
+    starts, in which namespaces, with which parameters; every key of each params file's
+    learner: section reaches the actor or the trainer, and each node accepts what it gets."""
+    import importlib.util
+    import sys
+    import types
+
+    from eqhrl_ros.nodes.params import ACTOR_NODE_PARAMS, LEARNER_CONFIG_PARAMS, TRAINER_PARAMS
+
+    from ros_helpers import PARAMS_DIR
+
+    arguments = {}
+
+    class Config:
+        def __init__(self, name):
+            self.name = name
+
+        def perform(self, context):
+            return arguments[self.name]
+
+    def fake(name, **attributes):
+        module = types.ModuleType(name)
+        module.__dict__.update(attributes)
+        monkeypatch.setitem(sys.modules, name, module)
+
+    fake('launch', LaunchDescription=list)
+    fake('launch.actions', DeclareLaunchArgument=lambda *a, **k: None, OpaqueFunction=lambda **k: None)
+    fake('launch.substitutions', LaunchConfiguration=Config)
+    fake('launch_ros')
+    fake('launch_ros.actions', Node=lambda **k: k)
+    fake('ament_index_python')
+    fake('ament_index_python.packages', get_package_share_directory=lambda name: str(PARAMS_DIR.parent))
+    path = PARAMS_DIR.parent / 'launch' / 'actors.launch.py'
+    spec = importlib.util.spec_from_file_location('actors_launch', path)
+    launch_file = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(launch_file)
+
+    accepted = {
+        'actor': {p.name for p in (*LEARNER_CONFIG_PARAMS, *ACTOR_NODE_PARAMS)} | {'use_sim_time'},
+        'trainer': {p.name for p in (*LEARNER_CONFIG_PARAMS, *TRAINER_PARAMS)} | {'use_sim_time'},
+    }
+    for env in ('pendulum', 'lunar_lander', 'demo'):
+        arguments.update(env=env, params_file='', actors='3', trainer='true', expert='true')
+        nodes = launch_file._nodes(None)
+        names = [(n.get('namespace', ''), n['executable']) for n in nodes]
+        assert names[0] == ('', 'trainer')
+        assert sorted(names[1:]) == sorted((f'actor{i}', e) for i in range(3) for e in ('gym_env', 'expert', 'actor'))
+        import yaml
+
+        learner = yaml.safe_load((PARAMS_DIR / f'{env}.yaml').read_text())['learner']['ros__parameters']
+        given = {}
+        for node in nodes:
+            values = node['parameters'][0]
+            if node['executable'] in accepted:
+                assert set(values) <= accepted[node['executable']], (env, node['executable'])
+                given.update(values)
+        assert set(learner) <= set(given), set(learner) - set(given)  # nothing of the file is lost
+        seeds = [n['parameters'][0]['seed'] for n in nodes if n['executable'] == 'actor']
+        assert len(set(seeds)) == 3  # each actor its own noise; the env seeds differ likewise
+    arguments.update(actors='2', trainer='false', expert='false')
+    assert [n['executable'] for n in launch_file._nodes(None)] == ['gym_env', 'actor', 'gym_env', 'actor']
