@@ -1,9 +1,12 @@
 """trainer: learns from the transitions of any number of actor nodes; sends them weights.
 
 Transitions arrive on /transitions (nodes/actor_node.py) and go into D, and advised ones
-into D_advising too (core/trainer.py). Updates run in a timer, a slice at a time, so that
-arriving batches are stored between slices; they keep updates_per_transition updates per
-transition once D holds learning_starts. Every weights_every_updates updates, the actor's and
+into D_advising too (core/trainer.py). The subscription only queues each arriving batch;
+a learning thread of its own stores the queued batches and makes the updates owed, one at a
+time. So the executor is always free to take the next batch: rclpy takes one message per
+subscription per wait, and callbacks that held the executor for slices of updates let the
+middleware's queue overflow (batches were lost). The updates keep updates_per_transition
+updates per transition once D holds learning_starts. Every weights_every_updates updates, the actor's and
 the critics' weights go out on /weights (latched: an actor that starts later gets them).
 The record (episodes.csv with an `actor` column), checkpoints and resume are the learner
 node's; each row is an episode an actor finished, indexed over all actors.
@@ -15,6 +18,7 @@ import os
 import socket
 import threading
 import time
+from collections import deque
 from typing import Optional
 
 import numpy as np
@@ -38,8 +42,6 @@ from .run_files import RunFiles, save_and_close
 from .spinning import run_node, steady_clock, stop_with_error
 
 STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-# Updates run in slices of at most this long, so that batches are stored in between.
-UPDATE_SLICE_S = 0.05
 
 
 class TrainerNode(RunFiles, Node):
@@ -73,9 +75,13 @@ class TrainerNode(RunFiles, Node):
         self.create_subscription(
             TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, self._on_batch, trainer_msgs.TRANSITIONS_QOS
         )
-        steady = steady_clock()
-        self.create_timer(0.005, self._train, clock=steady)
-        self.create_timer(p['report_period_s'], self._report, clock=steady)
+        self.create_timer(p['report_period_s'], self._report, clock=steady_clock())
+        self._inbox: deque = deque()  # batches received, not stored yet (the learning thread's)
+        self._work = threading.Event()  # set when a batch arrives
+        self._hold = threading.Event()  # set while another thread saves
+        self._stopping = threading.Event()
+        self._learning = threading.Thread(target=self._learn, name='trainer-updates', daemon=True)
+        self._learning.start()
 
         spec = configured_spec(p)
         if spec is not None:
@@ -104,35 +110,40 @@ class TrainerNode(RunFiles, Node):
     # ------------------------------------------------------------------ transitions in
 
     def _on_batch(self, msg: TransitionBatch) -> None:
-        with self._lock:
-            try:
-                batch, low, high = trainer_msgs.batch_from_msg(msg)
-                if self.trainer is None and not self._build_from(batch, low, high):
-                    return
-                self._check_spaces(batch.observations.shape[1], low, high)
-                verdict, rows = self.trainer.receive(batch)
-            except ValueError as error:
-                self.refused_batches += 1
-                self.get_logger().error(
-                    f'batch {msg.sequence} of actor {printable_name(msg.actor)} refused: {error}',
-                    throttle_duration_sec=5.0,
-                )
+        """The executor's part: queue the batch for the learning thread, nothing more."""
+        self._inbox.append(msg)
+        self._work.set()
+
+    def _store(self, msg: TransitionBatch) -> None:
+        """The learning thread's part: a batch into D (and D_advising), its episodes into the record."""
+        try:
+            batch, low, high = trainer_msgs.batch_from_msg(msg)
+            if self.trainer is None and not self._build_from(batch, low, high):
                 return
-            actor = printable_name(batch.actor)
-            if verdict == 'first':
-                self.get_logger().info(f'actor {actor} joined at batch {batch.sequence}')
-            elif verdict == 'gap':
-                self.get_logger().warn(
-                    f'actor {actor}: batches lost before batch {batch.sequence} '
-                    f'({self.trainer.sequences.actors[batch.actor].lost} so far)'
-                )
-            elif verdict == 'restart':
-                self.get_logger().info(f'actor {actor} started again')
-            if batch.actor in self._silent:
-                self._silent.discard(batch.actor)
-                self.get_logger().info(f'actor {actor} is sending again')
-            for row, who in rows:
-                self._on_episode(row, who)
+            self._check_spaces(batch.observations.shape[1], low, high)
+            verdict, rows = self.trainer.receive(batch)
+        except ValueError as error:
+            self.refused_batches += 1
+            self.get_logger().error(
+                f'batch {msg.sequence} of actor {printable_name(msg.actor)} refused: {error}',
+                throttle_duration_sec=5.0,
+            )
+            return
+        actor = printable_name(batch.actor)
+        if verdict == 'first':
+            self.get_logger().info(f'actor {actor} joined at batch {batch.sequence}')
+        elif verdict == 'gap':
+            self.get_logger().warn(
+                f'actor {actor}: batches lost before batch {batch.sequence} '
+                f'({self.trainer.sequences.actors[batch.actor].lost} so far)'
+            )
+        elif verdict == 'restart':
+            self.get_logger().info(f'actor {actor} started again')
+        if batch.actor in self._silent:
+            self._silent.discard(batch.actor)
+            self.get_logger().info(f'actor {actor} is sending again')
+        for row, who in rows:
+            self._on_episode(row, who)
 
     def _build_from(self, batch, low, high) -> bool:
         """The first batch gives the spaces (no env_id or spaces parameters were set)."""
@@ -178,16 +189,41 @@ class TrainerNode(RunFiles, Node):
 
     # ------------------------------------------------------------------ learning
 
-    def _train(self) -> None:
-        """A slice of the updates owed; weights out when due."""
-        with self._lock:
-            if self.trainer is None or self.done:
-                return
-            deadline = time.monotonic() + UPDATE_SLICE_S
-            while self.trainer.owed() > 0 and time.monotonic() < deadline:
-                self.trainer.update()
-                if self.trainer.weights_due():
-                    self._publish_weights()
+    def _learn(self) -> None:
+        """The learning thread: store what arrived, then one update if one is owed; weights out
+        when due. Under the node's lock, one step at a time, so that a save can come in between."""
+        while not self._stopping.is_set():
+            if self._hold.is_set():  # a save from another thread (at exit) goes first
+                time.sleep(0.005)
+                continue
+            with self._lock:
+                stored = bool(self._inbox)
+                while self._inbox and not self._stopping.is_set():
+                    self._store(self._inbox.popleft())
+                busy = self.trainer is not None and not self.done and self.trainer.owed() > 0
+                if busy:
+                    try:
+                        self.trainer.update()
+                        if self.trainer.weights_due():
+                            self._publish_weights()
+                    except Exception as error:  # never a silent death: say it and stop the node
+                        stop_with_error(self, f'update failed: {error!r}')
+                        return
+            if not (busy or stored):
+                self._work.wait(0.05)
+                self._work.clear()
+
+    def save(self) -> None:
+        self._hold.set()
+        try:
+            super().save()
+        finally:
+            self._hold.clear()
+
+    def destroy_node(self):
+        self._stopping.set()
+        self._learning.join(timeout=30)
+        return super().destroy_node()
 
     def _publish_weights(self) -> None:
         learner = self.learner
@@ -204,29 +240,29 @@ class TrainerNode(RunFiles, Node):
         self.weights_published += 1
 
     def _report(self) -> None:
-        with self._lock:
-            if self.trainer is None:
-                return
-            now, transitions, updates = time.monotonic(), self.learner.total_steps, self.learner.updates
-            then, before_t, before_u = self._report_mark
-            self._report_mark = (now, transitions, updates)
-            seconds = max(now - then, 1e-9)
-            sequences = self.trainer.sequences.actors
-            self.get_logger().info(
-                f'{transitions} transitions from {len(sequences)} actor(s) '
-                f'({(transitions - before_t) / seconds:.1f}/s), '
-                f'{updates} updates ({(updates - before_u) / seconds:.1f}/s), {self.trainer.owed()} owed, '
-                f'weights v{updates} sent {self.weights_published} times, '
-                f'{self.trainer.sequences.lost} batches lost, {self.refused_batches} refused'
-            )
-            limit = self.params['actor_silence_s']
-            for actor, state in sequences.items():
-                if actor not in self._silent and now - state.last_heard > limit:
-                    self._silent.add(actor)
-                    self.get_logger().warn(
-                        f'actor {printable_name(actor)} has sent nothing for {now - state.last_heard:.1f} s '
-                        '(stopped, paused or cut off); the others go on'
-                    )
+        # Without the lock: counters only (ints, read whole); the learning thread keeps going.
+        if self.trainer is None:
+            return
+        now, transitions, updates = time.monotonic(), self.learner.total_steps, self.learner.updates
+        then, before_t, before_u = self._report_mark
+        self._report_mark = (now, transitions, updates)
+        seconds = max(now - then, 1e-9)
+        sequences = self.trainer.sequences.actors
+        self.get_logger().info(
+            f'{transitions} transitions from {len(sequences)} actor(s) '
+            f'({(transitions - before_t) / seconds:.1f}/s), '
+            f'{updates} updates ({(updates - before_u) / seconds:.1f}/s), {self.trainer.owed()} owed, '
+            f'weights v{updates} sent {self.weights_published} times, '
+            f'{self.trainer.sequences.lost} batches lost, {self.refused_batches} refused'
+        )
+        limit = self.params['actor_silence_s']
+        for actor, state in list(sequences.items()):
+            if actor not in self._silent and now - state.last_heard > limit:
+                self._silent.add(actor)
+                self.get_logger().warn(
+                    f'actor {printable_name(actor)} has sent nothing for {now - state.last_heard:.1f} s '
+                    '(stopped, paused or cut off); the others go on'
+                )
 
 
 def main(args=None):

@@ -18,6 +18,8 @@ from ros_helpers import params, small_learner_params
 EXECUTABLES = (
     'gym_env',
     'learner',
+    'actor',
+    'trainer',
     'expert',
     'teleop_expert',
     'keyboard_teleop',

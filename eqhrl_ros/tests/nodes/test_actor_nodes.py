@@ -53,13 +53,17 @@ def test_two_actors_feed_one_trainer_and_act_with_its_weights(harness, ros_conte
     actors = [add_actor(harness, ros_context, f'/a{i}') for i in range(2)]
     trainer = add_trainer(harness, ros_context, tmp_path)
     assert harness.spin_until(lambda: len(trainer.summaries) >= 8, timeout=90)
+    # Learning runs in the trainer's own thread, at its own pace; the actors act meanwhile.
+    assert harness.spin_until(
+        lambda: trainer.learner.updates > 20 and all(a.weights_version and a.weights_applied >= 2 for a in actors),
+        timeout=60,
+    )
 
     by_actor = {}
     for row, actor in trainer.summaries:
         by_actor.setdefault(actor, []).append(row)
     assert sorted(by_actor) == ['/a0/actor', '/a1/actor']
     assert [row.episode for row, _ in trainer.summaries] == list(range(len(trainer.summaries)))
-    assert trainer.learner.updates > 20  # learning from both actors' transitions
     assert trainer.trainer.sequences.lost == 0 and trainer.refused_batches == 0
     for actor in actors:
         assert actor.weights_applied >= 2 and actor.weights_version > 0
@@ -67,10 +71,13 @@ def test_two_actors_feed_one_trainer_and_act_with_its_weights(harness, ros_conte
         assert actor.trainer_id == trainer.trainer_id
     # Advice reached D_advising through the batches' advised flags.
     assert trainer.learner.advice_total.given == len(trainer.learner.advice_replay) > 0
-    # The budget (2 episodes) counts episodes over both actors: once the trainer had counted 2
-    # (and told the actors with its weights), nobody asks; each actor may have one in flight.
-    asked_late = [row.episode for row, _ in trainer.summaries if row.advice_asked and row.episode >= 2 + len(actors)]
-    assert asked_late == []
+    # The budget (2 episodes) counts episodes over both actors: an actor asks only while both
+    # its own count and the trainer's (sent with the weights) are inside it, so at most 2 of
+    # each actor's episodes asked, whoever ran ahead.
+    asked = [row.episode for row, _ in trainer.summaries if row.advice_asked]
+    assert 0 < len(asked) <= 2 * len(actors)
+    for actor in actors:
+        assert [s.episode for s in actor.summaries if s.advice_asked] in ([0], [0, 1], [1])
     rows = (tmp_path / 'trainer' / 'episodes.csv').read_text().splitlines()
     assert rows[0].endswith(',actor') and rows[1].endswith('/actor')
 

@@ -1,0 +1,99 @@
+"""Actors and a trainer as separate processes, as on several machines (issue 20): an actor
+that dies leaves the others going; a trainer that dies leaves the actors acting and keeping
+their transitions; a trainer restarted with resume continues and the actors take its weights."""
+
+import signal
+
+import pytest
+
+from process_helpers import output, read_rows, start, stop, wait_for
+
+pytestmark = pytest.mark.slow
+
+SMALL = ['-p', 'env_id:=Pendulum-v1', '-p', 'hidden_sizes:=[16,16]', '-p', 'batch_size:=16']
+SMALL += ['-p', 'learning_starts:=50', '-p', 'mode:=sac', '-p', 'torch_threads:=1']
+
+
+def start_actor(index, log_dir, *extra):
+    ns = ['--ros-args', '-r', f'__ns:=/actor{index}']
+    env = start('gym_env', *ns, '-p', 'max_episode_steps:=25', '-p', f'seed:={index}', log_dir=log_dir)
+    actor = start('actor', *ns, *SMALL, '-p', f'seed:={index}', '-p', 'flush_period_s:=0.1', *extra, log_dir=log_dir)
+    return env, actor
+
+
+def start_trainer(out, log_dir, *extra):
+    return start(
+        'trainer',
+        '--ros-args',
+        *SMALL,
+        '-p',
+        f'output_dir:={out}',
+        '-p',
+        'checkpoint_every_episodes:=1',
+        '-p',
+        'save_replay:=true',
+        '-p',
+        'weights_every_updates:=10',
+        '-p',
+        'actor_silence_s:=1.5',
+        '-p',
+        'report_period_s:=0.5',
+        *extra,
+        log_dir=log_dir,
+    )
+
+
+def rows_from(out, actor):
+    path = out / 'episodes.csv'
+    return [r for r in read_rows(path) if r['actor'] == actor] if path.exists() else []
+
+
+def test_an_actor_that_dies_leaves_the_others_learning(tmp_path):
+    out = tmp_path / 'run'
+    processes = [start_trainer(out, tmp_path)]
+    try:
+        processes += [*start_actor(0, tmp_path), *start_actor(1, tmp_path)]
+        assert wait_for(
+            lambda: len(rows_from(out, '/actor1/actor')) >= 2 and len(rows_from(out, '/actor0/actor')) >= 2, 90
+        )
+        processes[4].send_signal(signal.SIGKILL)  # actor 1, without a word
+        before = len(rows_from(out, '/actor0/actor'))
+        trainer = processes[0]
+        assert wait_for(lambda: 'actor /actor1/actor has sent nothing for' in output(trainer), 30), output(trainer)
+        assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= before + 3, 30)
+        assert trainer.poll() is None
+        reports = [line for line in output(trainer).splitlines() if 'batches lost' in line]
+        assert reports and ', 0 batches lost' in reports[-1], reports[-1:]
+    finally:
+        logs = [stop(p) for p in processes]
+    assert 'updates' in logs[0]
+
+
+def test_actors_outlive_their_trainer_and_take_the_weights_of_the_next(tmp_path):
+    out = tmp_path / 'run'
+    trainer = start_trainer(out, tmp_path)
+    env, actor = start_actor(0, tmp_path)
+    processes = [trainer, env, actor]
+    try:
+        assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= 3, 90), output(trainer)
+        trainer.send_signal(signal.SIGKILL)  # no save at exit: the last periodic checkpoint counts
+        trainer.wait()
+        saved_rows = len(rows_from(out, '/actor0/actor'))
+        # The actor goes on acting (its episodes keep coming) and keeps what it cannot send.
+        assert wait_for(lambda: 'no trainer on /transitions' in output(actor), 20), output(actor)
+        episodes_then = output(actor).count('] [actor0.actor]: episode ')
+        assert wait_for(lambda: output(actor).count('] [actor0.actor]: episode ') >= episodes_then + 3, 30)
+
+        restarted = start_trainer(out, tmp_path, '-p', 'resume:=true')
+        processes.append(restarted)
+        assert wait_for(lambda: 'resumed from' in output(restarted), 60), output(restarted)
+        assert wait_for(lambda: 'a trainer listens on /transitions' in output(actor), 30), output(actor)
+        new_id = output(restarted).split(' trainer ', 1)[1].split(':', 1)[0]
+        assert wait_for(lambda: f"weights from trainer '{new_id}" in output(actor), 30), output(actor)
+        assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= saved_rows + 3, 60)
+    finally:
+        logs = [stop(p) for p in processes]
+    rows = read_rows(out / 'episodes.csv')
+    assert [int(r['episode']) for r in rows] == list(range(len(rows)))  # the record continues, no gap
+    exit_line = [line for line in logs[2].splitlines() if 'sent' in line and 'dropped' in line][-1]
+    assert ' 0 dropped' in exit_line, exit_line
