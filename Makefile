@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: system-deps setup lint test test-fast demo bench bench-learner bench-ros bench-flood bench-variants profile clean lock
+.PHONY: system-deps setup lint test test-fast demo bench bench-learner bench-ros bench-flood bench-actors bench-variants profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -101,6 +101,11 @@ bench-flood: $(VENV)/.stamp-eqhrl_ros
 	  exit $$(( learner || env ))
 
 # What torch.compile and bfloat16 matrix products would buy the update (evidence, no target).
+# Actors and a trainer against the lock-step learner (issue 20); exits 1 if a 50 Hz env had
+# late steps with the actor.
+bench-actors: $(VENV)/.stamp-eqhrl_ros
+	$(VPY) benchmarks/bench_actors.py
+
 bench-variants: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_update_variants.py
 

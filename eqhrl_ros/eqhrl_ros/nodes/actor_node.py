@@ -8,6 +8,12 @@ weights from /weights are applied between two steps (callbacks share one lock).
 
 With no trainer listening (not started yet, restarting, gone), it goes on acting with the
 weights it has and keeps its transitions, up to outbox_limit, for when a trainer appears.
+
+A lock-step simulator steps as soon as the actor answers, so actors can run far ahead of a
+trainer on the same cores (docs/performance.md). weights_wait_steps bounds that: after so
+many steps on the same weights, the actor holds its answer until newer weights arrive (or
+until no trainer listens any more). It does so only once the trainer updates (weights of a
+version above 0).
 """
 
 from __future__ import annotations
@@ -42,6 +48,9 @@ class ActorNode(ActingNode):
         self.sent_transitions = 0
         self._waiting_weights: Optional[PolicyWeights] = None  # arrived before the spaces were known
         self._trainer_away_since: Optional[float] = None
+        self._steps_on_weights = 0  # steps acted since the weights in use arrived
+        self._deferred: Optional[tuple] = None  # (obs, key) held until newer weights arrive
+        self.weights_waits = 0
         super().__init__('actor', ACTOR_NODE_PARAMS, **kwargs)
         self.actor_name = self.params['actor_name'] or self.get_fully_qualified_name()
         self.transitions_pub = self.create_publisher(
@@ -64,6 +73,29 @@ class ActorNode(ActingNode):
     def _describe(self) -> str:
         return f', transitions to {trainer_msgs.TRANSITIONS_TOPIC}, weights from {trainer_msgs.WEIGHTS_TOPIC}'
 
+    # ------------------------------------------------------------------ acting, paced by the weights
+
+    def _act(self, obs, key) -> None:
+        limit = self.params['weights_wait_steps']
+        # Only once the trainer updates (weights of version > 0): before learning_starts, no new
+        # weights come, and waiting for them would stop the transitions the trainer waits for.
+        learning = bool(self.weights_version) and self.transitions_pub.get_subscription_count() > 0
+        if limit and learning and self._steps_on_weights >= limit:
+            # The env waits for our answer (lock-step); we wait for the trainer's next weights.
+            # No previous action to re-send meanwhile: a re-sent observation gets nothing.
+            self._state, self._key, self._last_action = obs, key, None
+            self._deferred = (obs, key)
+            self.weights_waits += 1
+            return
+        self._steps_on_weights += 1
+        super()._act(obs, key)
+
+    def _act_on_deferred(self) -> None:
+        if self._deferred is not None:
+            obs, key = self._deferred
+            self._deferred = None
+            self._act(obs, key)
+
     # ------------------------------------------------------------------ transitions out
 
     def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success):
@@ -83,6 +115,8 @@ class ActorNode(ActingNode):
             if self.outbox.age() >= self.params['flush_period_s']:
                 self.outbox.seal()
             self._send()
+            if self._deferred is not None and self.transitions_pub.get_subscription_count() == 0:
+                self._act_on_deferred()  # the trainer went away: act with the weights we have
 
     def _send(self) -> None:
         """Publish sealed batches while a trainer listens; otherwise keep them (bounded)."""
@@ -149,6 +183,8 @@ class ActorNode(ActingNode):
         self.weights_latencies.append((self.get_clock().now() - published).nanoseconds / 1e9)
         # Eq. 7's budget counts episodes over all actors: the trainer's count, or ours if larger.
         self.learner.episode = max(self.learner.episode, int(msg.episodes))
+        self._steps_on_weights = 0
+        self._act_on_deferred()
 
     # ------------------------------------------------------------------ exit
 
@@ -165,19 +201,22 @@ class ActorNode(ActingNode):
         return (
             f'{steps} steps; sent {self.sent_batches} batches ({self.sent_transitions} transitions), '
             f'{waiting} unsent, {dropped} dropped; weights applied {self.weights_applied}{latency}, '
-            f'refused {self.weights_refused}'
+            f'refused {self.weights_refused}; waited for weights {self.weights_waits} times'
         )
 
 
 def _flush_and_report(node: ActorNode) -> None:
     """At exit: send what is waiting if a trainer listens (a last partial batch included)."""
-    with node._lock:
-        if node.outbox is not None:
-            node.outbox.seal()
-            for _ in range(100):
-                if not node.outbox.sealed or node.transitions_pub.get_subscription_count() == 0:
-                    break
-                node._send()
+    try:
+        with node._lock:
+            if node.outbox is not None:
+                node.outbox.seal()
+                for _ in range(100):
+                    if not node.outbox.sealed or node.transitions_pub.get_subscription_count() == 0:
+                        break
+                    node._send()
+    except Exception as error:  # the middleware may already be going down (a second Ctrl-C)
+        node.get_logger().warn(f'could not send the last transitions: {error}')
     node.get_logger().info(f'actor {node.actor_name}: {node.report()}')
 
 

@@ -159,6 +159,13 @@ ACTOR_NODE_PARAMS = (
     ),
     Param('flush_period_s', 0.5, 'Send a batch at most this long after its first transition', (0.001, 3600.0)),
     Param(
+        'weights_wait_steps',
+        0,
+        'Lock-step simulators: after this many steps on the same weights, wait for newer ones before acting, '
+        'once the trainer updates and while it listens (0: never wait); bounds how far actors run ahead of learning',
+        (0, INT_MAX),
+    ),
+    Param(
         'outbox_limit',
         100_000,
         'Transitions kept while no trainer listens; past it the oldest batch is dropped and counted',

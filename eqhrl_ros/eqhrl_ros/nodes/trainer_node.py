@@ -116,6 +116,8 @@ class TrainerNode(RunFiles, Node):
 
     def _store(self, msg: TransitionBatch) -> None:
         """The learning thread's part: a batch into D (and D_advising), its episodes into the record."""
+        if self.done:
+            return  # max_episodes reached: learning stopped, the record is closed to new rows
         try:
             batch, low, high = trainer_msgs.batch_from_msg(msg)
             if self.trainer is None and not self._build_from(batch, low, high):

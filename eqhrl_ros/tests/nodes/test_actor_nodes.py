@@ -83,10 +83,12 @@ def test_two_actors_feed_one_trainer_and_act_with_its_weights(harness, ros_conte
 
 
 def test_an_actor_keeps_its_transitions_until_a_trainer_listens(harness, ros_context, tmp_path):
-    actor = add_actor(harness, ros_context, '/solo', advising_budget=0)
+    actor = add_actor(harness, ros_context, '/solo', queue_length=1)
     assert harness.spin_until(lambda: actor.learner is not None and actor.learner.total_steps >= 45, timeout=30)
     assert actor.sent_transitions == 0 and actor.outbox.waiting >= 40  # nobody to send to
-    trainer = add_trainer(harness, ros_context, tmp_path, advising_budget=0)
+    # With no trainer, it acts with the weights it has, and still asks for (and takes) advice.
+    assert actor.learner.advice_total.given + actor.learner.episode_advice.given > 0
+    trainer = add_trainer(harness, ros_context, tmp_path, queue_length=1)
     assert harness.spin_until(lambda: trainer.learner is not None and trainer.learner.total_steps >= 45, timeout=30)
     assert trainer.trainer.sequences.actors['/solo/actor'].lost == 0
     # Every transition the actor made reached the trainer, in order, the early ones too.
@@ -201,3 +203,23 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
         assert len(set(seeds)) == 3  # each actor its own noise; the env seeds differ likewise
     arguments.update(actors='2', trainer='false', expert='false')
     assert [n['executable'] for n in launch_file._nodes(None)] == ['gym_env', 'actor', 'gym_env', 'actor']
+
+
+def test_weights_wait_steps_keeps_a_lock_step_actor_within_reach_of_the_trainer(harness, ros_context, tmp_path):
+    """Without it a lock-step actor runs ahead of learning (docs/performance.md); with it, at
+    most weights_wait_steps steps per weights message, and the actor acts on once they come."""
+    trainer = add_trainer(harness, ros_context, tmp_path, weights_every_updates=5, advising_budget=0)
+    actor = add_actor(harness, ros_context, '/paced', weights_wait_steps=10, advising_budget=0)
+    assert harness.spin_until(
+        lambda: (actor.weights_version or 0) > 0 and actor.transitions_pub.get_subscription_count() > 0, timeout=60
+    )
+    harness.spin_until(lambda: False, timeout=0.5)
+    steps0, applied0 = actor.learner.total_steps, actor.weights_applied
+    updates0, stored0 = trainer.learner.updates, trainer.learner.total_steps
+    assert harness.spin_until(lambda: actor.learner.total_steps >= steps0 + 200, timeout=60)
+    steps, applied = actor.learner.total_steps - steps0, actor.weights_applied - applied0
+    assert actor.weights_waits > 0
+    assert steps <= 10 * (applied + 1), (steps, applied)
+    # About one update per two steps meanwhile (5 per message, 10 steps per message).
+    updates, stored = trainer.learner.updates - updates0, trainer.learner.total_steps - stored0
+    assert updates >= 0.3 * stored, (updates, stored)
