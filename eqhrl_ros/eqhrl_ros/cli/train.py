@@ -126,7 +126,8 @@ def run(args):
     from ..nodes import spinning
     from ..nodes.expert_node import ExpertNode
     from ..nodes.gym_env_node import GymEnvNode
-    from ..nodes.learner_node import LearnerNode, _save_and_close
+    from ..nodes.learner_node import LearnerNode
+    from ..nodes.run_files import save_and_close
     from ..nodes.teleop_expert_node import TeleopExpertNode
     from ..paths import params_file
 
@@ -189,7 +190,7 @@ def run(args):
     finally:
         try:
             if learner is not None:
-                _save_and_close(learner)
+                save_and_close(learner)
         finally:
             for node in nodes:
                 node.destroy_node()
