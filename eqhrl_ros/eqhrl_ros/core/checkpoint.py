@@ -250,7 +250,7 @@ def export_policy(learner, path) -> None:
             'hidden': list(learner.config.hidden),
             'action_low': learner.scaler.low.tolist(),
             'action_high': learner.scaler.high.tolist(),
-            'actor': learner.actor.state_dict(),
+            'actor': {k: v.cpu() for k, v in learner.actor.state_dict().items()},
         },
         path,
     )

@@ -15,6 +15,7 @@ from typing import Any, Optional
 
 MODES = ('sac', 'qasac', 'eqsac')
 THRESHOLD_KINDS = ('dynamic', 'fixed')
+DEVICES = ('cpu', 'cuda')
 INT_MAX = 2**31 - 1
 
 
@@ -79,6 +80,12 @@ class LearnerConfig:
     fixed_e_threshold: float = hyper(0.0, 'Respond when E(s) is below this (threshold_kind fixed)', range=(-1e9, 1e9))
     entropy_samples: int = hyper(32, 'Monte Carlo samples K of the entropy estimate E(s) (Eq. 9)', range=(1, 100_000))
     actor_on_advice: bool = hyper(False, 'Also train the actor on the advice batch')
+    device: str = hyper(
+        'cpu',
+        'Torch device of the networks, the acting and the updates (cuda: the current GPU; the replay '
+        'memory stays in host memory and each batch is copied over)',
+        choices=DEVICES,
+    )
 
     def __post_init__(self):
         check_fields(self)

@@ -106,6 +106,16 @@ class AdviceCounts:
         )
 
 
+def learning_device(name: str) -> torch.device:
+    """The torch device for LearnerConfig.device, or a ValueError that says what is missing."""
+    if name == 'cuda' and not torch.cuda.is_available():
+        raise ValueError(
+            "device 'cuda' was asked for, but torch sees no GPU (torch.cuda.is_available() is False; "
+            f'this torch is {torch.__version__}, and the CPU build has no CUDA); use device cpu'
+        )
+    return torch.device(name)
+
+
 def adam(params, lr: float, state: dict | None = None) -> torch.optim.Adam:
     """Adam with its fused kernel: one pass over all of a network's tensors per step.
 
@@ -189,13 +199,15 @@ class EQSACLearner:
         self.action_dim = self.scaler.dim
         self.success = success or SuccessCriterion()
 
-        # Networks are initialised from the seed without disturbing the caller's global RNG.
-        with torch.random.fork_rng():
+        self.device = learning_device(cfg.device)
+        # Networks are initialised from the seed without disturbing the caller's global RNG,
+        # on the CPU: the same initial weights on every device.
+        with torch.random.fork_rng(devices=[]):
             torch.manual_seed(cfg.seed)
-            self.actor = SquashedGaussianActor(self.obs_dim, self.action_dim, cfg.hidden)
-            self.critic = TwinCritic(self.obs_dim, self.action_dim, cfg.hidden)
+            self.actor = SquashedGaussianActor(self.obs_dim, self.action_dim, cfg.hidden).to(self.device)
+            self.critic = TwinCritic(self.obs_dim, self.action_dim, cfg.hidden).to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
-        self.log_alpha = torch.tensor(math.log(cfg.initial_alpha), requires_grad=True)
+        self.log_alpha = torch.tensor(math.log(cfg.initial_alpha), device=self.device, requires_grad=True)
         self.target_entropy = -float(self.action_dim)  # Table 1: target alpha = -action dim
         # The optimisers are made at the first update: torch imports its compiler
         # (torch._dynamo, over a second: docs/performance.md) when the first one is made,
@@ -203,7 +215,8 @@ class EQSACLearner:
         self._optimizers_made = False
 
         # One random stream per purpose, so that e.g. estimating E(s) never shifts
-        # the noise of the policy's own actions.
+        # the noise of the policy's own actions. CPU generators on every device (noise()):
+        # the same random numbers on a GPU as on the CPU.
         self.rng = {
             name: torch.Generator().manual_seed(cfg.seed + i)
             for i, name in enumerate(('act', 'update', 'replay', 'entropy', 'warmup'))
@@ -237,22 +250,27 @@ class EQSACLearner:
     def alpha(self) -> float:
         return float(self.log_alpha.detach().exp())
 
+    def noise(self, shape, stream: str, uniform: bool = False) -> torch.Tensor:
+        """Standard normal (or uniform [0, 1)) noise from one of the learner's random streams, on its device."""
+        draw = torch.rand if uniform else torch.randn
+        return draw(shape, generator=self.rng[stream]).to(self.device)
+
     def _obs_tensor(self, obs) -> torch.Tensor:
         array = np.asarray(obs, dtype=np.float32).reshape(-1)
         if array.shape[0] != self.obs_dim:
             raise ValueError(f'observation has {array.shape[0]} values, the learner expects {self.obs_dim}')
         if not np.isfinite(array).all():
             raise ValueError('observation holds a non-finite value (NaN or inf)')
-        return torch.from_numpy(array).unsqueeze(0)
+        return torch.from_numpy(array).unsqueeze(0).to(self.device)
 
     @torch.inference_mode()
     def act(self, obs, deterministic: bool = False) -> np.ndarray:
         """The policy's action in env units, without gates or counters (evaluation)."""
         mean, log_std = self.actor(self._obs_tensor(obs))
         if deterministic:
-            return self.scaler.to_env(torch.tanh(mean)[0].numpy())
-        noise = torch.randn(mean.shape, generator=self.rng['act'])
-        return self.scaler.to_env(eq.squashed_gaussian_action(mean, log_std, noise)[0].numpy())
+            return self.scaler.to_env(torch.tanh(mean)[0].cpu().numpy())
+        noise = self.noise(mean.shape, 'act')
+        return self.scaler.to_env(eq.squashed_gaussian_action(mean, log_std, noise)[0].cpu().numpy())
 
     @torch.inference_mode()
     def propose(self, obs) -> Proposal:
@@ -260,27 +278,26 @@ class EQSACLearner:
         obs_t = self._obs_tensor(obs)
         mean, log_std = self.actor(obs_t)
         if self.total_steps < self.config.random_warmup_steps:
-            action = torch.rand(mean.shape, generator=self.rng['warmup']) * 2.0 - 1.0
+            action = self.noise(mean.shape, 'warmup', uniform=True) * 2.0 - 1.0
         else:
-            noise = torch.randn(mean.shape, generator=self.rng['act'])
-            action = eq.squashed_gaussian_action(mean, log_std, noise)
+            action = eq.squashed_gaussian_action(mean, log_std, self.noise(mean.shape, 'act'))
 
         if self.gates.needs_evaluation(self.episode):
             q1, q2 = self.critic(obs_t, action)
             discrepancy = float(eq.q_discrepancy(q1, q2))
             entropy = None
             if self.gates.uses_entropy:
-                k_noise = torch.randn((self.config.entropy_samples, *mean.shape), generator=self.rng['entropy'])
+                k_noise = self.noise((self.config.entropy_samples, *mean.shape), 'entropy')
                 entropy = float(eq.policy_entropy(mean, log_std, k_noise))
             decision = self.gates.decide(self.episode, discrepancy, entropy)
         else:
             decision = self.gates.decide(self.episode)
 
-        env_action = self.scaler.to_env(action[0].numpy())
+        env_action = self.scaler.to_env(action[0].cpu().numpy())
         request = None
         if decision.fire:
             request = AdviceRequest(
-                observation=obs_t[0].numpy().copy(),
+                observation=obs_t[0].cpu().numpy().copy(),
                 proposed_action=env_action,
                 action_low=self.scaler.low,
                 action_high=self.scaler.high,
@@ -393,14 +410,14 @@ class EQSACLearner:
         self._make_optimizers()
         cfg = self.config
         info = {}
-        batch = self.replay.sample(cfg.batch_size, self.rng['replay'])
+        batch = self.replay.sample(cfg.batch_size, self.rng['replay']).to(self.device)
         # EQSAC and QASAC also learn from D_advising (Section 3.3). Skipped while it is
         # empty; sampled with replacement while it holds fewer than a batch.
         advice_batch = None
         if self.mode != 'sac' and len(self.advice_replay) > 0:
             advice_batch = self.advice_replay.sample(
                 cfg.batch_size, self.rng['replay'], replacement=len(self.advice_replay) < cfg.batch_size
-            )
+            ).to(self.device)
 
         # Eq. 4 targets of both batches. The actor, alpha and the target critics stay
         # as they are until the end of the update, so both come from one forward pass.
@@ -428,7 +445,7 @@ class EQSACLearner:
         batches = [batch] if advice_batch is None else [batch, advice_batch]
         sizes = [len(b.reward) for b in batches]
         # One draw per batch, in order: the same noise as computing each batch on its own.
-        noise = torch.cat([torch.randn((n, self.action_dim), generator=self.rng['update']) for n in sizes])
+        noise = torch.cat([self.noise((n, self.action_dim), 'update') for n in sizes])
         y = self._targets(
             torch.cat([b.next_obs for b in batches]),
             torch.cat([b.reward for b in batches]),
@@ -469,7 +486,7 @@ class EQSACLearner:
 
     def _actor_and_alpha_update(self, batch: Batch) -> dict:
         alpha = self.log_alpha.detach().exp()
-        noise = torch.randn((len(batch.reward), self.action_dim), generator=self.rng['update'])
+        noise = self.noise((len(batch.reward), self.action_dim), 'update')
         loss, log_prob = self._actor_loss(batch.obs, noise, alpha)
         self.actor_optimizer.zero_grad(set_to_none=True)
         # Gradients for the actor only: the critics' weights are not trained by Eq. 6.
@@ -580,7 +597,7 @@ class EQSACLearner:
         actor.load_state_dict(state['actor'])
         critic.load_state_dict(state['critic'])
         critic_target.load_state_dict(state['critic_target'])
-        log_alpha = state['log_alpha'].detach().clone().reshape(()).requires_grad_(True)
+        log_alpha = state['log_alpha'].detach().clone().reshape(()).to(self.device).requires_grad_(True)
         cfg = self.config
         actor_opt = adam(actor.parameters(), cfg.actor_lr, state['actor_optimizer'])
         critic_opt = adam(critic.parameters(), cfg.critic_lr, state['critic_optimizer'])

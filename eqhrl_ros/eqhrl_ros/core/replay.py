@@ -16,6 +16,12 @@ class Batch:
     next_obs: torch.Tensor
     terminated: torch.Tensor  # 1.0 where the episode ended by termination (no bootstrap)
 
+    def to(self, device: torch.device) -> 'Batch':
+        """The batch on ``device`` (itself when it is there already: no copy on CPU)."""
+        if self.obs.device == device:
+            return self
+        return Batch(*(t.to(device) for t in (self.obs, self.action, self.reward, self.next_obs, self.terminated)))
+
 
 def checked_transition(obs, action, reward, next_obs, obs_dim: int, action_dim: int):
     """(obs, action, next_obs) as flat float32 arrays, or a ValueError if a size is wrong or a

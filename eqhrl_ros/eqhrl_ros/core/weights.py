@@ -24,7 +24,7 @@ def encode_weights(learner) -> bytes:
     tensors = {}
     for network in NETWORKS:
         for key, tensor in getattr(learner, network).state_dict().items():
-            tensors[f'{network}.{key}'] = tensor.detach().contiguous()
+            tensors[f'{network}.{key}'] = tensor.detach().cpu().contiguous()
     return save(tensors)
 
 
