@@ -11,8 +11,10 @@ with one busy-loop process beside it, taking turns in rounds, and prints each
 setting's busy/quiet ratio. A learner's fair share beside one CPU-bound process on
 2 cores is 50 %.
 
-Settings: torch threads (1 or 2) x OMP_WAIT_POLICY (the default, which spins, or
-PASSIVE, which sleeps). No target yet: it is the evidence for choosing the
+Settings: torch threads (1 or 2) x OpenMP's waiting: the default (libgomp spins a while
+before it sleeps), OMP_WAIT_POLICY=PASSIVE (sleeps at once), or a shorter spin
+(GOMP_SPINCOUNT, libgomp's own setting; torch's CPU wheels use libgomp). --settings picks.
+No target yet: it is the evidence for choosing the
 defaults (issue 22, item 3); the figures are in docs/performance.md.
 """
 
@@ -20,10 +22,13 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 MEASURE = r"""
 import sys, time
@@ -48,13 +53,54 @@ while time.perf_counter() - start < seconds:
 print(n / (time.perf_counter() - start))
 """
 
+# name -> the environment OpenMP reads at start-up
+# 'default' names libgomp's own default spin count, since eqhrl_ros sets a shorter one when
+# it is imported before torch (eqhrl_ros/__init__.py).
+WAITING = {
+    'default': {'GOMP_SPINCOUNT': '300000'},
+    'PASSIVE': {'OMP_WAIT_POLICY': 'PASSIVE'},
+    'spin 10000': {'GOMP_SPINCOUNT': '10000'},
+    'spin 1000': {'GOMP_SPINCOUNT': '1000'},
+    'spin 100': {'GOMP_SPINCOUNT': '100'},
+}
 SETTINGS = [(threads, policy) for threads in (2, 1) for policy in ('default', 'PASSIVE')]
 
+# The ROS path: eqhrl-train (env, expert and learner nodes in one process), Pendulum at
+# Table 1's sizes, updates from step 256; env steps per second over episodes 2 to the last.
+ROS_PARAMS = """
+gym_env:
+  ros__parameters:
+    max_episode_steps: 100
+learner:
+  ros__parameters:
+    learning_starts: 256
+    torch_threads: {threads}
+/**:
+  ros__parameters:
+    env_id: Pendulum-v1
+"""
+EPISODE_LINE = re.compile(r'\[(\d+\.\d+)\] \[learner\]: episode\s+(\d+) .*? steps (\d+)')
 
-def measure(threads: int, policy: str, seconds: float, hidden: int, batch: int) -> float:
-    env = {k: v for k, v in os.environ.items() if k != 'OMP_WAIT_POLICY'}
-    if policy != 'default':
-        env['OMP_WAIT_POLICY'] = policy
+
+def measure_ros(threads: int, policy: str, episodes: int) -> float:
+    env = {k: v for k, v in os.environ.items() if k not in ('OMP_WAIT_POLICY', 'GOMP_SPINCOUNT')}
+    env.update(WAITING[policy])
+    with tempfile.TemporaryDirectory() as tmp:
+        params = Path(tmp) / 'busy.yaml'
+        params.write_text(ROS_PARAMS.format(threads=threads))
+        command = [str(Path(sys.prefix) / 'bin' / 'eqhrl-train'), '--params', str(params), '--output', tmp + '/run']
+        command += ['--episodes', str(episodes)]
+        done = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
+    rows = [(float(t), int(e), int(s)) for t, e, s in EPISODE_LINE.findall(done.stdout + done.stderr)]
+    rows = [r for r in rows if r[1] >= 2]
+    return (rows[-1][2] - rows[0][2]) / (rows[-1][0] - rows[0][0])
+
+
+def measure(threads: int, policy: str, seconds: float, hidden: int, batch: int, ros_episodes: int = 0) -> float:
+    if ros_episodes:
+        return measure_ros(threads, policy, ros_episodes)
+    env = {k: v for k, v in os.environ.items() if k not in ('OMP_WAIT_POLICY', 'GOMP_SPINCOUNT')}
+    env.update(WAITING[policy])
     command = [sys.executable, '-c', MEASURE, str(threads), str(seconds), str(hidden), str(batch)]
     out = subprocess.run(command, env=env, check=True, capture_output=True, text=True).stdout
     return float(out.strip().splitlines()[-1])
@@ -66,27 +112,47 @@ def main() -> int:
     parser.add_argument('--rounds', type=int, default=3)
     parser.add_argument('--hidden', type=int, default=64, help='width of both hidden layers (Table 1: 256)')
     parser.add_argument('--batch', type=int, default=128, help='batch size (Table 1 runs: 256)')
+    parser.add_argument(
+        '--settings',
+        nargs='+',
+        help=f'THREADS:WAITING pairs, WAITING one of {", ".join(WAITING)} (default: 2 and 1 threads x '
+        'default, PASSIVE)',
+    )
+    parser.add_argument(
+        '--ros-episodes',
+        type=int,
+        default=0,
+        help='measure the ROS path instead: env steps/s of eqhrl-train over this many 100-step episodes',
+    )
     args = parser.parse_args()
-    quiet = {s: [] for s in SETTINGS}
-    busy = {s: [] for s in SETTINGS}
+    settings = SETTINGS
+    if args.settings:
+        settings = [(int(t), w) for t, w in (item.split(':', 1) for item in args.settings)]
+        unknown = [w for _, w in settings if w not in WAITING]
+        if unknown:
+            parser.error(f'unknown waiting {unknown}; one of {list(WAITING)}')
+    quiet = {s: [] for s in settings}
+    busy = {s: [] for s in settings}
     for round_index in range(args.rounds):
-        order = SETTINGS if round_index % 2 == 0 else SETTINGS[::-1]
+        order = settings if round_index % 2 == 0 else settings[::-1]
         for setting in order:
-            quiet[setting].append(measure(*setting, args.seconds, args.hidden, args.batch))
+            quiet[setting].append(measure(*setting, args.seconds, args.hidden, args.batch, args.ros_episodes))
         hog = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
         try:
             time.sleep(0.5)
             for setting in order:
-                busy[setting].append(measure(*setting, args.seconds, args.hidden, args.batch))
+                busy[setting].append(measure(*setting, args.seconds, args.hidden, args.batch, args.ros_episodes))
         finally:
             hog.kill()
             hog.wait()
-    print(
-        f'EQSAC updates per second, {args.hidden}x{args.hidden}, batch {args.batch}; median of {args.rounds} '
-        'rounds; busy = one CPU-bound process beside it on this machine'
+    what = (
+        f'env steps per second through eqhrl-train (Pendulum, Table 1 sizes, updates on), {args.ros_episodes} episodes'
+        if args.ros_episodes
+        else f'EQSAC updates per second, {args.hidden}x{args.hidden}, batch {args.batch}'
     )
-    print(f'{"torch threads":>13s} {"OMP_WAIT_POLICY":>16s} {"quiet":>8s} {"busy":>8s} {"busy/quiet":>11s}')
-    for setting in SETTINGS:
+    print(f'{what}; median of {args.rounds} rounds; busy = one CPU-bound process beside it on this machine')
+    print(f'{"torch threads":>13s} {"OpenMP waiting":>16s} {"quiet":>8s} {"busy":>8s} {"busy/quiet":>11s}')
+    for setting in settings:
         q, b = statistics.median(quiet[setting]), statistics.median(busy[setting])
         print(f'{setting[0]:>13d} {setting[1]:>16s} {q:8.1f} {b:8.1f} {b / q:10.0%}')
     return 0
