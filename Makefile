@@ -109,8 +109,8 @@ bench-actors: $(VENV)/.stamp-eqhrl_ros
 # A busy machine (issue 22, item 3): exits 1 if our default keeps under 40 % of its quiet
 # speed beside one CPU-bound process, in-process and through ROS.
 bench-busy: $(VENV)/.stamp-eqhrl_ros
-	$(VPY) benchmarks/bench_busy.py --hidden 256 --batch 256; a=$$?; \
-	$(VPY) benchmarks/bench_busy.py --rounds 2 --ros-episodes 8 --settings "2:default" "2:spin 1000"; b=$$?; \
+	a=0; b=0; $(VPY) benchmarks/bench_busy.py --hidden 256 --batch 256 || a=$$?; \
+	$(VPY) benchmarks/bench_busy.py --rounds 2 --ros-episodes 8 --settings "2:default" "2:spin 1000" || b=$$?; \
 	exit $$(( a || b ))
 
 bench-variants: $(VENV)/.stamp-eqhrl_ros
