@@ -8,7 +8,9 @@ Defaults (env, hyperparameters, episodes, steps per episode, budget, expert) com
 from the params file; options override them. Each run writes
 <output>/<algorithm>/seed<k>/episodes.csv (the learner node's format) and a DONE
 marker when finished; <output>/episodes.csv gathers all finished runs with the
-columns of COLUMNS. Interrupt with Ctrl-C and run the same command again:
+columns of COLUMNS. In-process runs also evaluate the policy without advice every
+--eval-every episodes from --eval-starts fixed start states (core/evaluation.py):
+<run>/eval.csv, gathered into <output>/eval.csv (EVAL_COLUMNS). Interrupt with Ctrl-C and run the same command again:
 finished runs are skipped, unfinished ones start over.
 
 --through-ros runs each seed through the three ROS nodes (eqhrl-train) instead of
@@ -55,6 +57,8 @@ class Settings:
     policy_path: str = ''
     params_path: str = ''
     env_node: str = ''  # a command that starts the user's env node (--env-node), or ''
+    eval_every: int = 0  # advice-free evaluation every N episodes (in-process runs; 0: none)
+    eval_starts: int = 10  # fixed start states of each evaluation
 
 
 def load_settings(args) -> Settings:
@@ -78,6 +82,10 @@ def load_settings(args) -> Settings:
     check_section('expert', expert, EXPERT_PARAMS)
     if args.budget is not None:
         learner['advising_budget'] = args.budget
+    if args.eval_every < 0 or args.eval_starts < 1:
+        raise ValueError(
+            f'--eval-every must be >= 0 and --eval-starts >= 1 (got {args.eval_every}, {args.eval_starts})'
+        )
     if args.env_node:
         if not args.through_ros:
             raise ValueError('--env-node runs an env node, so it needs --through-ros')
@@ -91,6 +99,8 @@ def load_settings(args) -> Settings:
         policy_path=args.policy_path or expert.get('policy_path', ''),
         params_path=str(path),
         env_node=args.env_node or '',
+        eval_every=0 if args.through_ros else args.eval_every,
+        eval_starts=args.eval_starts,
     )
     return settings
 
@@ -120,7 +130,9 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
     import torch
 
     from ..core import EpisodeSummary, EQSACLearner, make_env, success_criterion, train
+    from ..core.evaluation import EVAL_FIELDS, eval_seeds
     from ..core.records import EpisodeRecord
+    from ..core.training import Evaluation
 
     torch.set_num_threads(1)  # one process per core
     env = make_env(settings.env_id, settings.max_episode_steps)
@@ -132,6 +144,22 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
         success_criterion(settings.env_id),
     )
     record = EpisodeRecord(directory / 'episodes.csv', EpisodeSummary.CSV_FIELDS)  # the learner node's record
+    evaluation, eval_record = None, None
+    if settings.eval_every:
+        eval_record = EpisodeRecord(directory / 'eval.csv', EVAL_FIELDS)
+
+        def on_eval(results):
+            for result in results:
+                error = eval_record.append(result.csv_row())
+                if error is not None:
+                    raise error
+
+        evaluation = Evaluation(
+            make_env(settings.env_id, settings.max_episode_steps),
+            settings.eval_every,
+            eval_seeds(settings.eval_starts),
+            on_eval,
+        )
 
     def on_episode(summary):
         error = record.append(summary.csv_row())
@@ -140,10 +168,21 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
         progress.put((algorithm, seed, summary.episode, summary.episode_return))
 
     try:
-        train(env, learner, settings.episodes, make_expert(settings), seed=seed, on_episode=on_episode)
+        train(
+            env,
+            learner,
+            settings.episodes,
+            make_expert(settings),
+            seed=seed,
+            on_episode=on_episode,
+            evaluation=evaluation,
+        )
     finally:
         record.close()
         env.close()
+        if evaluation is not None:
+            eval_record.close()
+            evaluation.env.close()
 
 
 def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id: int) -> None:
@@ -248,7 +287,9 @@ def _worker(settings, algorithm, seed, directory, through_ros, progress, domain_
 
 
 def gather(output: Path, algorithms, seeds) -> Path:
-    """Write <output>/episodes.csv from every finished run."""
+    """Write <output>/episodes.csv from every finished run (and <output>/eval.csv from their
+    advice-free evaluations, where they have one)."""
+    _gather_eval(output, algorithms, seeds)
     path = output / 'episodes.csv'
     with path.open('w', newline='') as f:
         writer = csv.writer(f)
@@ -275,6 +316,24 @@ def gather(output: Path, algorithms, seeds) -> Path:
     return path
 
 
+EVAL_COLUMNS = ('algorithm', 'seed', 'episode', 'start', 'return', 'length', 'success')
+
+
+def _gather_eval(output: Path, algorithms, seeds) -> None:
+    rows = []
+    for algorithm in algorithms:
+        for seed in seeds:
+            directory = run_dir(output, algorithm, seed)
+            if (directory / 'DONE').exists() and (directory / 'eval.csv').exists():
+                with (directory / 'eval.csv').open(newline='') as run_csv:
+                    rows += [[algorithm, seed, *(r[c] for c in EVAL_COLUMNS[2:])] for r in csv.DictReader(run_csv)]
+    if rows:
+        with (output / 'eval.csv').open('w', newline='') as f:
+            writer = csv.writer(f)
+            writer.writerow(EVAL_COLUMNS)
+            writer.writerows(rows)
+
+
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(
         prog='eqhrl-experiment',
@@ -294,6 +353,14 @@ def parse_args(argv=None):
     parser.add_argument('--output', required=True, help='output folder')
     parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1, help='parallel runs')
     parser.add_argument('--through-ros', action='store_true', help='run through the ROS nodes')
+    parser.add_argument(
+        '--eval-every',
+        type=int,
+        default=10,
+        help='every N episodes (and after the last), the deterministic policy alone, without advice, from '
+        'fixed start states; written to eval.csv (in-process runs; 0: none)',
+    )
+    parser.add_argument('--eval-starts', type=int, default=10, help='start states of each evaluation')
     parser.add_argument(
         '--env-node',
         metavar='COMMAND',
@@ -323,6 +390,8 @@ def main(argv=None) -> int:
                 'seeds': args.seeds,
                 'expert': settings.expert_backend,
                 'through_ros': args.through_ros,
+                'eval_every': settings.eval_every,
+                'eval_starts': settings.eval_starts,
                 'params_file': settings.params_path,
                 'learner': settings.learner,
             }

@@ -6,7 +6,8 @@
 Reads <folder>/episodes.csv written by eqhrl-experiment (columns: algorithm, seed,
 episode, return, length, advice_asked, advice_given, success) from one or more
 folders and writes table.md, returns.png, advice.png, success.png and
-advice_heatmap.png into --output.
+advice_heatmap.png into --output; where the folders hold an eval.csv (the advice-free
+evaluation of eqhrl-experiment), also eval_returns.png.
 
 Per algorithm, mean ± std over seeds of: total advice given (and asked), final
 return (mean of the last 10% of episodes), success rate (last 10% and all
@@ -139,6 +140,53 @@ def _by_algorithm(runs, column):
     return dict(sorted(out.items(), key=lambda kv: ORDER.index(kv[0]) if kv[0] in ORDER else 99))
 
 
+def read_eval(folders) -> dict[str, dict[int, list[float]]]:
+    """{algorithm: {after episode: [per-seed mean return over the start states]}} from the
+    folders' eval.csv (the advice-free evaluation); empty where there is none."""
+    per_run = defaultdict(list)  # (algorithm, seed, episode) -> returns over start states
+    for folder in folders:
+        path = Path(folder) / 'eval.csv'
+        if not path.exists():
+            continue
+        with path.open(newline='') as f:
+            for row in csv.DictReader(f):
+                per_run[(row['algorithm'], int(row['seed']), int(row['episode']))].append(float(row['return']))
+    out = defaultdict(lambda: defaultdict(list))
+    for (algorithm, _seed, episode), returns in sorted(per_run.items()):
+        out[algorithm][episode].append(float(np.mean(returns)))
+    return out
+
+
+def eval_figure(evals, output: Path, env_id: str):
+    """eval_returns.png: the advice-free return (each seed's mean over the fixed start states),
+    mean and interquartile range over seeds, per algorithm."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for algorithm in sorted(evals, key=lambda a: ORDER.index(a) if a in ORDER else 99):
+        episodes = sorted(evals[algorithm])
+        values = [np.asarray(evals[algorithm][e]) for e in episodes]
+        mean = [v.mean() for v in values]
+        low, high = [np.percentile(v, 25) for v in values], [np.percentile(v, 75) for v in values]
+        seeds = len(values[0])
+        label = f'{LABELS.get(algorithm, algorithm)} ({seeds} seeds)'
+        ax.plot(episodes, mean, marker='o', color=COLORS.get(algorithm), label=label)
+        ax.fill_between(episodes, low, high, color=COLORS.get(algorithm), alpha=0.15)
+    ax.set_xlabel('training episodes')
+    ax.set_ylabel('return without advice (mean over seeds; band: IQR)')
+    ax.set_title(f'{env_id}: the policy alone, deterministic, from fixed start states')
+    ax.grid(alpha=0.3)
+    ax.legend()
+    path = output / 'eval_returns.png'
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def figures(runs, output: Path, env_id: str) -> list[Path]:
     import matplotlib
 
@@ -224,7 +272,11 @@ def main(argv=None) -> int:
     text = format_table(summarize(runs, threshold), threshold)
     (output / 'table.md').write_text(text + '\n')
     print(text)
-    for path in figures(runs, output, env_id):
+    made = figures(runs, output, env_id)
+    evals = read_eval(args.folders)
+    if evals:
+        made.append(eval_figure(evals, output, env_id))
+    for path in made:
         print(f'wrote {path}')
     return 0
 

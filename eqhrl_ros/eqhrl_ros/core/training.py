@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Callable, Optional
+from dataclasses import dataclass
+from typing import Callable, Optional, Sequence
 
 import gymnasium as gym
 
+from .evaluation import evaluate
 from .experts import Expert
 from .learner import EpisodeSummary, EQSACLearner, Resolution
 
@@ -46,8 +48,10 @@ def train(
     expert: Optional[Expert] = None,
     seed: Optional[int] = None,
     on_episode: Callable[[EpisodeSummary], None] | None = None,
+    evaluation: Optional['Evaluation'] = None,
 ) -> list[EpisodeSummary]:
-    """Run episodes until the learner's episode index reaches ``episodes`` (resumes count)."""
+    """Run episodes until the learner's episode index reaches ``episodes`` (resumes count).
+    ``evaluation``: the advice-free evaluation every ``evaluation.every`` episodes."""
     summaries = []
     first = True
     while learner.episode < episodes:
@@ -56,4 +60,16 @@ def train(
         summaries.append(summary)
         if on_episode is not None:
             on_episode(summary)
+        if evaluation is not None and (learner.episode % evaluation.every == 0 or learner.episode == episodes):
+            evaluation.on_result(evaluate(evaluation.env, learner, evaluation.starts))
     return summaries
+
+
+@dataclass
+class Evaluation:
+    """What train() needs for the advice-free evaluation (core/evaluation.py)."""
+
+    env: gym.Env  # an env of its own: the training env's state and random stream stay untouched
+    every: int  # episodes between evaluations (and one after the last episode)
+    starts: Sequence[int]  # reset seeds of the fixed start states (evaluation.eval_seeds)
+    on_result: Callable[[list], None]  # gets the EvalEpisode of each start

@@ -47,6 +47,15 @@ def test_runner_writes_the_documented_columns_and_resume_skips_finished_runs(tmp
     assert {(r['algorithm'], r['seed']) for r in rows} == {('sac', '0'), ('sac', '1'), ('eqsac', '0'), ('eqsac', '1')}
     assert all(int(r['length']) == 15 for r in rows)
     assert all(int(r['advice_asked']) == 0 for r in rows if r['algorithm'] == 'sac')
+    # The advice-free evaluation, by default after every 10th and the last episode: here after
+    # episode 2, from the same 10 start states for every run.
+    evals = read(tmp_path / 'eval.csv')
+    assert tuple(evals[0].keys()) == experiment.EVAL_COLUMNS
+    assert len(evals) == 4 * 10 and {r['episode'] for r in evals} == {'2'}
+    starts = {(r['algorithm'], r['seed']): [] for r in evals}
+    for r in evals:
+        starts[(r['algorithm'], r['seed'])].append(int(r['start']))
+    assert len({tuple(v) for v in starts.values()}) == 1
 
     finished = tmp_path / 'sac' / 'seed0' / 'episodes.csv'
     kept_mtime = finished.stat().st_mtime_ns
@@ -103,6 +112,26 @@ def test_report_command_writes_table_and_figures(tmp_path):
     for name in ('returns.png', 'advice.png', 'success.png', 'advice_heatmap.png'):
         data = (tmp_path / 'out' / name).read_bytes()
         assert data[:8] == b'\x89PNG\r\n\x1a\n' and len(data) > 5000, name
+    assert not (tmp_path / 'out' / 'eval_returns.png').exists()  # no eval.csv, no figure
+
+
+def test_report_reads_the_advice_free_evaluation(tmp_path):
+    write_synthetic(tmp_path / 'runs')
+    with open(tmp_path / 'runs' / 'eval.csv', 'w', newline='') as f:
+        writer = csv.writer(f)
+        writer.writerow(experiment.EVAL_COLUMNS)
+        for algorithm, base in (('sac', -400.0), ('eqsac', -300.0)):
+            for seed in (0, 1):
+                for episode in (10, 20):
+                    for start in range(3):  # seed 1 is 100 better; later evaluations 50 better
+                        writer.writerow(
+                            [algorithm, seed, episode, start, base + 100 * seed + 2.5 * episode + start, 100, 0]
+                        )
+    evals = report.read_eval([tmp_path / 'runs'])
+    assert evals['eqsac'][10] == pytest.approx([-274.0, -174.0])  # each seed's mean over its 3 starts
+    assert evals['sac'][20] == pytest.approx([-349.0, -249.0])
+    assert report.main([str(tmp_path / 'runs'), '--output', str(tmp_path / 'out')]) == 0
+    assert (tmp_path / 'out' / 'eval_returns.png').read_bytes()[:4] == b'\x89PNG'
 
 
 def test_report_refuses_a_folder_without_results(tmp_path, capsys):
