@@ -70,6 +70,8 @@ class Harness:
         self.executor.shutdown()
         for node in self.nodes:
             if isinstance(node, RunFiles):
+                if hasattr(node, 'stop_learning'):
+                    node.stop_learning()
                 node.close()
             node.destroy_node()
 

@@ -222,9 +222,13 @@ class TrainerNode(RunFiles, Node):
         finally:
             self._hold.clear()
 
-    def destroy_node(self):
+    def stop_learning(self) -> None:
+        """End the learning thread (after its current step); safe to call twice."""
         self._stopping.set()
         self._learning.join(timeout=30)
+
+    def destroy_node(self):
+        self.stop_learning()
         return super().destroy_node()
 
     def _publish_weights(self) -> None:
@@ -267,8 +271,14 @@ class TrainerNode(RunFiles, Node):
                 )
 
 
+def _stop_save_and_close(node: TrainerNode) -> None:
+    """At exit: the learning thread first, so that the checkpoint and the record end together."""
+    node.stop_learning()
+    save_and_close(node)
+
+
 def main(args=None):
-    run_node(TrainerNode, args, on_exit=save_and_close, name='trainer')
+    run_node(TrainerNode, args, on_exit=_stop_save_and_close, name='trainer')
 
 
 if __name__ == '__main__':

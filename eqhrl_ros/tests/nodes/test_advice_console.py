@@ -150,7 +150,9 @@ def test_a_person_advises_from_the_browser(browser, ros_context, tmp_path):
         time.sleep(0.3)
         assert totals.human == 0 and pending()
         keys(('down', Keys.SHIFT), Keys.ENTER, ('up', Keys.SHIFT))
-        wait_for(lambda: totals.human == 1, what='human advice counted')
+        # (Pressing the deadman answers too: a next request that comes between Shift and Enter
+        # on a loaded machine is answered by the Enter, so 2 is possible.)
+        wait_for(lambda: totals.human >= 1, what='human advice counted')
         wait_for(lambda: 'given after' in text('request') or pending(), what='the answer shown')
 
         # Skip declines with its reason.
