@@ -13,6 +13,7 @@ both are handled the same way.
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -108,6 +109,10 @@ def seconds_since_process_start() -> float:
         return float('nan')
 
 
+# Seconds after a stop request before a shutdown that has not finished reports its stacks.
+STOP_REPORT_S = 20.0
+
+
 class StopSignals:
     """SIGINT and SIGTERM as a request to stop, read by the spin loop between callbacks."""
 
@@ -128,11 +133,16 @@ class StopSignals:
         """The node is cleaned up: ignore further signals while the interpreter exits. (At exit
         Python resets its own handlers to the default, which would end the process with the
         signal, exit code -2, if a second Ctrl-C landed then; an ignored signal stays ignored.)"""
+        faulthandler.cancel_dump_traceback_later()
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, signal.SIG_IGN)
 
     def _on_signal(self, signum, _frame) -> None:
         self.received.append(signum)
+        if len(self.received) == 1:
+            # A stop that has not ended after STOP_REPORT_S prints every thread's stack to stderr
+            # (and the process goes on): what a stuck shutdown waits for, in the log.
+            faulthandler.dump_traceback_later(STOP_REPORT_S, exit=False)
         if len(self.received) == 2:
             # os.write, not print: the signal may have landed inside a write to stderr.
             os.write(

@@ -66,7 +66,9 @@ function onState(message) {
   drawPlots();
   const learner = state.learner || {};
   $('pause').textContent = learner.advice_enabled === false ? 'resume advice' : 'pause advice';
-  if (!budgetEdited && learner.advising_budget !== undefined) {
+  // Never under the person's cursor: a value written while the field has focus would land
+  // between selecting its text and typing over it (and "100" + "7" would become "1007").
+  if (!budgetEdited && document.activeElement !== $('budget') && learner.advising_budget !== undefined) {
     $('budget').value = learner.advising_budget;
   }
   const last = state.episodes[state.episodes.length - 1];
