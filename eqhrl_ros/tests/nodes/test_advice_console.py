@@ -185,7 +185,10 @@ def test_a_person_advises_from_the_browser(browser, ros_context, tmp_path):
         browser.execute_script('window.fakePad.buttons[4].pressed = true;')
         time.sleep(0.1)
         browser.execute_script('window.fakePad.buttons[0].pressed = true;')
-        wait_for(lambda: totals.human == human + 1, what='gamepad advice')
+        # The deadman's press answers the open request and A's press may answer the next one
+        # (a loaded machine asks again within the 0.1 s), so one or two answers are right.
+        wait_for(lambda: totals.human >= human + 1, what='gamepad advice')
+        assert totals.human <= human + 2
         browser.execute_script('window.fakePad.buttons[0].pressed = false; window.fakePad.buttons[4].pressed = false;')
 
         # The controls set the learner's parameters, range-checked by the learner.
