@@ -14,6 +14,7 @@ setup(
         ('share/' + package_name, ['package.xml', 'README.md']),
         ('share/' + package_name + '/params', glob('params/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+        ('share/' + package_name + '/studies', glob('studies/*.yaml')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -37,6 +38,8 @@ setup(
             'eqhrl-demo = eqhrl_ros.cli.demo:main',
             'eqhrl-experiment = eqhrl_ros.cli.experiment:main',
             'eqhrl-report = eqhrl_ros.cli.report:main',
+            'eqhrl-study = eqhrl_ros.cli.study:main',
+            'eqhrl-study-report = eqhrl_ros.cli.study_report:main',
         ],
     },
 )

@@ -35,12 +35,13 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
 from ..core.config import MODES as ALGORITHMS
+from ..core.config import PAPER_MODES
 from ..core.experts import EXPERT_BACKENDS
 from ..paths import params_file
 
@@ -59,6 +60,10 @@ class Settings:
     env_node: str = ''  # a command that starts the user's env node (--env-node), or ''
     eval_every: int = 0  # advice-free evaluation every N episodes (in-process runs; 0: none)
     eval_starts: int = 10  # fixed start states of each evaluation
+    # An imperfect expert (in-process runs; eqhrl-study): 'human' (simulated_human.HumanLimits
+    # fields, the expert backend then simulated_human), 'delay_steps', 'gain' (imperfect_experts).
+    expert_options: dict = field(default_factory=dict)
+    gate_trace: bool = False  # write <run>/gates.csv: D(s), E(s) and thresholds inside the budget
 
 
 def load_settings(args) -> Settings:
@@ -114,12 +119,27 @@ def learner_config(settings: Settings, algorithm: str, seed: int):
     )
 
 
-def make_expert(settings: Settings):
+def make_expert(settings: Settings, seed: int = 0):
+    """The run's expert: the backend of the settings, made imperfect by expert_options."""
     from ..core.experts import make_expert as expert_for
+    from ..core.imperfect_experts import DelayedExpert, WeakExpert
+    from ..core.simulated_human import HumanLimits
 
     if settings.expert_backend == 'none':
         return None
-    return expert_for(settings.expert_backend, settings.env_id, settings.policy_path)
+    options = dict(settings.expert_options)
+    unknown = sorted(set(options) - {'human', 'delay_steps', 'gain'})
+    if unknown:
+        raise ValueError(f'unknown expert option(s) {unknown}; known: human, delay_steps, gain')
+    backend = 'simulated_human' if 'human' in options else settings.expert_backend
+    limits = HumanLimits(**options['human']) if 'human' in options else None
+    # The person's own random stream: one per seed, apart from the learner's.
+    expert = expert_for(backend, settings.env_id, settings.policy_path, limits, seed=10_000 + seed)
+    if options.get('gain', 1.0) != 1.0:
+        expert = WeakExpert(expert, options['gain'])
+    if options.get('delay_steps', 0):
+        expert = DelayedExpert(expert, options['delay_steps'])
+    return expert
 
 
 def run_dir(output: Path, algorithm: str, seed: int) -> Path:
@@ -167,22 +187,52 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
             raise error  # the run fails; running the command again redoes it
         progress.put((algorithm, seed, summary.episode, summary.episode_return))
 
+    gate_record, on_proposal = None, None
+    if settings.gate_trace:
+        gate_record = EpisodeRecord(directory / 'gates.csv', GATE_FIELDS)
+
+        def on_proposal(learner, proposal):
+            decision = proposal.decision
+            if decision.within_budget:
+                error = gate_record.append([learner.episode, learner.episode_step, *gate_row(decision)])
+                if error is not None:
+                    raise error
+
     try:
         train(
             env,
             learner,
             settings.episodes,
-            make_expert(settings),
+            make_expert(settings, seed),
             seed=seed,
             on_episode=on_episode,
             evaluation=evaluation,
+            on_proposal=on_proposal,
         )
     finally:
         record.close()
         env.close()
+        if gate_record is not None:
+            gate_record.close()
         if evaluation is not None:
             eval_record.close()
             evaluation.env.close()
+
+
+GATE_FIELDS = ('episode', 'step', 'discrepancy', 'd_threshold', 'entropy', 'e_threshold', 'ask', 'respond', 'fire')
+
+
+def gate_row(decision) -> list:
+    """A GateDecision as GATE_FIELDS[2:] (NaN: not evaluated, or a queue still empty)."""
+    return [
+        f'{decision.discrepancy:.6g}',
+        f'{decision.d_threshold:.6g}',
+        f'{decision.entropy:.6g}',
+        f'{decision.e_threshold:.6g}',
+        int(decision.ask),
+        int(decision.respond),
+        int(decision.fire),
+    ]
 
 
 def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id: int) -> None:
@@ -286,14 +336,15 @@ def _worker(settings, algorithm, seed, directory, through_ros, progress, domain_
     return algorithm, seed, elapsed
 
 
-def gather(output: Path, algorithms, seeds) -> Path:
+def gather(output: Path, algorithms, seeds, label: str = 'algorithm') -> Path:
     """Write <output>/episodes.csv from every finished run (and <output>/eval.csv from their
-    advice-free evaluations, where they have one)."""
-    _gather_eval(output, algorithms, seeds)
+    advice-free evaluations, where they have one). ``label``: the first column's name (a
+    study's runs are arms, not algorithms)."""
+    _gather_eval(output, algorithms, seeds, label)
     path = output / 'episodes.csv'
     with path.open('w', newline='') as f:
         writer = csv.writer(f)
-        writer.writerow(COLUMNS)
+        writer.writerow((label, *COLUMNS[1:]))
         for algorithm in algorithms:
             for seed in seeds:
                 directory = run_dir(output, algorithm, seed)
@@ -319,7 +370,7 @@ def gather(output: Path, algorithms, seeds) -> Path:
 EVAL_COLUMNS = ('algorithm', 'seed', 'episode', 'start', 'return', 'length', 'success')
 
 
-def _gather_eval(output: Path, algorithms, seeds) -> None:
+def _gather_eval(output: Path, algorithms, seeds, label: str = 'algorithm') -> None:
     rows = []
     for algorithm in algorithms:
         for seed in seeds:
@@ -330,7 +381,7 @@ def _gather_eval(output: Path, algorithms, seeds) -> None:
     if rows:
         with (output / 'eval.csv').open('w', newline='') as f:
             writer = csv.writer(f)
-            writer.writerow(EVAL_COLUMNS)
+            writer.writerow((label, *EVAL_COLUMNS[1:]))
             writer.writerows(rows)
 
 
@@ -343,7 +394,13 @@ def parse_args(argv=None):
     )
     parser.add_argument('--params', default='pendulum', help='params file (name or path) with the defaults')
     parser.add_argument('--env', help='gymnasium env id (default: from the params file)')
-    parser.add_argument('--algorithms', nargs='+', choices=ALGORITHMS, default=list(ALGORITHMS))
+    parser.add_argument(
+        '--algorithms',
+        nargs='+',
+        choices=ALGORITHMS,
+        default=list(PAPER_MODES),
+        help="modes to run (default: the paper's three; respond and random are ablations, see eqhrl-study)",
+    )
     parser.add_argument('--seeds', nargs='+', type=int, default=[0, 1, 2, 3, 4])
     parser.add_argument('--episodes', type=int, help='episodes per run (default: max_episodes of the file)')
     parser.add_argument('--max-steps', type=int, help='steps per episode (default: from the file)')

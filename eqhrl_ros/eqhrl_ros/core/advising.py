@@ -57,9 +57,12 @@ class GateDecision:
             return 'outside the advising budget (Eq. 7), or mode sac'
         if not self.queues_ready:
             return 'queues filling'
+        has_d, has_e = not math.isnan(self.discrepancy), not math.isnan(self.entropy)
+        if not (has_d or has_e):  # mode random
+            return 'a random draw below random_ask_rate' if self.fire else 'the random draw said no'
         if self.fire:
-            return 'D(s) > threshold' + ('' if math.isnan(self.entropy) else ' and E(s) < threshold')
-        if not self.ask:
+            return ' and '.join([*(['D(s) > threshold'] if has_d else []), *(['E(s) < threshold'] if has_e else [])])
+        if has_d and not self.ask:
             return 'D(s) <= threshold: the critics agree'
         return 'E(s) >= threshold: the policy is not sure'
 
@@ -70,6 +73,9 @@ class AdvisingGates:
     - ``sac``: never asks.
     - ``qasac``: asks when D(s) > max(D_queue) (the ask gate only).
     - ``eqsac``: asks when D(s) > max(D_queue) and E(s) < min(E_queue).
+    - ``respond`` (ablation): asks when E(s) < min(E_queue) (the respond gate only).
+    - ``random`` (ablation): asks when a uniform draw is below ``random_ask_rate``: as many
+      requests as a gate that fires at that rate, at states chosen by chance.
     All only while episode < advising_budget (Eq. 7).
 
     Dynamic thresholds compare the current value with the queue *as it was before
@@ -86,6 +92,7 @@ class AdvisingGates:
         threshold_kind: str = 'dynamic',
         fixed_d_threshold: float = 1.0,
         fixed_e_threshold: float = 0.0,
+        random_ask_rate: float = 0.0,
     ):
         # The rules of each value live with LearnerConfig's fields (core/config.py).
         self.mode = check_value('mode', mode)
@@ -94,41 +101,63 @@ class AdvisingGates:
         self.threshold_kind = threshold_kind
         self.fixed_d_threshold = float(fixed_d_threshold)
         self.fixed_e_threshold = float(fixed_e_threshold)
+        self.random_ask_rate = check_value('random_ask_rate', random_ask_rate)
         self.d_queue = FifoQueue(queue_length)
         self.e_queue = FifoQueue(queue_length)
 
     @property
+    def uses_discrepancy(self) -> bool:
+        return self.mode in ('qasac', 'eqsac')
+
+    @property
     def uses_entropy(self) -> bool:
-        return self.mode == 'eqsac'
+        return self.mode in ('eqsac', 'respond')
+
+    @property
+    def uses_draw(self) -> bool:
+        return self.mode == 'random'
 
     def needs_evaluation(self, episode: int) -> bool:
-        """Whether D(s) and E(s) must be computed this step (skipped when they cannot matter)."""
+        """Whether D(s), E(s) or the random draw are needed this step (skipped when they cannot matter)."""
         return self.mode != 'sac' and eq.early_advising(episode, self.advising_budget)
 
-    def decide(self, episode: int, discrepancy: float | None = None, entropy: float | None = None) -> GateDecision:
-        if self.mode == 'sac':
+    def decide(
+        self,
+        episode: int,
+        discrepancy: float | None = None,
+        entropy: float | None = None,
+        draw: float | None = None,
+    ) -> GateDecision:
+        """``discrepancy`` D(s) where uses_discrepancy, ``entropy`` E(s) where uses_entropy,
+        ``draw`` (uniform in [0, 1)) where uses_draw; each needed only inside the budget."""
+        if self.mode == 'sac' or not eq.early_advising(episode, self.advising_budget):
             return GateDecision(False, within_budget=False)
-        if not eq.early_advising(episode, self.advising_budget):
-            return GateDecision(False, within_budget=False)
-        if discrepancy is None or (self.uses_entropy and entropy is None):
-            raise ValueError('D(s) (and E(s) in eqsac mode) are needed inside the budget')
+        if (
+            (self.uses_discrepancy and discrepancy is None)
+            or (self.uses_entropy and entropy is None)
+            or (self.uses_draw and draw is None)
+        ):
+            raise ValueError(f'mode {self.mode} needs D(s), E(s) or its draw inside the budget')
+        if self.uses_draw:
+            return GateDecision(draw < self.random_ask_rate, within_budget=True, queues_ready=True)
 
         if self.threshold_kind == 'fixed':
             d_threshold, e_threshold = self.fixed_d_threshold, self.fixed_e_threshold
-            ask = discrepancy > d_threshold
+            ask = discrepancy > d_threshold if self.uses_discrepancy else True
             respond = entropy < e_threshold if self.uses_entropy else True
             d_ready = e_ready = True
         else:
-            d_ready = self.d_queue.full()
+            d_ready = self.d_queue.full() or not self.uses_discrepancy
             e_ready = self.e_queue.full() or not self.uses_entropy
             d_values = self.d_queue.values()
             e_values = self.e_queue.values()
             d_threshold = max(d_values) if d_values else float('nan')
             e_threshold = min(e_values) if e_values else float('nan')
-            ask = d_ready and eq.ask_condition(discrepancy, d_values)
+            ask = (not self.uses_discrepancy) or (d_ready and eq.ask_condition(discrepancy, d_values))
             respond = (not self.uses_entropy) or (e_ready and eq.respond_condition(entropy, e_values))
             # Push after comparing: the current value never raises its own threshold.
-            self.d_queue.push(discrepancy)
+            if self.uses_discrepancy:
+                self.d_queue.push(discrepancy)
             if self.uses_entropy:
                 self.e_queue.push(entropy)
 
@@ -136,11 +165,11 @@ class AdvisingGates:
             fire=ask and respond,
             within_budget=True,
             queues_ready=d_ready and e_ready,
-            ask=ask,
+            ask=ask if self.uses_discrepancy else False,
             respond=respond if self.uses_entropy else False,
-            discrepancy=float(discrepancy),
+            discrepancy=float(discrepancy) if discrepancy is not None else float('nan'),
             entropy=float(entropy) if entropy is not None else float('nan'),
-            d_threshold=d_threshold,
+            d_threshold=d_threshold if self.uses_discrepancy else float('nan'),
             e_threshold=e_threshold if self.uses_entropy else float('nan'),
         )
 

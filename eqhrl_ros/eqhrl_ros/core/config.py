@@ -13,7 +13,12 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-MODES = ('sac', 'qasac', 'eqsac')
+# The paper's three algorithms, then two ablations of the gates for studies (docs/results.md):
+# 'respond', the respond gate alone (E(s) < min(E_queue)); 'random', requests at random
+# steps with chance random_ask_rate, inside the same budget (a baseline matched in count).
+PAPER_MODES = ('sac', 'qasac', 'eqsac')
+MODES = (*PAPER_MODES, 'respond', 'random')
+ADVICE_BATCHES = ('full', 'proportional')
 THRESHOLD_KINDS = ('dynamic', 'fixed')
 DEVICES = ('cpu', 'cuda')
 INT_MAX = 2**31 - 1
@@ -47,7 +52,10 @@ class LearnerConfig:
     """Hyperparameters of SAC, QASAC and EQSAC (see each field's description)."""
 
     mode: str = hyper(
-        'eqsac', 'Learning mode: plain SAC, QASAC (ask gate only) or EQSAC (ask and respond gates)', choices=MODES
+        'eqsac',
+        'Learning mode: plain SAC, QASAC (ask gate only) or EQSAC (ask and respond gates); ablations: '
+        'respond (respond gate only), random (ask at random steps, chance random_ask_rate)',
+        choices=MODES,
     )
     hidden: tuple[int, ...] = hyper(
         (256, 256), 'Hidden layer sizes of actor and critics (Table 1: 256x256)', ros_name='hidden_sizes'
@@ -79,7 +87,19 @@ class LearnerConfig:
     fixed_d_threshold: float = hyper(1.0, 'Ask when D(s) exceeds this (threshold_kind fixed)', range=(0.0, 1e9))
     fixed_e_threshold: float = hyper(0.0, 'Respond when E(s) is below this (threshold_kind fixed)', range=(-1e9, 1e9))
     entropy_samples: int = hyper(32, 'Monte Carlo samples K of the entropy estimate E(s) (Eq. 9)', range=(1, 100_000))
-    actor_on_advice: bool = hyper(False, 'Also train the actor on the advice batch')
+    random_ask_rate: float = hyper(
+        0.0, 'Mode random: chance of asking at each step inside the budget (an ablation baseline)', range=(0.0, 1.0)
+    )
+    actor_on_advice: bool = hyper(False, 'Also train the actor on the advice batch (an ablation; off in the paper)')
+    dual_replay: bool = hyper(
+        True, 'Advised transitions also go to D_advising for a second critic update (Section 3.3); false: D only'
+    )
+    advice_batch: str = hyper(
+        'full',
+        'Size of the D_advising batch: full (batch_size, the paper) or proportional '
+        '(batch_size x |D_advising| / |D|, at least 1; an ablation)',
+        choices=ADVICE_BATCHES,
+    )
     device: str = hyper(
         'cpu',
         'Torch device of the networks, the acting and the updates (cuda: the current GPU; the replay '

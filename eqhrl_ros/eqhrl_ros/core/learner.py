@@ -219,7 +219,7 @@ class EQSACLearner:
         # the same random numbers on a GPU as on the CPU.
         self.rng = {
             name: torch.Generator().manual_seed(cfg.seed + i)
-            for i, name in enumerate(('act', 'update', 'replay', 'entropy', 'warmup'))
+            for i, name in enumerate(('act', 'update', 'replay', 'entropy', 'warmup', 'request'))
         }
 
         self.replay = ReplayBuffer(cfg.replay_capacity, self.obs_dim, self.action_dim)  # D
@@ -231,6 +231,7 @@ class EQSACLearner:
             cfg.threshold_kind,
             cfg.fixed_d_threshold,
             cfg.fixed_e_threshold,
+            cfg.random_ask_rate,
         )
 
         self.episode = 0  # index of the current episode: Eq. 7's "Iteration"
@@ -283,13 +284,16 @@ class EQSACLearner:
             action = eq.squashed_gaussian_action(mean, log_std, self.noise(mean.shape, 'act'))
 
         if self.gates.needs_evaluation(self.episode):
-            q1, q2 = self.critic(obs_t, action)
-            discrepancy = float(eq.q_discrepancy(q1, q2))
-            entropy = None
+            discrepancy = entropy = draw = None
+            if self.gates.uses_discrepancy:
+                q1, q2 = self.critic(obs_t, action)
+                discrepancy = float(eq.q_discrepancy(q1, q2))
             if self.gates.uses_entropy:
                 k_noise = self.noise((self.config.entropy_samples, *mean.shape), 'entropy')
                 entropy = float(eq.policy_entropy(mean, log_std, k_noise))
-            decision = self.gates.decide(self.episode, discrepancy, entropy)
+            if self.gates.uses_draw:
+                draw = float(torch.rand((), generator=self.rng['request']))
+            decision = self.gates.decide(self.episode, discrepancy, entropy, draw)
         else:
             decision = self.gates.decide(self.episode)
 
@@ -352,7 +356,7 @@ class EQSACLearner:
         """(s_t, a_t, r_t, s_{t+1}) into D, and into D_advising when advised (QASAC, EQSAC).
         ``normalized_action`` in [-1, 1] (normalize()). A bad transition raises ValueError."""
         self.replay.add(obs, normalized_action, reward, next_obs, terminated)
-        if advised and self.mode != 'sac':
+        if advised and self.mode != 'sac' and self.config.dual_replay:
             self.advice_replay.add(obs, normalized_action, reward, next_obs, terminated)
 
     def step(
@@ -412,11 +416,14 @@ class EQSACLearner:
         info = {}
         batch = self.replay.sample(cfg.batch_size, self.rng['replay']).to(self.device)
         # EQSAC and QASAC also learn from D_advising (Section 3.3). Skipped while it is
-        # empty; sampled with replacement while it holds fewer than a batch.
+        # empty; sampled with replacement while it holds fewer than the batch asks for.
         advice_batch = None
         if self.mode != 'sac' and len(self.advice_replay) > 0:
+            size = cfg.batch_size
+            if cfg.advice_batch == 'proportional':  # an ablation: D_advising's share of all transitions
+                size = max(1, round(cfg.batch_size * len(self.advice_replay) / len(self.replay)))
             advice_batch = self.advice_replay.sample(
-                cfg.batch_size, self.rng['replay'], replacement=len(self.advice_replay) < cfg.batch_size
+                size, self.rng['replay'], replacement=len(self.advice_replay) < size
             ).to(self.device)
 
         # Eq. 4 targets of both batches. The actor, alpha and the target critics stay
@@ -608,7 +615,10 @@ class EQSACLearner:
         advice_total = AdviceCounts.from_dict(counters['advice_total'])
         rng = {name: torch.Generator() for name in self.rng}
         for name, gen in rng.items():
-            gen.set_state(state['rng'][name])
+            if name in state['rng']:  # (a checkpoint from before a stream existed leaves it fresh)
+                gen.set_state(state['rng'][name])
+            else:
+                gen.set_state(self.rng[name].get_state())
 
         self.actor, self.critic, self.critic_target = actor, critic, critic_target
         self.log_alpha = log_alpha

@@ -24,12 +24,25 @@ def ask_expert(learner: EQSACLearner, proposal, expert: Optional[Expert]) -> Res
 
 
 def run_episode(
-    env: gym.Env, learner: EQSACLearner, expert: Optional[Expert] = None, seed: Optional[int] = None
+    env: gym.Env,
+    learner: EQSACLearner,
+    expert: Optional[Expert] = None,
+    seed: Optional[int] = None,
+    on_proposal: Callable | None = None,
 ) -> EpisodeSummary:
-    """One episode of Algorithm 1's outer loop. The env must end episodes (a TimeLimit)."""
+    """One episode of Algorithm 1's outer loop. The env must end episodes (a TimeLimit).
+    An expert with an ``observe(obs, new_episode)`` method is shown every observation
+    (imperfect_experts.DelayedExpert); ``on_proposal(learner, proposal)`` sees every gate decision."""
     obs, _ = env.reset(seed=seed)
+    observe = getattr(expert, 'observe', None)
+    new_episode = True
     while True:
+        if observe is not None:
+            observe(obs, new_episode)
+            new_episode = False
         proposal = learner.propose(obs)
+        if on_proposal is not None:
+            on_proposal(learner, proposal)
         if proposal.decision.fire:
             action, advised = ask_expert(learner, proposal, expert).take()
         else:
@@ -49,13 +62,15 @@ def train(
     seed: Optional[int] = None,
     on_episode: Callable[[EpisodeSummary], None] | None = None,
     evaluation: Optional['Evaluation'] = None,
+    on_proposal: Callable | None = None,
 ) -> list[EpisodeSummary]:
     """Run episodes until the learner's episode index reaches ``episodes`` (resumes count).
-    ``evaluation``: the advice-free evaluation every ``evaluation.every`` episodes."""
+    ``evaluation``: the advice-free evaluation every ``evaluation.every`` episodes;
+    ``on_proposal``: see run_episode."""
     summaries = []
     first = True
     while learner.episode < episodes:
-        summary = run_episode(env, learner, expert, seed=seed if first else None)
+        summary = run_episode(env, learner, expert, seed=seed if first else None, on_proposal=on_proposal)
         first = False
         summaries.append(summary)
         if on_episode is not None:

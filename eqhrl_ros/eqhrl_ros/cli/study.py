@@ -1,0 +1,360 @@
+"""eqhrl-study: a whole study (arms x seeds) in one resumable command.
+
+    eqhrl-study --plan pendulum --output runs/study_pendulum --jobs 2
+    eqhrl-study --plan pendulum --output runs/study_pendulum --list        # the size, nothing run
+    eqhrl-study --plan pendulum --output runs/study_pendulum --groups main # a part of it
+
+A plan (a YAML file, or the name of one in share/eqhrl_ros/studies) names a params file
+(the env, Table 1, the expert), the episodes, the advice-free evaluation, learner settings
+shared by every arm, and groups of arms in order of priority. An arm is a mode with its own
+learner settings and expert:
+
+    groups:
+      - name: main
+        seeds: [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]
+        arms:
+          eqsac: {mode: eqsac, gate_trace: true}
+          random: {mode: random, match: eqsac}      # asks as often as eqsac did, seed by seed
+          eqsac_noisy: {mode: eqsac, expert: {human: {action_noise: 0.3}}}
+
+- ``learner``: learner parameters (the params file's names), over the plan's own.
+- ``expert``: ``human`` (simulated_human.HumanLimits fields: a noisy hand, skipped and missed
+  requests), ``delay_steps`` (the answer is for the state that many steps before),
+  ``gain`` (a timid controller): core/imperfect_experts.py.
+- ``match`` (mode random): the arm's random_ask_rate for seed k is the named arm's requests
+  per step inside the budget in seed k; the run waits for that one to finish.
+- ``gate_trace``: write gates.csv, D(s), E(s) and their thresholds at every step inside the budget.
+
+Runs go group by group, seed by seed, so that a cut study still holds whole, paired seeds.
+Each run writes <output>/<arm>/seed<k>/ (episodes.csv, eval.csv, gates.csv, DONE);
+<output>/episodes.csv, eval.csv and gates.csv gather the finished runs with an ``arm``
+column, and <output>/arms.csv says what each arm is. Interrupt with Ctrl-C and run the same
+command again: finished runs are kept, unfinished ones start over. eqhrl-study-report
+turns the output into tables and figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import multiprocessing as mp
+import os
+import queue
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from ..core.config import MODES
+from ..paths import share_dir
+from . import experiment
+
+PLAN_KEYS = {'name', 'description', 'params', 'episodes', 'max_steps', 'eval_every', 'eval_starts', 'learner', 'groups'}
+GROUP_KEYS = {'name', 'seeds', 'arms', 'description'}
+ARM_KEYS = {'mode', 'learner', 'expert', 'match', 'gate_trace', 'label'}
+
+
+@dataclass
+class Arm:
+    name: str
+    group: str
+    mode: str
+    seeds: list
+    learner: dict = field(default_factory=dict)
+    expert: dict = field(default_factory=dict)
+    match: str = ''
+    gate_trace: bool = False
+    label: str = ''  # how tables and figures name it (default: the arm's name)
+
+
+@dataclass
+class Plan:
+    name: str
+    params: str
+    episodes: int
+    max_steps: int | None
+    eval_every: int
+    eval_starts: int
+    learner: dict
+    arms: list  # of Arm, in priority order
+    path: str = ''
+
+    def arm(self, name: str) -> Arm:
+        return next(a for a in self.arms if a.name == name)
+
+
+def plan_file(name_or_path: str) -> Path:
+    path = Path(name_or_path)
+    if path.suffix in ('.yaml', '.yml') and path.exists():
+        return path
+    candidate = share_dir() / 'studies' / f'{path.stem}.yaml'
+    if candidate.exists():
+        return candidate
+    available = sorted(p.stem for p in (share_dir() / 'studies').glob('*.yaml'))
+    raise FileNotFoundError(f'no study plan {name_or_path!r}; give a path or one of {available}')
+
+
+def _refuse_unknown(where: str, given: dict, known: set) -> None:
+    unknown = sorted(set(given) - known)
+    if unknown:
+        raise ValueError(f'{where}: unknown key(s) {unknown}; known: {sorted(known)}')
+
+
+def load_plan(name_or_path: str) -> Plan:
+    """The plan, refused with the place of the first mistake in it."""
+    path = plan_file(name_or_path)
+    data = yaml.safe_load(path.read_text()) or {}
+    _refuse_unknown(str(path), data, PLAN_KEYS)
+    arms = []
+    for group in data.get('groups') or []:
+        _refuse_unknown(f'{path}: group {group.get("name")!r}', group, GROUP_KEYS)
+        for name, spec in (group.get('arms') or {}).items():
+            spec = spec or {}
+            _refuse_unknown(f'{path}: arm {name!r}', spec, ARM_KEYS)
+            if spec.get('mode') not in MODES:
+                raise ValueError(f'{path}: arm {name!r}: mode must be one of {MODES}, got {spec.get("mode")!r}')
+            if any(a.name == name for a in arms):
+                raise ValueError(f'{path}: arm {name!r} appears twice')
+            arms.append(
+                Arm(
+                    name=name,
+                    group=group['name'],
+                    mode=spec['mode'],
+                    seeds=[int(s) for s in group['seeds']],
+                    learner=dict(spec.get('learner') or {}),
+                    expert=dict(spec.get('expert') or {}),
+                    match=spec.get('match', ''),
+                    gate_trace=bool(spec.get('gate_trace', False)),
+                    label=spec.get('label', name),
+                )
+            )
+    if not arms:
+        raise ValueError(f'{path}: no arms')
+    names = {a.name for a in arms}
+    for arm in arms:
+        if arm.match:
+            if arm.mode != 'random':
+                raise ValueError(f'{path}: arm {arm.name!r}: match is for mode random')
+            if arm.match not in names:
+                raise ValueError(f'{path}: arm {arm.name!r} matches {arm.match!r}, which is not an arm')
+            missing = sorted(set(arm.seeds) - set(next(a for a in arms if a.name == arm.match).seeds))
+            if missing:
+                raise ValueError(f'{path}: arm {arm.name!r} has seeds {missing} that {arm.match!r} does not run')
+    return Plan(
+        name=data.get('name', path.stem),
+        params=data.get('params', 'pendulum'),
+        episodes=int(data['episodes']),
+        max_steps=data.get('max_steps'),
+        eval_every=int(data.get('eval_every', 10)),
+        eval_starts=int(data.get('eval_starts', 10)),
+        learner=dict(data.get('learner') or {}),
+        arms=arms,
+        path=str(path),
+    )
+
+
+def arm_settings(plan: Plan, arm: Arm) -> experiment.Settings:
+    """The experiment runner's settings for one arm, checked as the runner checks a params file."""
+    args = argparse.Namespace(
+        params=plan.params,
+        env=None,
+        episodes=plan.episodes,
+        max_steps=plan.max_steps,
+        budget=None,
+        expert=None,
+        policy_path=None,
+        through_ros=False,
+        env_node=None,
+        eval_every=plan.eval_every,
+        eval_starts=plan.eval_starts,
+    )
+    settings = experiment.load_settings(args)
+    learner = {**settings.learner, **plan.learner, **arm.learner}
+    settings = dataclasses.replace(settings, learner=learner, expert_options=arm.expert, gate_trace=arm.gate_trace)
+    experiment.learner_config(settings, arm.mode, 0)  # refuses a bad learner setting now, not in a worker
+    experiment.make_expert(settings)
+    return settings
+
+
+def budget_of(settings: experiment.Settings) -> int:
+    return int(experiment.learner_config(settings, 'sac', 0).advising_budget)
+
+
+def matched_rate(run: Path, budget: int) -> tuple[float, int, int]:
+    """(requests per step, requests, steps) inside the first ``budget`` episodes of a finished run."""
+    asked = steps = 0
+    with (run / 'episodes.csv').open(newline='') as f:
+        for row in csv.DictReader(f):
+            if int(row['episode']) < budget:
+                asked += int(row['advice_asked'])
+                steps += int(row['length'])
+    return (asked / steps if steps else 0.0), asked, steps
+
+
+def run_list(plan: Plan) -> list:
+    """(arm, seed) in the order they run: group by group, seed by seed, arm by arm."""
+    order = []
+    for group in dict.fromkeys(a.group for a in plan.arms):
+        arms = [a for a in plan.arms if a.group == group]
+        for seed in sorted({s for a in arms for s in a.seeds}):
+            order += [(a, seed) for a in arms if seed in a.seeds]
+    return order
+
+
+def write_arms(output: Path, plan: Plan) -> None:
+    """<output>/arms.csv: what each arm is (and, for matched arms, each seed's rate in match.yaml)."""
+    with (output / 'arms.csv').open('w', newline='') as f:
+        writer = csv.writer(f)
+        writer.writerow(('arm', 'label', 'group', 'mode', 'seeds', 'learner', 'expert', 'match'))
+        for arm in plan.arms:
+            writer.writerow(
+                (
+                    arm.name,
+                    arm.label,
+                    arm.group,
+                    arm.mode,
+                    ' '.join(map(str, arm.seeds)),
+                    yaml.safe_dump(arm.learner, default_flow_style=True).strip() if arm.learner else '',
+                    yaml.safe_dump(arm.expert, default_flow_style=True).strip() if arm.expert else '',
+                    arm.match,
+                )
+            )
+
+
+def gather(output: Path, plan: Plan) -> None:
+    arms = [a.name for a in plan.arms]
+    seeds = sorted({s for a in plan.arms for s in a.seeds})
+    experiment.gather(output, arms, seeds, label='arm')
+    rows = []
+    for arm in plan.arms:
+        for seed in arm.seeds:
+            run = experiment.run_dir(output, arm.name, seed)
+            if (run / 'DONE').exists() and (run / 'gates.csv').exists():
+                with (run / 'gates.csv').open(newline='') as f:
+                    rows += [[arm.name, seed, *r.values()] for r in csv.DictReader(f)]
+    if rows:
+        with (output / 'gates.csv').open('w', newline='') as f:
+            writer = csv.writer(f)
+            writer.writerow(('arm', 'seed', *experiment.GATE_FIELDS))
+            writer.writerows(rows)
+
+
+def parse_args(argv=None):
+    parser = argparse.ArgumentParser(
+        prog='eqhrl-study',
+        description=__doc__.split('\n')[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__,
+    )
+    parser.add_argument('--plan', default='pendulum', help='study plan (name or path)')
+    parser.add_argument('--output', required=True, help='output folder')
+    parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1, help='parallel runs (one core each)')
+    parser.add_argument('--groups', nargs='+', help='run only these groups (default: all, in order)')
+    parser.add_argument('--max-seeds', type=int, help='run only the first N seeds of each group')
+    parser.add_argument('--list', action='store_true', help='print the runs and what is finished; run nothing')
+    return parser.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        plan = load_plan(args.plan)
+        settings = {arm.name: arm_settings(plan, arm) for arm in plan.arms}
+    except (ValueError, FileNotFoundError, KeyError) as error:
+        print(f'eqhrl-study: {error}', file=sys.stderr)
+        return 2
+    if args.groups:
+        unknown = sorted(set(args.groups) - {a.group for a in plan.arms})
+        if unknown:
+            print(f'eqhrl-study: no group(s) {unknown} in {plan.path}', file=sys.stderr)
+            return 2
+    output = Path(args.output)
+    output.mkdir(parents=True, exist_ok=True)
+    (output / 'plan.yaml').write_text(Path(plan.path).read_text())
+    write_arms(output, plan)
+
+    runs = run_list(plan)
+    if args.groups:
+        runs = [(a, s) for a, s in runs if a.group in args.groups]
+    if args.max_seeds:
+        runs = [(a, s) for a, s in runs if a.seeds.index(s) < args.max_seeds]
+    done = [(a, s) for a, s in runs if (experiment.run_dir(output, a.name, s) / 'DONE').exists()]
+    todo = [(a, s) for a, s in runs if (a, s) not in done]
+    steps = len(todo) * plan.episodes * (plan.max_steps or settings[plan.arms[0].name].max_episode_steps)
+    print(
+        f'study {plan.name} ({plan.path}): {len(runs)} runs, {len(done)} finished, {len(todo)} to do '
+        f'(at most {steps:,} env steps), {args.jobs} in parallel',
+        flush=True,
+    )
+    if args.list:
+        for arm, seed in runs:
+            mark = 'done' if (arm, seed) in done else 'todo'
+            print(f'  {mark}  {arm.group:12s} {arm.name:24s} seed {seed}')
+        return 0
+
+    context = mp.get_context('spawn')
+    progress = mp.Manager().Queue()
+    start, finished, pending, running = time.monotonic(), 0, list(todo), {}
+    try:
+        with context.Pool(max(1, min(args.jobs, len(todo) or 1))) as pool:
+            while pending or running:
+                for key, result in list(running.items()):
+                    if result.ready():
+                        result.get()  # a worker's error ends the study here; finished runs are kept
+                        del running[key]
+                        finished += 1
+                        arm, seed = key
+                        elapsed = (time.monotonic() - start) / 60
+                        print(f'[{finished}/{len(todo)} runs, {elapsed:.1f} min] {arm} seed {seed} done', flush=True)
+                for arm, seed in list(pending):
+                    if len(running) >= args.jobs:
+                        break
+                    ready = _ready(plan, arm, seed, output, settings)
+                    if ready is None:
+                        continue  # its matched run is not finished yet
+                    pending.remove((arm, seed))
+                    running[(arm.name, seed)] = pool.apply_async(
+                        experiment._worker,
+                        (ready, arm.mode, seed, experiment.run_dir(output, arm.name, seed), False, progress, 0),
+                    )
+                while True:  # progress is only for the Manager's sake here: drain it
+                    try:
+                        progress.get_nowait()
+                    except queue.Empty:
+                        break
+                if pending and not running:
+                    stuck = ', '.join(f'{a.name} seed {s} (matches {a.match})' for a, s in pending)
+                    print(f'eqhrl-study: waiting on runs outside this selection: {stuck}', file=sys.stderr)
+                    return 2
+                time.sleep(0.5)
+    except KeyboardInterrupt:
+        print('\ninterrupted: finished runs are kept; run the same command to continue', file=sys.stderr)
+        gather(output, plan)
+        return 130
+    gather(output, plan)
+    print(f'{finished} runs finished in {(time.monotonic() - start) / 60:.1f} min; gathered in {output}')
+    return 0
+
+
+def _ready(plan: Plan, arm: Arm, seed: int, output: Path, settings: dict):
+    """The settings to run (arm, seed) with, or None while the run it matches is unfinished."""
+    own = settings[arm.name]
+    if not arm.match:
+        return own
+    matched = experiment.run_dir(output, arm.match, seed)
+    if not (matched / 'DONE').exists():
+        return None
+    rate, asked, steps = matched_rate(matched, budget_of(settings[arm.match]))
+    run = experiment.run_dir(output, arm.name, seed)
+    run.mkdir(parents=True, exist_ok=True)
+    (run / 'match.yaml').write_text(
+        yaml.safe_dump({'matches': arm.match, 'requests': asked, 'steps': steps, 'random_ask_rate': rate})
+    )
+    return dataclasses.replace(own, learner={**own.learner, 'random_ask_rate': rate})
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,426 @@
+"""eqhrl-study-report: the tables and figures of a study made by eqhrl-study.
+
+    eqhrl-study-report runs/study_pendulum --output docs/results/study_pendulum
+
+Everything is measured on the advice-free evaluation (eval.csv: the deterministic policy
+alone from fixed start states every few episodes), never on training returns, which mix
+the learner's actions with the expert's inside the budget. Per run:
+
+- final: the mean evaluation return after the last episode;
+- AUC: the mean evaluation return over all evaluations (the area under the evaluation
+  curve divided by its length): how good the policy was along the way;
+- episodes to threshold: the first evaluation whose mean reaches the env's threshold
+  (report.THRESHOLDS; runs that never do are counted apart);
+- requests: the advice the learner asked for (a person's effort), and advice given.
+
+Per arm, the interquartile mean (IQM) over seeds with a 95 % bootstrap interval. Between
+arms, the same-seed differences (the runner pairs seeds) with a 95 % bootstrap interval and
+how many seeds the first arm won. Each advising arm is compared with plain SAC of the same
+settings (its group's SAC arm, else the first group's), and with the random-request arm
+matched to it, where there is one. Writes table.md, eval_<group>.png, profile.png,
+effort.png and gates.png into --output, and copies the gathered CSVs beside them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import shutil
+import sys
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..stats import iqm, iqm_estimate, paired_difference, performance_profile
+from .report import THRESHOLDS
+
+RAW_FILES = ('arms.csv', 'episodes.csv', 'eval.csv', 'gates.csv', 'plan.yaml')
+
+
+@dataclass
+class ArmInfo:
+    name: str
+    label: str
+    group: str
+    mode: str
+    match: str
+    learner: dict = field(default_factory=dict)
+
+
+@dataclass
+class RunScores:
+    final: float
+    auc: float
+    to_threshold: float  # NaN: never reached
+    asked: int
+    given: int
+    budget_return: float  # training return inside the budget (learner and expert mixed)
+    curve: dict  # {episode: mean evaluation return}
+
+
+def read_csv(path: Path) -> list[dict]:
+    with path.open(newline='') as f:
+        return list(csv.DictReader(f))
+
+
+def read_arms(folder: Path) -> list[ArmInfo]:
+    return [
+        ArmInfo(r['arm'], r['label'] or r['arm'], r['group'], r['mode'], r['match'], yaml.safe_load(r['learner']) or {})
+        for r in read_csv(folder / 'arms.csv')
+    ]
+
+
+def score_runs(folder: Path, threshold: float, budget: dict) -> dict:
+    """{(arm, seed): RunScores} for every run with an evaluation."""
+    curves = defaultdict(lambda: defaultdict(list))
+    for row in read_csv(folder / 'eval.csv'):
+        curves[(row['arm'], int(row['seed']))][int(row['episode'])].append(float(row['return']))
+    training = defaultdict(list)
+    for row in read_csv(folder / 'episodes.csv'):
+        training[(row['arm'], int(row['seed']))].append(row)
+    scores = {}
+    for key, by_episode in curves.items():
+        episodes = sorted(by_episode)
+        means = [float(np.mean(by_episode[e])) for e in episodes]
+        reached = [e for e, m in zip(episodes, means) if m >= threshold]
+        rows = training.get(key, [])
+        inside = [float(r['return']) for r in rows if int(r['episode']) < budget.get(key[0], 0)]
+        scores[key] = RunScores(
+            final=means[-1],
+            auc=float(np.mean(means)),
+            to_threshold=float(reached[0]) if reached else math.nan,
+            asked=sum(int(r['advice_asked']) for r in rows),
+            given=sum(int(r['advice_given']) for r in rows),
+            budget_return=float(np.mean(inside)) if inside else math.nan,
+            curve=dict(zip(episodes, means)),
+        )
+    return scores
+
+
+def per_seed(scores: dict, arm: str, metric: str) -> dict:
+    return {seed: getattr(s, metric) for (a, seed), s in scores.items() if a == arm}
+
+
+def sac_reference(arm: ArmInfo, arms: list) -> str:
+    """The SAC arm an advising arm is measured against: its group's, else the first group's."""
+    sacs = [a for a in arms if a.mode == 'sac']
+    candidates = [a for a in sacs if a.group == arm.group] or sacs
+    return candidates[0].name if candidates else ''
+
+
+def comparisons(arms: list) -> list[tuple[str, str, str]]:
+    """(arm, versus, why) pairs the report shows."""
+    pairs = []
+    for arm in arms:
+        if arm.mode == 'sac':
+            continue
+        reference = sac_reference(arm, arms)
+        if reference:
+            pairs.append((arm.name, reference, 'vs SAC'))
+        for other in arms:
+            if other.match == arm.name:
+                pairs.append((arm.name, other.name, 'vs random, matched'))
+    return pairs
+
+
+def arm_table(arms: list, scores: dict, threshold: float) -> str:
+    lines = [
+        '| arm | group | seeds | requests (IQM) | final eval return (IQM [95% CI]) | eval AUC (IQM [95% CI]) '
+        f'| episodes to eval ≥ {threshold:g} (IQM of runs that reach it) | reached |',
+        '|---|---|---|---|---|---|---|---|',
+    ]
+    for arm in arms:
+        seeds = sorted(per_seed(scores, arm.name, 'final'))
+        if not seeds:
+            continue
+        reach = [v for v in per_seed(scores, arm.name, 'to_threshold').values() if not math.isnan(v)]
+        asked = list(per_seed(scores, arm.name, 'asked').values())
+        lines.append(
+            f'| {arm.label} | {arm.group} | {len(seeds)} | {float(iqm(asked)):.0f} '
+            f'| {iqm_estimate(list(per_seed(scores, arm.name, "final").values())).text()} '
+            f'| {iqm_estimate(list(per_seed(scores, arm.name, "auc").values())).text()} '
+            f'| {iqm_estimate(reach).text(0) if reach else "—"} | {len(reach)}/{len(seeds)} |'
+        )
+    return '\n'.join(lines)
+
+
+def comparison_table(arms: list, scores: dict) -> str:
+    labels = {a.name: a.label for a in arms}
+    lines = [
+        '| arm | versus | seeds | Δ final eval return (mean [95% CI]) | wins | Δ eval AUC (mean [95% CI]) | wins '
+        '| Δ requests |',
+        '|---|---|---|---|---|---|---|---|',
+    ]
+    for arm, versus, _ in comparisons(arms):
+        final, final_wins, n = paired_difference(
+            per_seed(scores, arm, 'final'), per_seed(scores, versus, 'final'), seed=1
+        )
+        if n == 0:
+            continue
+        auc, auc_wins, _ = paired_difference(per_seed(scores, arm, 'auc'), per_seed(scores, versus, 'auc'), seed=2)
+        asked, _, _ = paired_difference(per_seed(scores, arm, 'asked'), per_seed(scores, versus, 'asked'), seed=3)
+        lines.append(
+            f'| {labels[arm]} | {labels[versus]} | {n} | {final.text()} | {final_wins}/{n} | {auc.text()} '
+            f'| {auc_wins}/{n} | {asked.value:+.0f} |'
+        )
+    return '\n'.join(lines)
+
+
+def budget_table(arms: list, scores: dict) -> str:
+    """Training returns inside the budget beside the evaluation: what the expert's actions add."""
+    lines = [
+        '| arm | training return inside the budget (IQM) | eval AUC (IQM) |',
+        '|---|---|---|',
+    ]
+    for arm in arms:
+        inside = [v for v in per_seed(scores, arm.name, 'budget_return').values() if not math.isnan(v)]
+        auc = list(per_seed(scores, arm.name, 'auc').values())
+        if inside and auc:
+            lines.append(f'| {arm.label} | {float(iqm(inside)):.1f} | {float(iqm(auc)):.1f} |')
+    return '\n'.join(lines)
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_curves(arms: list, scores: dict, group: str, path: Path, threshold: float) -> None:
+    """Evaluation return per arm of a group (and its SAC reference): IQM over seeds, with the
+    band between the 25th and 75th percentiles."""
+    plt = _pyplot()
+    shown = [a for a in arms if a.group == group]
+    references = {sac_reference(a, arms) for a in shown if a.mode != 'sac'} - {a.name for a in shown}
+    shown = [a for a in arms if a.name in references] + shown
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for arm in shown:
+        runs = [s.curve for (a, _), s in scores.items() if a == arm.name]
+        if not runs:
+            continue
+        episodes = sorted(set.intersection(*(set(c) for c in runs)))
+        values = np.array([[c[e] for e in episodes] for c in runs])
+        line = ax.plot(episodes, iqm(values, axis=0), label=f'{arm.label} ({len(runs)} seeds)')[0]
+        if len(runs) > 1:
+            low, high = np.percentile(values, [25, 75], axis=0)
+            ax.fill_between(episodes, low, high, color=line.get_color(), alpha=0.15)
+    ax.axhline(threshold, color='black', linewidth=0.6, linestyle=':')
+    ax.set_xlabel('training episodes before the evaluation')
+    ax.set_ylabel('advice-free return (IQM over seeds)')
+    ax.set_title(f'group {group}: the policy alone from fixed start states (band: 25th-75th percentile)')
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_profile(arms: list, scores: dict, group: str, path: Path) -> None:
+    """Performance profile of the final evaluation return: the fraction of runs above each score."""
+    plt = _pyplot()
+    shown = [a for a in arms if a.group == group]
+    finals = {a.name: list(per_seed(scores, a.name, 'final').values()) for a in shown}
+    values = [v for vs in finals.values() for v in vs]
+    if not values:
+        return
+    taus = np.linspace(min(values) - 1, max(values) + 1, 200)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for arm in shown:
+        if finals[arm.name]:
+            ax.step(taus, performance_profile(finals[arm.name], taus), where='post', label=arm.label)
+    ax.set_xlabel('final advice-free return τ')
+    ax.set_ylabel('fraction of runs with return > τ')
+    ax.set_title(f'performance profile, group {group}')
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_effort(arms: list, scores: dict, path: Path) -> None:
+    """Per run: requests (a person's effort) against the eval AUC gained over its SAC reference, same seed."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    by_mode = defaultdict(lambda: ([], []))
+    for arm in arms:
+        reference = sac_reference(arm, arms)
+        if arm.mode == 'sac' or not reference:
+            continue
+        base = per_seed(scores, reference, 'auc')
+        for seed, auc in per_seed(scores, arm.name, 'auc').items():
+            if seed in base:
+                xs, ys = by_mode[arm.mode]
+                xs.append(scores[(arm.name, seed)].asked)
+                ys.append(auc - base[seed])
+    for mode, (xs, ys) in sorted(by_mode.items()):
+        ax.scatter(xs, ys, s=14, alpha=0.7, label=f'{mode} ({len(xs)} runs)')
+    ax.axhline(0.0, color='black', linewidth=0.6)
+    ax.set_xscale('symlog', linthresh=10)
+    ax.set_xlabel("requests to the expert in the run (a person's effort)")
+    ax.set_ylabel('eval AUC minus SAC of the same seed')
+    ax.set_title('what the requests bought (every arm and seed)')
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_gates(folder: Path, path: Path, arm: str, seed: int, updates_from: int, around: int = 60) -> bool:
+    """D(s) and E(s) with their queue thresholds around the first request after updates start
+    (the first request of the run if none); requests marked."""
+    gates = folder / 'gates.csv'
+    if not gates.exists():
+        return False
+    rows = [r for r in read_csv(gates) if r['arm'] == arm and int(r['seed']) == seed]
+    if not rows:
+        return False
+    fires = [i for i, r in enumerate(rows) if r['fire'] == '1']
+    if not fires:
+        return False
+    late = [i for i in fires if int(rows[i]['episode']) >= updates_from]
+    centre = (late or fires)[0]
+    window = rows[max(0, centre - around) : centre + around]
+    x = np.arange(len(window)) + max(0, centre - around)
+    plt = _pyplot()
+    fig, (ax_d, ax_e) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    column = {
+        k: np.array([float(r[k]) for r in window]) for k in ('discrepancy', 'd_threshold', 'entropy', 'e_threshold')
+    }
+    fire = np.array([r['fire'] == '1' for r in window])
+    ask = np.array([r['ask'] == '1' for r in window])
+    ax_d.plot(x, column['discrepancy'], color='tab:red', label='D(s) = |Q1 - Q2| (Eq. 8)')
+    ax_d.plot(x, column['d_threshold'], color='black', linewidth=0.8, linestyle='--', label='max(D_queue)')
+    ax_d.scatter(
+        x[ask & ~fire],
+        column['discrepancy'][ask & ~fire],
+        color='tab:orange',
+        s=18,
+        zorder=3,
+        label='ask gate open, respond closed',
+    )
+    ax_d.scatter(x[fire], column['discrepancy'][fire], color='tab:green', s=30, zorder=4, label='both: a request')
+    ax_e.plot(x, column['entropy'], color='tab:blue', label='E(s) (Eq. 9)')
+    ax_e.plot(x, column['e_threshold'], color='black', linewidth=0.8, linestyle='--', label='min(E_queue)')
+    ax_e.scatter(x[fire], column['entropy'][fire], color='tab:green', s=30, zorder=4, label='a request')
+    first, last = window[0], window[-1]
+    ax_e.set_xlabel(
+        f'step inside the budget (episode {first["episode"]} step {first["step"]} to '
+        f'episode {last["episode"]} step {last["step"]})'
+    )
+    ax_d.set_ylabel('critic disagreement')
+    ax_e.set_ylabel('policy entropy')
+    ax_d.legend(fontsize=7, loc='upper right')
+    ax_e.legend(fontsize=7, loc='upper right')
+    ax_d.set_title(f'inside the gates: {arm}, seed {seed}')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def gate_rates(folder: Path, updates_from: dict) -> str:
+    """How often each gate opened inside the budget, before and after updates start
+    (``updates_from``: per arm, the first episode with updates)."""
+    gates = folder / 'gates.csv'
+    if not gates.exists():
+        return ''
+    counts = defaultdict(lambda: np.zeros(4))
+    for r in read_csv(gates):
+        if r['d_threshold'] == 'nan':
+            continue  # queue still filling
+        key = (r['arm'], 'before updates' if int(r['episode']) < updates_from[r['arm']] else 'after updates')
+        counts[key] += (1, r['ask'] == '1', r['respond'] == '1', r['fire'] == '1')
+    lines = ['| arm | steps | ask gate open | respond gate open | both (requests) |', '|---|---|---|---|---|']
+    for (arm, when), (n, ask, respond, fire) in sorted(counts.items()):
+        lines.append(
+            f'| {arm}, {when} | {int(n)} | {100 * ask / n:.1f} % | {100 * respond / n:.1f} % | {100 * fire / n:.2f} % |'
+        )
+    return '\n'.join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(
+        prog='eqhrl-study-report',
+        description=__doc__.split('\n')[0],
+        epilog=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument('folder', help='the output folder of eqhrl-study')
+    parser.add_argument('--output', required=True, help='where the tables and figures go')
+    parser.add_argument('--threshold', type=float, help="return threshold (default: the env's, report.THRESHOLDS)")
+    args = parser.parse_args(argv)
+    folder, output = Path(args.folder), Path(args.output)
+    for name in ('arms.csv', 'episodes.csv', 'eval.csv', 'plan.yaml'):
+        if not (folder / name).exists():
+            print(f'eqhrl-study-report: {folder / name} is missing (run eqhrl-study first)', file=sys.stderr)
+            return 2
+    plan = yaml.safe_load((folder / 'plan.yaml').read_text())
+    from .experiment import learner_config
+    from .study import arm_settings, budget_of, load_plan
+
+    loaded = load_plan(str(folder / 'plan.yaml'))
+    settings = {arm.name: arm_settings(loaded, arm) for arm in loaded.arms}
+    env_id = next(iter(settings.values())).env_id
+    threshold = args.threshold if args.threshold is not None else THRESHOLDS.get(env_id, 0.0)
+    budget = {name: budget_of(s) for name, s in settings.items()}
+    # The first episode with updates (episodes of max_episode_steps; LunarLander's may end sooner).
+    updates_from = {
+        arm.name: learner_config(settings[arm.name], arm.mode, 0).learning_starts
+        // settings[arm.name].max_episode_steps
+        for arm in loaded.arms
+    }
+    arms = read_arms(folder)
+    scores = score_runs(folder, threshold, budget)
+    output.mkdir(parents=True, exist_ok=True)
+    for name in RAW_FILES:
+        if (folder / name).exists() and (folder / name).resolve() != (output / name).resolve():
+            shutil.copyfile(folder / name, output / name)
+
+    groups = list(dict.fromkeys(a.group for a in arms))
+    sections = [
+        f'# Study {plan.get("name", folder.name)}: {env_id}',
+        '',
+        f'Made by `eqhrl-study-report {folder} --output {output}`. Scores are advice-free evaluations '
+        '(the policy alone from fixed start states). IQM: interquartile mean over seeds; [ ]: 95 % '
+        'percentile bootstrap interval; Δ: same-seed difference, its mean and interval; wins: seeds '
+        'where the first arm scored higher.',
+        '',
+        '## Arms',
+        '',
+        arm_table(arms, scores, threshold),
+        '',
+        '## Same-seed differences',
+        '',
+        comparison_table(arms, scores),
+        '',
+        '## Training returns inside the budget (learner and expert mixed) beside the evaluation',
+        '',
+        budget_table(arms, scores),
+    ]
+    rates = gate_rates(folder, updates_from)
+    if rates:
+        sections += ['', '## How often the gates opened inside the budget', '', rates]
+    (output / 'table.md').write_text('\n'.join(sections) + '\n')
+    scored = {arm for arm, _ in scores}
+    for group in groups:
+        if any(a.group == group and a.name in scored for a in arms):
+            plot_curves(arms, scores, group, output / f'eval_{group}.png', threshold)
+    plot_profile(arms, scores, groups[0], output / 'profile.png')
+    plot_effort(arms, scores, output / 'effort.png')
+    traced = [a.name for a in arms if a.mode == 'eqsac']
+    if traced:  # the first seed of the first EQSAC arm that asked at all
+        asked = sorted(seed for (arm, seed), s in scores.items() if arm == traced[0] and s.asked)
+        if asked:
+            plot_gates(folder, output / 'gates.png', traced[0], asked[0], updates_from[traced[0]])
+    print(f'wrote {output / "table.md"} and figures')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,128 @@
+"""eqhrl-study and eqhrl-study-report (issue 21): one resumable command for a study, and the
+tables and figures made from its raw CSVs."""
+
+import csv
+
+import pytest
+import yaml
+
+from eqhrl_ros.cli import study, study_report
+
+TINY = {
+    'name': 'tiny',
+    'params': 'pendulum',
+    'episodes': 4,
+    'max_steps': 40,
+    'eval_every': 2,
+    'eval_starts': 2,
+    'learner': {'learning_starts': 60, 'advising_budget': 3, 'batch_size': 16, 'hidden_sizes': [16, 16]},
+    'groups': [
+        {
+            'name': 'main',
+            'seeds': [0, 1],
+            'arms': {
+                'sac': {'mode': 'sac', 'label': 'SAC'},
+                'qasac': {'mode': 'qasac', 'gate_trace': True},
+                'random': {'mode': 'random', 'match': 'qasac'},
+            },
+        },
+        {
+            'name': 'experts',
+            'seeds': [0],
+            'arms': {'qasac_weak': {'mode': 'qasac', 'expert': {'gain': 0.3, 'delay_steps': 2}}},
+        },
+    ],
+}
+
+
+def write_plan(path, plan=TINY):
+    path.write_text(yaml.safe_dump(plan, sort_keys=False))  # the order of arms is their priority
+    return str(path)
+
+
+def rows(path):
+    with open(path, newline='') as f:
+        return list(csv.DictReader(f))
+
+
+def test_a_study_runs_every_arm_matches_the_random_arm_resumes_and_reports(tmp_path, capsys):
+    plan = write_plan(tmp_path / 'tiny.yaml')
+    output = tmp_path / 'out'
+    assert study.main(['--plan', plan, '--output', str(output), '--jobs', '2']) == 0
+    for arm, seeds in (('sac', (0, 1)), ('qasac', (0, 1)), ('random', (0, 1)), ('qasac_weak', (0,))):
+        for seed in seeds:
+            assert (output / arm / f'seed{seed}' / 'DONE').exists()
+    episodes = rows(output / 'episodes.csv')
+    assert list(episodes[0]) == [
+        'arm',
+        'seed',
+        'episode',
+        'return',
+        'length',
+        'advice_asked',
+        'advice_given',
+        'success',
+    ]
+    assert len(episodes) == 7 * 4
+    assert {r['arm'] for r in rows(output / 'eval.csv')} == {'sac', 'qasac', 'random', 'qasac_weak'}
+    gates = rows(output / 'gates.csv')
+    assert {r['arm'] for r in gates} == {'qasac'} and len(gates) == 2 * 3 * 40  # every step inside the budget
+
+    # The random arm asks, seed by seed, at the rate its matched arm asked inside the budget.
+    for seed in (0, 1):
+        asked = sum(int(r['advice_asked']) for r in episodes if r['arm'] == 'qasac' and r['seed'] == str(seed))
+        match = yaml.safe_load((output / 'random' / f'seed{seed}' / 'match.yaml').read_text())
+        assert match == {'matches': 'qasac', 'requests': asked, 'steps': 120, 'random_ask_rate': asked / 120}
+    assert [r['arm'] for r in rows(output / 'arms.csv')] == ['sac', 'qasac', 'random', 'qasac_weak']
+
+    capsys.readouterr()
+    assert study.main(['--plan', plan, '--output', str(output)]) == 0  # nothing left: finished runs are kept
+    assert '7 runs, 7 finished, 0 to do' in capsys.readouterr().out
+
+    report = tmp_path / 'report'
+    assert study_report.main([str(output), '--output', str(report)]) == 0
+    table = (report / 'table.md').read_text()
+    assert '| SAC | main | 2 |' in table
+    assert '| qasac | random | 2 |' in table  # the matched comparison
+    assert '| qasac_weak | SAC | 1 |' in table  # measured against the first group's SAC
+    for name in ('eval_main.png', 'eval_experts.png', 'profile.png', 'effort.png', 'eval.csv', 'gates.csv'):
+        assert (report / name).stat().st_size > 0
+
+
+def test_list_shows_the_order_without_running(tmp_path, capsys):
+    plan = write_plan(tmp_path / 'tiny.yaml')
+    assert study.main(['--plan', plan, '--output', str(tmp_path / 'out'), '--list', '--max-seeds', '1']) == 0
+    listed = [line.split() for line in capsys.readouterr().out.splitlines()[1:]]
+    assert [(w[2], w[-1]) for w in listed] == [('sac', '0'), ('qasac', '0'), ('random', '0'), ('qasac_weak', '0')]
+    assert not (tmp_path / 'out' / 'sac').exists()
+
+
+@pytest.mark.parametrize(
+    'change, message',
+    [
+        (lambda p: p['groups'][0]['arms'].update(x={'mode': 'fast'}), 'mode must be one of'),
+        (lambda p: p['groups'][0]['arms'].update(x={'mode': 'sac', 'match': 'qasac'}), 'match is for mode random'),
+        (lambda p: p['groups'][0]['arms'].update(x={'mode': 'random', 'match': 'nope'}), 'not an arm'),
+        (lambda p: p['groups'][1]['arms'].update(x={'mode': 'random', 'match': 'qasac_weak', 'sead': 1}), 'sead'),
+        (lambda p: p['groups'][0]['arms']['sac'].update(learner={'learning_start': 5}), 'learning_start'),
+        (lambda p: p['groups'][0]['arms']['sac'].update(expert={'gain': 2.0}), 'gain'),
+        (lambda p: p.update(epsiodes=3), 'epsiodes'),
+    ],
+)
+def test_a_bad_plan_is_refused_before_anything_runs(tmp_path, capsys, change, message):
+    plan = yaml.safe_load(yaml.safe_dump(TINY, sort_keys=False))
+    change(plan)
+    path = write_plan(tmp_path / 'bad.yaml', plan)
+    assert study.main(['--plan', path, '--output', str(tmp_path / 'out')]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / 'out').exists()
+
+
+def test_the_shipped_plan_loads_and_names_every_group(capsys):
+    plan = study.load_plan('pendulum')
+    groups = list(dict.fromkeys(a.group for a in plan.arms))
+    assert groups == ['main', 'learning_starts', 'experts', 'budget', 'queue', 'ablations', 'temperature']
+    main = [a for a in plan.arms if a.group == 'main']
+    assert len(main[0].seeds) >= 10 and {a.mode for a in main} == {'sac', 'qasac', 'eqsac', 'random'}
+    for arm in plan.arms:
+        study.arm_settings(plan, arm)  # every arm's settings are ones the learner accepts
