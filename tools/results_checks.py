@@ -3,8 +3,8 @@
     .venv/bin/python tools/results_checks.py
 
 Prints, for Pendulum: same-seed differences from SAC over episodes 100-199 (mean over the
-seeds with a 95 % percentile-bootstrap interval over seeds: 10,000 resamples, numpy's
-default generator seeded 0), advice given per seed, and whether episodes 30-49 are
+seeds with a 95 % percentile-bootstrap interval over seeds: eqhrl_ros.stats.bootstrap,
+10,000 resamples, seeded 0), advice given per seed, and whether episodes 30-49 are
 identical across algorithms; for LunarLander: QASAC minus SAC over episodes 50-69 per seed,
 and successful episodes per run (all, and in the last 10).
 """
@@ -16,6 +16,8 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+
+from eqhrl_ros.stats import bootstrap
 
 RESULTS = Path(__file__).resolve().parents[1] / 'docs' / 'results'
 
@@ -32,15 +34,7 @@ def mean_return(run: dict, episodes: range) -> float:
     return float(np.mean([float(run[e]['return']) for e in episodes]))
 
 
-def bootstrap(values, rng, resamples=10_000) -> tuple[float, float]:
-    values = np.asarray(values)
-    means = values[rng.integers(0, len(values), (resamples, len(values)))].mean(1)
-    low, high = np.percentile(means, [2.5, 97.5])
-    return float(low), float(high)
-
-
 def main() -> None:
-    rng = np.random.default_rng(0)
     pendulum = load('pendulum')
     seeds = sorted({seed for _, seed in pendulum})
     for algorithm in ('qasac', 'eqsac'):
@@ -48,7 +42,8 @@ def main() -> None:
             mean_return(pendulum[(algorithm, s)], range(100, 200)) - mean_return(pendulum[('sac', s)], range(100, 200))
             for s in seeds
         ]
-        low, high = bootstrap(diffs, rng)
+        interval = bootstrap(diffs)
+        low, high = interval.low, interval.high
         print(
             f'Pendulum {algorithm} - sac, episodes 100-199: {np.mean(diffs):+.1f} [{low:+.1f}, {high:+.1f}] '
             f'(per seed {", ".join(f"{d:+.1f}" for d in diffs)})'

@@ -27,8 +27,8 @@ learner settings and expert:
 
 Runs go group by group, seed by seed, so that a cut study still holds whole, paired seeds.
 Each run writes <output>/<arm>/seed<k>/ (episodes.csv, eval.csv, gates.csv, DONE);
-<output>/episodes.csv, eval.csv and gates.csv gather the finished runs with an ``arm``
-column, and <output>/arms.csv says what each arm is. Interrupt with Ctrl-C and run the same
+<output>/episodes.csv, eval.csv and gates.csv gather the finished runs (after each one) with
+an ``arm`` column, and <output>/arms.csv says what each arm is. Interrupt with Ctrl-C and run the same
 command again: finished runs are kept, unfinished ones start over. eqhrl-study-report
 turns the output into tables and figures.
 """
@@ -309,6 +309,7 @@ def main(argv=None) -> int:
                         arm, seed = key
                         elapsed = (time.monotonic() - start) / 60
                         print(f'[{finished}/{len(todo)} runs, {elapsed:.1f} min] {arm} seed {seed} done', flush=True)
+                        gather(output, plan)  # a study read half-way (or killed) has its runs gathered
                 for arm, seed in list(pending):
                     if len(running) >= args.jobs:
                         break

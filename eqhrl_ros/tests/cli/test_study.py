@@ -126,3 +126,11 @@ def test_the_shipped_plan_loads_and_names_every_group(capsys):
     assert len(main[0].seeds) >= 10 and {a.mode for a in main} == {'sac', 'qasac', 'eqsac', 'random'}
     for arm in plan.arms:
         study.arm_settings(plan, arm)  # every arm's settings are ones the learner accepts
+
+
+def test_the_lunar_lander_plan_has_the_papers_budget_inside_its_episodes():
+    plan = study.load_plan('lunar_lander')
+    for arm in plan.arms:
+        settings = study.arm_settings(plan, arm)
+        assert settings.env_id == 'LunarLanderContinuous-v3' and study.budget_of(settings) == 300
+    assert plan.episodes > 300 and len(plan.arms[0].seeds) >= 3
