@@ -16,9 +16,10 @@ the learner's actions with the expert's inside the budget. Per run:
 Per arm, the interquartile mean (IQM) over seeds with a 95 % bootstrap interval. Between
 arms, the same-seed differences (the runner pairs seeds) with a 95 % bootstrap interval and
 how many seeds the first arm won. Each advising arm is compared with plain SAC of the same
-settings (its group's SAC arm, else the first group's), and with the random-request arm
-matched to it, where there is one. Writes table.md, eval_<group>.png, profile.png,
-effort.png and gates.png into --output, and copies the gathered CSVs beside them.
+settings (the first SAC arm whose learner settings are the same, leaving out those SAC never
+reads, such as the budget), and with the random-request arm matched to it, where there is
+one. Writes table.md, eval_<group>.png, profile.png, effort.png and gates.png into --output,
+and copies the gathered CSVs beside them.
 """
 
 from __future__ import annotations
@@ -105,11 +106,30 @@ def per_seed(scores: dict, arm: str, metric: str) -> dict:
     return {seed: getattr(s, metric) for (a, seed), s in scores.items() if a == arm}
 
 
+# Learner settings that plain SAC never reads: arms that differ only in these share a SAC reference.
+ADVISING_ONLY = {
+    'advising_budget',
+    'queue_length',
+    'random_ask_rate',
+    'dual_replay',
+    'advice_batch',
+    'actor_on_advice',
+    'entropy_samples',
+    'threshold_kind',
+    'fixed_d_threshold',
+    'fixed_e_threshold',
+}
+
+
 def sac_reference(arm: ArmInfo, arms: list) -> str:
-    """The SAC arm an advising arm is measured against: its group's, else the first group's."""
-    sacs = [a for a in arms if a.mode == 'sac']
-    candidates = [a for a in sacs if a.group == arm.group] or sacs
-    return candidates[0].name if candidates else ''
+    """The SAC arm an advising arm is measured against: the first one whose learner settings
+    are the arm's, leaving out those SAC never reads ('' if there is none)."""
+
+    def learning(a: ArmInfo) -> dict:
+        return {k: v for k, v in a.learner.items() if k not in ADVISING_ONLY}
+
+    same = [a for a in arms if a.mode == 'sac' and learning(a) == learning(arm)]
+    return same[0].name if same else ''
 
 
 def comparisons(arms: list) -> list[tuple[str, str, str]]:
@@ -152,7 +172,7 @@ def comparison_table(arms: list, scores: dict) -> str:
     labels = {a.name: a.label for a in arms}
     lines = [
         '| arm | versus | seeds | Δ final eval return (mean [95% CI]) | wins | Δ eval AUC (mean [95% CI]) | wins '
-        '| Δ requests |',
+        '| Δ requests (mean) |',
         '|---|---|---|---|---|---|---|---|',
     ]
     for arm, versus, _ in comparisons(arms):

@@ -84,7 +84,7 @@ def test_a_study_runs_every_arm_matches_the_random_arm_resumes_and_reports(tmp_p
     table = (report / 'table.md').read_text()
     assert '| SAC | main | 2 |' in table
     assert '| qasac | random | 2 |' in table  # the matched comparison
-    assert '| qasac_weak | SAC | 1 |' in table  # measured against the first group's SAC
+    assert '| qasac_weak | SAC | 1 |' in table  # the expert is not a learner setting: the main SAC
     for name in ('eval_main.png', 'eval_experts.png', 'profile.png', 'effort.png', 'eval.csv', 'gates.csv'):
         assert (report / name).stat().st_size > 0
 
@@ -134,3 +134,24 @@ def test_the_lunar_lander_plan_has_the_papers_budget_inside_its_episodes():
         settings = study.arm_settings(plan, arm)
         assert settings.env_id == 'LunarLanderContinuous-v3' and study.budget_of(settings) == 300
     assert plan.episodes > 300 and len(plan.arms[0].seeds) >= 3
+
+
+def test_each_advising_arm_is_measured_against_the_sac_arm_that_learns_as_it_does():
+    from eqhrl_ros.cli.study_report import ArmInfo, comparisons
+
+    arms = [
+        ArmInfo('sac', 'SAC', 'main', 'sac', ''),
+        ArmInfo('eqsac', 'EQSAC', 'main', 'eqsac', ''),
+        ArmInfo('sac_ls256', 'SAC', 'ls', 'sac', '', {'learning_starts': 256}),
+        ArmInfo('eqsac_ls256', 'EQSAC', 'ls', 'eqsac', '', {'learning_starts': 256}),
+        ArmInfo('random_ls256', 'random', 'ls', 'random', 'eqsac_ls256', {'learning_starts': 256}),
+        ArmInfo('eqsac_b10', 'EQSAC', 'budget', 'eqsac', '', {'advising_budget': 10}),
+        ArmInfo('eqsac_alpha', 'EQSAC', 'alpha', 'eqsac', '', {'initial_alpha': 0.1}),
+    ]
+    assert comparisons(arms) == [
+        ('eqsac', 'sac', 'vs SAC'),
+        ('eqsac_ls256', 'sac_ls256', 'vs SAC'),
+        ('eqsac_ls256', 'random_ls256', 'vs random, matched'),
+        ('random_ls256', 'sac_ls256', 'vs SAC'),
+        ('eqsac_b10', 'sac', 'vs SAC'),  # SAC never reads the budget
+    ]  # no SAC learns with initial_alpha 0.1 here: no comparison rather than a wrong one
