@@ -16,13 +16,19 @@ def share_dir() -> Path:
         return Path(sys.prefix) / 'share' / 'eqhrl_ros'
 
 
-def params_file(name_or_path: str) -> Path:
-    """A params file by path, or by short name (``pendulum`` -> share/eqhrl_ros/params/pendulum.yaml)."""
+def shared_file(folder: str, name_or_path: str, what: str) -> Path:
+    """A YAML file by path, or by short name from share/eqhrl_ros/<folder>
+    (``pendulum`` -> share/eqhrl_ros/<folder>/pendulum.yaml); ``what`` names it in the error."""
     path = Path(name_or_path)
     if path.suffix in ('.yaml', '.yml') and path.exists():
         return path
-    candidate = share_dir() / 'params' / f'{path.stem}.yaml'
+    candidate = share_dir() / folder / f'{path.stem}.yaml'
     if candidate.exists():
         return candidate
-    available = sorted(p.stem for p in (share_dir() / 'params').glob('*.yaml'))
-    raise FileNotFoundError(f'no params file {name_or_path!r}; give a path or one of {available}')
+    available = sorted(p.stem for p in (share_dir() / folder).glob('*.yaml'))
+    raise FileNotFoundError(f'no {what} {name_or_path!r}; give a path or one of {available}')
+
+
+def params_file(name_or_path: str) -> Path:
+    """A params file by path, or by short name (``pendulum`` -> share/eqhrl_ros/params/pendulum.yaml)."""
+    return shared_file('params', name_or_path, 'params file')

@@ -49,7 +49,7 @@ from pathlib import Path
 import yaml
 
 from ..core.config import MODES
-from ..paths import share_dir
+from ..paths import shared_file
 from . import experiment
 
 PLAN_KEYS = {'name', 'description', 'params', 'episodes', 'max_steps', 'eval_every', 'eval_starts', 'learner', 'groups'}
@@ -87,14 +87,8 @@ class Plan:
 
 
 def plan_file(name_or_path: str) -> Path:
-    path = Path(name_or_path)
-    if path.suffix in ('.yaml', '.yml') and path.exists():
-        return path
-    candidate = share_dir() / 'studies' / f'{path.stem}.yaml'
-    if candidate.exists():
-        return candidate
-    available = sorted(p.stem for p in (share_dir() / 'studies').glob('*.yaml'))
-    raise FileNotFoundError(f'no study plan {name_or_path!r}; give a path or one of {available}')
+    """A study plan by path, or by name from share/eqhrl_ros/studies."""
+    return shared_file('studies', name_or_path, 'study plan')
 
 
 def _refuse_unknown(where: str, given: dict, known: set) -> None:
