@@ -13,6 +13,10 @@ columns of COLUMNS. In-process runs also evaluate the policy without advice ever
 <run>/eval.csv, gathered into <output>/eval.csv (EVAL_COLUMNS). Interrupt with Ctrl-C and run the same command again:
 finished runs are skipped, unfinished ones start over.
 
+Seeds of an algorithm learn together in one process where that is faster (small networks,
+see --seeds-together; core/seed_batch.py): the same numbers as learning apart, to float
+rounding. --seeds-apart runs every seed in a process of its own, as --through-ros does.
+
 --through-ros runs each seed through the three ROS nodes (eqhrl-train) instead of
 the in-process core: same algorithm, same CSV, numbers equal up to scheduling.
 --env-node COMMAND (with --through-ros) starts your own env node for each run instead of
@@ -146,15 +150,14 @@ def run_dir(output: Path, algorithm: str, seed: int) -> Path:
     return output / algorithm / f'seed{seed}'
 
 
-def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id=None) -> None:
-    import torch
-
-    from ..core import EpisodeSummary, EQSACLearner, make_env, success_criterion, train
+def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, progress):
+    """One seed's env, learner, expert and record files as a training.SeedRun, and a function
+    that closes them."""
+    from ..core import EpisodeSummary, EQSACLearner, make_env, success_criterion
     from ..core.evaluation import EVAL_FIELDS, eval_seeds
     from ..core.records import EpisodeRecord
-    from ..core.training import Evaluation
+    from ..core.training import Evaluation, SeedRun
 
-    torch.set_num_threads(1)  # one process per core
     env = make_env(settings.env_id, settings.max_episode_steps)
     learner = EQSACLearner(
         int(env.observation_space.shape[0]),
@@ -198,18 +201,7 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
                 if error is not None:
                     raise error
 
-    try:
-        train(
-            env,
-            learner,
-            settings.episodes,
-            make_expert(settings, seed),
-            seed=seed,
-            on_episode=on_episode,
-            evaluation=evaluation,
-            on_proposal=on_proposal,
-        )
-    finally:
+    def close():
         record.close()
         env.close()
         if gate_record is not None:
@@ -217,6 +209,67 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
         if evaluation is not None:
             eval_record.close()
             evaluation.env.close()
+
+    run = SeedRun(env, learner, make_expert(settings, seed), seed, on_episode, evaluation, on_proposal)
+    return run, close
+
+
+def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id=None) -> None:
+    import torch
+
+    from ..core import train
+
+    torch.set_num_threads(1)  # one process per core
+    run, close = _seed_run(settings, algorithm, seed, directory, progress)
+    try:
+        train(
+            run.env,
+            run.learner,
+            settings.episodes,
+            run.expert,
+            seed=seed,
+            on_episode=run.on_episode,
+            evaluation=run.evaluation,
+            on_proposal=run.on_proposal,
+        )
+    finally:
+        close()
+
+
+def run_together(settings: Settings, algorithm: str, seeds, output: Path, progress) -> None:
+    """Several seeds of one algorithm in this process, their updates as one (core/seed_batch.py):
+    each seed's files and numbers as run_in_process would write them (to float rounding).
+    A seed's DONE is written as soon as it finishes."""
+    import torch
+
+    from ..core.training import train_together
+
+    torch.set_num_threads(1)  # one process per core
+    start = time.monotonic()
+    runs, closers = [], []
+    try:
+        for seed in seeds:
+            run, close = _seed_run(settings, algorithm, seed, run_dir(output, algorithm, seed), progress)
+            closers.append(close)
+            directory = run_dir(output, algorithm, seed)
+            run.on_finished = lambda d=directory: (d / 'DONE').write_text(f'{time.monotonic() - start:.1f}\n')
+            runs.append(run)
+        train_together(runs, settings.episodes)
+    finally:
+        for close in closers:
+            close()
+
+
+# Seeds learn together (run_together) by default where that is faster: measured with
+# benchmarks/bench_seeds.py (docs/performance.md, "Many seeds in one process"), 10 seeds on
+# 2 cores were 2.25x faster together with 64x64 networks and batch 128, and no faster with
+# 128x128 and batch 256 or Table 1's 256x256 and 256, where the matrix products fill the cores.
+TOGETHER_MAX_WORK = 64 * 64 * 256  # hidden width squared times batch size
+
+
+def seeds_together_by_default(settings: Settings) -> bool:
+    config = learner_config(settings, 'sac', 0)
+    return max(config.hidden) ** 2 * config.batch_size <= TOGETHER_MAX_WORK
 
 
 GATE_FIELDS = ('episode', 'step', 'discrepancy', 'd_threshold', 'entropy', 'e_threshold', 'ask', 'respond', 'fire')
@@ -336,6 +389,17 @@ def _worker(settings, algorithm, seed, directory, through_ros, progress, domain_
     return algorithm, seed, elapsed
 
 
+def _group_worker(settings, algorithm, seeds, output, progress) -> tuple:
+    """Seeds of one algorithm together in this process (run_together)."""
+    for seed in seeds:
+        directory = run_dir(output, algorithm, seed)
+        directory.mkdir(parents=True, exist_ok=True)
+        (directory / 'DONE').unlink(missing_ok=True)
+    start = time.monotonic()
+    run_together(settings, algorithm, seeds, output, progress)
+    return algorithm, tuple(seeds), time.monotonic() - start
+
+
 def gather(output: Path, algorithms, seeds, label: str = 'algorithm') -> Path:
     """Write <output>/episodes.csv from every finished run (and <output>/eval.csv from their
     advice-free evaluations, where they have one). ``label``: the first column's name (a
@@ -418,6 +482,20 @@ def parse_args(argv=None):
         'fixed start states; written to eval.csv (in-process runs; 0: none)',
     )
     parser.add_argument('--eval-starts', type=int, default=10, help='start states of each evaluation')
+    batching = parser.add_mutually_exclusive_group()
+    batching.add_argument(
+        '--seeds-apart',
+        action='store_true',
+        help='one process per run, seeds one after the other (default for networks where learning '
+        'together is not faster: see --seeds-together)',
+    )
+    batching.add_argument(
+        '--seeds-together',
+        action='store_true',
+        help="the seeds of an algorithm split over --jobs processes, each process's seeds learning together "
+        '(one batched matrix product per layer for all of them; the same numbers as apart to float rounding). '
+        'Default where measured faster: hidden width squared x batch size <= 64 x 64 x 256 (in-process runs)',
+    )
     parser.add_argument(
         '--env-node',
         metavar='COMMAND',
@@ -457,42 +535,65 @@ def main(argv=None) -> int:
 
     todo = [(a, s) for a in args.algorithms for s in args.seeds if not (run_dir(output, a, s) / 'DONE').exists()]
     skipped = len(args.algorithms) * len(args.seeds) - len(todo)
+    together = not args.through_ros and (
+        args.seeds_together or (not args.seeds_apart and seeds_together_by_default(settings))
+    )
+    jobs = max(1, min(args.jobs, len(todo) or 1))
     print(
         f'{settings.env_id or settings.env_node}: {len(todo)} runs to do ({skipped} finished already), '
         f'{settings.episodes} episodes x {settings.max_episode_steps} steps, {args.jobs} in parallel, '
-        f'{"through ROS" if args.through_ros else "in-process"}',
+        f'{"through ROS" if args.through_ros else "in-process"}'
+        f'{", seeds together" if together else ""}',
         flush=True,
     )
     total = len(todo) * settings.episodes
-    done_episodes, finished, start = 0, 0, time.monotonic()
+    done_episodes, start = 0, time.monotonic()
     last_print = 0.0
     manager = mp.Manager()
     progress = manager.Queue()
     context = mp.get_context('spawn')
     try:
-        with context.Pool(max(1, min(args.jobs, len(todo) or 1))) as pool:
-            results = [
-                pool.apply_async(_worker, (settings, a, s, run_dir(output, a, s), args.through_ros, progress, domain))
-                for (a, s), domain in zip(todo, domain_ids(len(todo)))
-            ]
-            while finished < len(results):
+        with context.Pool(jobs) as pool:
+            if together:
+                # Each algorithm's seeds in `jobs` shares, one process each, a share's seeds together.
+                groups = []
+                for algorithm in args.algorithms:
+                    seeds = [s for a, s in todo if a == algorithm]
+                    groups += [(algorithm, seeds[i::jobs]) for i in range(jobs) if seeds[i::jobs]]
+                tasks = [
+                    (len(seeds), pool.apply_async(_group_worker, (settings, a, seeds, output, progress)))
+                    for a, seeds in groups
+                ]
+            else:
+                tasks = [
+                    (
+                        1,
+                        pool.apply_async(
+                            _worker, (settings, a, s, run_dir(output, a, s), args.through_ros, progress, d)
+                        ),
+                    )
+                    for (a, s), d in zip(todo, domain_ids(len(todo)))
+                ]
+            finished_tasks = 0
+            while finished_tasks < len(tasks):
                 try:
-                    algorithm, seed, episode, ret = progress.get(timeout=0.5)
+                    progress.get(timeout=0.5)
                     done_episodes += 1
                 except queue.Empty:
                     pass
-                newly = sum(r.ready() for r in results) - finished
-                for r in results:
+                newly = sum(r.ready() for _, r in tasks) - finished_tasks
+                for _, r in tasks:
                     if r.ready() and not r.successful():
                         r.get()  # re-raise a worker's error here
-                finished += newly
+                finished_tasks += newly
                 now = time.monotonic()
                 if now - last_print > 15.0 or newly:
                     last_print = now
                     rate = done_episodes / max(now - start, 1e-9)
                     eta = (total - done_episodes) / rate if rate > 0 else float('nan')
+                    runs_done = sum((run_dir(output, a, s) / 'DONE').exists() for a, s in todo)
                     print(
-                        f'[{done_episodes}/{total} episodes, {finished}/{len(results)} runs] '
+                        f'[{done_episodes}/{total} episodes, {runs_done}/{len(todo)} runs] '
                         f'{100 * done_episodes / max(total, 1):5.1f}%  eta {eta / 60:5.1f} min',
                         flush=True,
                     )

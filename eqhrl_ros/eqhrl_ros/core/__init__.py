@@ -9,7 +9,8 @@
 - checkpoint.py  safe checkpoints and exported policies
 - env_spec.py    EnvSpec: an env's spaces, pace and success rule, whoever announces it
 - envs.py        gymnasium envs: construction, their EnvSpec, action scaling
-- training.py    the in-process training loop
+- training.py    the in-process training loop (one seed, or seeds together)
+- seed_batch.py  SeedBatch: many seeds' updates as one (one batched product per layer)
 - trainer.py     Trainer: learning fed by actor nodes (acting and learning apart)
 - transitions.py batches of transitions on their way to the trainer; the actor's outbox
 - weights.py     the networks an actor needs, as safetensors bytes

@@ -179,6 +179,31 @@ def _check_state(state) -> None:
             raise ValueError(f'gates.{key} must be a list of finite numbers')
 
 
+# The losses of an update as functions of the networks, so that one learner's networks
+# (EQSACLearner) and N learners' stacked networks (seed_batch.py) compute them with the same code.
+
+
+def soft_bellman_targets(actor, critic_target, next_obs, reward, terminated, noise, alpha, gamma) -> torch.Tensor:
+    """Eq. 4's y, a' = tanh(mean + std * noise) drawn from the current actor."""
+    next_mean, next_log_std = actor(next_obs)
+    next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, noise)
+    next_q1, next_q2 = critic_target(next_obs, next_action)
+    return eq.soft_bellman_target(reward, terminated, next_q1, next_q2, next_log_prob, alpha, gamma)
+
+
+def twin_critic_loss(critic, obs, action, y) -> torch.Tensor:
+    q1, q2 = critic(obs, action)
+    return eq.critic_loss(q1, y) + eq.critic_loss(q2, y)  # Eq. 5, i = 1, 2
+
+
+def policy_loss(actor, critic, obs, noise, alpha) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eq. 6 with a = tanh(mean + std * noise); also log pi(a|s) for the temperature."""
+    mean, log_std = actor(obs)
+    action, log_prob = eq.squashed_gaussian_sample(mean, log_std, noise)
+    q1, q2 = critic(obs, action)
+    return eq.actor_loss(log_prob, q1, q2, alpha), log_prob
+
+
 class EQSACLearner:
     """Soft Actor-Critic with EQ-HRL advising gates and dual replay (SAC / QASAC / EQSAC)."""
 
@@ -359,6 +384,38 @@ class EQSACLearner:
         if advised and self.mode != 'sac' and self.config.dual_replay:
             self.advice_replay.add(obs, normalized_action, reward, next_obs, terminated)
 
+    def record(
+        self,
+        obs,
+        action,
+        reward: float,
+        next_obs,
+        terminated: bool,
+        advised: bool = False,
+        success: Optional[bool] = None,
+        store: bool = True,
+    ) -> None:
+        """The storing half of step(): the transition into D (and D_advising when advised) and
+        into the episode's statistics, without updates or the episode's end. For callers that
+        update elsewhere (seed_batch.py updates many learners at once)."""
+        normalized = self.normalize(action)
+        if store:
+            self.store(obs, normalized, reward, next_obs, terminated, advised)
+        else:
+            checked_transition(obs, normalized, reward, next_obs, self.obs_dim, self.action_dim)
+
+        self._episode_return += float(reward)
+        self.episode_step += 1
+        self.total_steps += 1
+        self.success.update(np.asarray(next_obs, dtype=np.float32), float(reward))
+        if success is not None:
+            self._reported_success = bool(success)
+
+    @property
+    def ready_to_learn(self) -> bool:
+        """D holds learning_starts transitions: every step from now on updates."""
+        return len(self.replay) >= self.config.learning_starts
+
     def step(
         self,
         obs,
@@ -380,20 +437,8 @@ class EQSACLearner:
         trainer learns elsewhere): the transition is checked and counted in the episode, not
         stored and not learned from.
         """
-        normalized = self.normalize(action)
-        if learn:
-            self.store(obs, normalized, reward, next_obs, terminated, advised)
-        else:
-            checked_transition(obs, normalized, reward, next_obs, self.obs_dim, self.action_dim)
-
-        self._episode_return += float(reward)
-        self.episode_step += 1
-        self.total_steps += 1
-        self.success.update(np.asarray(next_obs, dtype=np.float32), float(reward))
-        if success is not None:
-            self._reported_success = bool(success)
-
-        if learn and len(self.replay) >= self.config.learning_starts:
+        self.record(obs, action, reward, next_obs, terminated, advised, success, store=learn)
+        if learn and self.ready_to_learn:
             for _ in range(self.config.updates_per_step):
                 self.update()
 
@@ -467,22 +512,15 @@ class EQSACLearner:
     # RNG, no optimiser): benchmarks/bench_update_variants.py swaps in compiled copies.
 
     def _targets(self, next_obs, reward, terminated, noise, alpha) -> torch.Tensor:
-        """Eq. 4's y, a' = tanh(mean + std * noise) drawn from the current actor."""
-        next_mean, next_log_std = self.actor(next_obs)
-        next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, noise)
-        next_q1, next_q2 = self.critic_target(next_obs, next_action)
-        return eq.soft_bellman_target(reward, terminated, next_q1, next_q2, next_log_prob, alpha, self.config.gamma)
+        return soft_bellman_targets(
+            self.actor, self.critic_target, next_obs, reward, terminated, noise, alpha, self.config.gamma
+        )
 
     def _critic_loss(self, obs, action, y) -> torch.Tensor:
-        q1, q2 = self.critic(obs, action)
-        return eq.critic_loss(q1, y) + eq.critic_loss(q2, y)  # Eq. 5, i = 1, 2
+        return twin_critic_loss(self.critic, obs, action, y)
 
     def _actor_loss(self, obs, noise, alpha) -> tuple[torch.Tensor, torch.Tensor]:
-        """Eq. 6 with a = tanh(mean + std * noise); also log pi(a|s) for the temperature."""
-        mean, log_std = self.actor(obs)
-        action, log_prob = eq.squashed_gaussian_sample(mean, log_std, noise)
-        q1, q2 = self.critic(obs, action)
-        return eq.actor_loss(log_prob, q1, q2, alpha), log_prob
+        return policy_loss(self.actor, self.critic, obs, noise, alpha)
 
     def _critic_update(self, batch: Batch, y: torch.Tensor) -> float:
         loss = self._critic_loss(batch.obs, batch.action, y)

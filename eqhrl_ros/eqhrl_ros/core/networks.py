@@ -59,6 +59,14 @@ class Tanh(nn.Module):
         return tanh(x)
 
 
+def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """x @ weight.T + bias for one network (weight [out, in]), or for N stacked networks at once
+    (weight [N, out, in], bias [N, out], x [N, batch, in]) with one batched product (seed_batch.py)."""
+    if weight.dim() == 2:
+        return F.linear(x, weight, bias)
+    return torch.baddbmm(bias.unsqueeze(-2), x, weight.transpose(-1, -2))
+
+
 def _kaiming_linear(in_features: int, out_features: int, nonlinearity: str) -> nn.Linear:
     layer = nn.Linear(in_features, out_features)
     nn.init.kaiming_uniform_(layer.weight, nonlinearity=nonlinearity)
@@ -85,10 +93,12 @@ class SquashedGaussianActor(nn.Module):
         self._hidden = [layer for layer in self.body if isinstance(layer, nn.Linear)]
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(mean, log_std) of u for each row of ``obs``; with stacked parameters (seed_batch.py),
+        obs is [N, batch, obs_dim] and network k acts on obs[k]."""
         x = obs
         for layer in self._hidden:  # = self.body(obs)
-            x = tanh(F.linear(x, layer.weight, layer.bias))
-        mean, raw_log_std = F.linear(x, self.heads.weight, self.heads.bias).split(self.action_dim, dim=-1)
+            x = tanh(linear(x, layer.weight, layer.bias))
+        mean, raw_log_std = linear(x, self.heads.weight, self.heads.bias).split(self.action_dim, dim=-1)
         log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (torch.tanh(raw_log_std) + 1.0)
         return mean, log_std
 
@@ -124,15 +134,23 @@ class TwinCritic(nn.Module):
             self.biases.append(nn.Parameter(torch.zeros(2, 1, fan_out)))
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(Q1, Q2) of each row. With stacked parameters (weights [N, 2, in, out]: N twin
+        critics, seed_batch.py), obs and action are [N, batch, dim] and Q1, Q2 are [N, batch]."""
         # (Lists, not ParameterList slices: a slice builds a new module on every call.)
         *weights, last_weight = self.weights
         *biases, last_bias = self.biases
-        x = torch.cat([obs, action], dim=-1).unsqueeze(0).expand(2, -1, -1)
+        lead = last_weight.shape[:-2]  # (2,), or (N, 2) when stacked
+        x = torch.cat([obs, action], dim=-1)
+        batch, width = x.shape[-2:]
+        # Both critics (of every network) in one batched product per layer: [lead..., batch, width]
+        # folded to [groups, batch, width]; a view, not a copy, for a single twin critic.
+        x = x.unsqueeze(-3).expand(*lead, batch, width).reshape(-1, batch, width)
         for weight, bias in zip(weights, biases):
-            x = torch.relu(torch.baddbmm(bias, x, weight))
-        # [2, batch, width] * [2, 1, width], summed over width: [2, batch].
-        q = (x * last_weight.transpose(1, 2)).sum(-1) + last_bias.squeeze(-1)
-        return q[0], q[1]
+            x = torch.relu(torch.baddbmm(bias.reshape(-1, *bias.shape[-2:]), x, weight.reshape(-1, *weight.shape[-2:])))
+        # [groups, batch, width] * [groups, 1, width], summed over width: [groups, batch].
+        q = (x * last_weight.reshape(-1, *last_weight.shape[-2:]).transpose(1, 2)).sum(-1) + last_bias.reshape(-1, 1)
+        q = q.view(*lead, batch)
+        return q[..., 0, :], q[..., 1, :]
 
     def linear_layers(self, k: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Critic k's (0 or 1) layers as an ordinary MLP: (weight [in, out], bias [out]) for

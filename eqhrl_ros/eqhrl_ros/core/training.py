@@ -23,6 +23,37 @@ def ask_expert(learner: EQSACLearner, proposal, expert: Optional[Expert]) -> Res
     return learner.resolve_advice(proposal, advice)
 
 
+class _Acting:
+    """One run's half of Algorithm 1's step that acts: observe, propose, ask, step the env."""
+
+    def __init__(self, env: gym.Env, learner: EQSACLearner, expert: Optional[Expert], on_proposal=None):
+        self.env, self.learner, self.expert, self.on_proposal = env, learner, expert, on_proposal
+        self.observe = getattr(expert, 'observe', None)
+        self.obs = None
+        self.new_episode = True
+
+    def reset(self, seed: Optional[int] = None) -> None:
+        self.obs, _ = self.env.reset(seed=seed)
+        self.new_episode = True
+
+    def act(self) -> tuple:
+        """(obs, action, reward, next_obs, terminated, truncated, advised) of one env step."""
+        learner, obs = self.learner, self.obs
+        if self.observe is not None:
+            self.observe(obs, self.new_episode)
+            self.new_episode = False
+        proposal = learner.propose(obs)
+        if self.on_proposal is not None:
+            self.on_proposal(learner, proposal)
+        if proposal.decision.fire:
+            action, advised = ask_expert(learner, proposal, self.expert).take()
+        else:
+            action, advised = proposal.action, False
+        next_obs, reward, terminated, truncated, _ = self.env.step(action)
+        self.obs = next_obs
+        return obs, action, reward, next_obs, terminated, truncated, advised
+
+
 def run_episode(
     env: gym.Env,
     learner: EQSACLearner,
@@ -33,25 +64,13 @@ def run_episode(
     """One episode of Algorithm 1's outer loop. The env must end episodes (a TimeLimit).
     An expert with an ``observe(obs, new_episode)`` method is shown every observation
     (imperfect_experts.DelayedExpert); ``on_proposal(learner, proposal)`` sees every gate decision."""
-    obs, _ = env.reset(seed=seed)
-    observe = getattr(expert, 'observe', None)
-    new_episode = True
+    acting = _Acting(env, learner, expert, on_proposal)
+    acting.reset(seed)
     while True:
-        if observe is not None:
-            observe(obs, new_episode)
-            new_episode = False
-        proposal = learner.propose(obs)
-        if on_proposal is not None:
-            on_proposal(learner, proposal)
-        if proposal.decision.fire:
-            action, advised = ask_expert(learner, proposal, expert).take()
-        else:
-            action, advised = proposal.action, False
-        next_obs, reward, terminated, truncated, _ = env.step(action)
+        obs, action, reward, next_obs, terminated, truncated, advised = acting.act()
         summary = learner.step(obs, action, reward, next_obs, terminated, truncated, advised)
         if summary is not None:
             return summary
-        obs = next_obs
 
 
 def train(
@@ -75,9 +94,106 @@ def train(
         summaries.append(summary)
         if on_episode is not None:
             on_episode(summary)
-        if evaluation is not None and (learner.episode % evaluation.every == 0 or learner.episode == episodes):
-            evaluation.on_result(evaluate(evaluation.env, learner, evaluation.starts))
+        _evaluate_if_due(evaluation, learner, episodes)
     return summaries
+
+
+def _evaluate_if_due(evaluation: Optional['Evaluation'], learner: EQSACLearner, episodes: int) -> None:
+    if evaluation is not None and (learner.episode % evaluation.every == 0 or learner.episode == episodes):
+        evaluation.on_result(evaluate(evaluation.env, learner, evaluation.starts))
+
+
+@dataclass(eq=False)
+class SeedRun:
+    """One seed's part in train_together(): what train() takes for a lone run."""
+
+    env: gym.Env
+    learner: EQSACLearner
+    expert: Optional[Expert] = None
+    seed: Optional[int] = None  # the first reset's seed
+    on_episode: Callable[[EpisodeSummary], None] | None = None
+    evaluation: Optional['Evaluation'] = None
+    on_proposal: Callable | None = None
+    on_finished: Callable[[], None] | None = None  # called once its learner reaches ``episodes``
+
+
+def train_together(runs: Sequence[SeedRun], episodes: int) -> None:
+    """train() for runs that differ only in their seed, with their updates as one (seed_batch.py).
+
+    Each run acts exactly as it would alone; after every env step of all of them, the
+    learners (which would each update alone at that point) update in one SeedBatch.update().
+    A run leaves when its learner reaches ``episodes`` (its on_finished is then called); the
+    others go on. The learners must be at the same step (fresh ones are).
+    """
+    together = TrainingTogether(runs, episodes)
+    try:
+        while not together.done:
+            together.step()
+    finally:
+        together.close()
+
+
+class TrainingTogether:
+    """train_together(), one env step at a time (benchmarks drive it too)."""
+
+    def __init__(self, runs: Sequence[SeedRun], episodes: int):
+        if len({run.learner.total_steps for run in runs}) > 1:
+            raise ValueError('runs learn together only from the same step; these learners are at different steps')
+        self.episodes = episodes
+        self.active = []
+        for run in runs:
+            if run.learner.episode < episodes:
+                acting = _Acting(run.env, run.learner, run.expert, run.on_proposal)
+                acting.reset(run.seed)
+                self.active.append((run, acting))
+        self.batch = self._batch()
+
+    def _batch(self):
+        from .seed_batch import SeedBatch
+
+        return SeedBatch([run.learner for run, _ in self.active]) if self.active else None
+
+    @property
+    def done(self) -> bool:
+        return not self.active
+
+    def step(self) -> None:
+        """One env step of every active run, then their update, then the episodes that ended."""
+        ended = []
+        for run, acting in self.active:
+            obs, action, reward, next_obs, terminated, truncated, advised = acting.act()
+            run.learner.record(obs, action, reward, next_obs, terminated, advised)
+            ended.append(terminated or truncated)
+        # Same steps, same D sizes: the learners are ready together (a lone learner updates here too).
+        if self.active[0][0].learner.ready_to_learn:
+            for _ in range(self.batch.config.updates_per_step):
+                self.batch.update()
+        finished = []
+        for (run, acting), done in zip(self.active, ended):
+            if not done:
+                continue
+            summary = run.learner.end_episode()
+            if run.on_episode is not None:
+                run.on_episode(summary)
+            _evaluate_if_due(run.evaluation, run.learner, self.episodes)
+            if run.learner.episode >= self.episodes:
+                finished.append(run)
+            else:
+                acting.reset()
+        if finished:
+            # The batch is remade of the runs that go on; the finished ones keep their weights.
+            self.batch.release()
+            self.active = [(run, acting) for run, acting in self.active if run not in finished]
+            self.batch = self._batch()
+            for run in finished:
+                if run.on_finished is not None:
+                    run.on_finished()
+
+    def close(self) -> None:
+        """Give every learner its weights back (the batch's stacked tensors are dropped)."""
+        if self.batch is not None:
+            self.batch.release()
+            self.batch = None
 
 
 @dataclass

@@ -171,6 +171,42 @@ def test_in_process_and_through_ros_give_the_same_numbers(tmp_path):
     assert sum(int(r['advice_given']) for r in core) > 0
 
 
+@pytest.mark.slow
+def test_seeds_together_write_what_seeds_apart_write(tmp_path, capsys):
+    """Three seeds in one process learning together: each seed's episodes, advice and
+    advice-free evaluation as a process of its own gives them (to float rounding)."""
+    params_file = tmp_path / 'tiny.yaml'
+    params_file.write_text(
+        'gym_env:\n  ros__parameters:\n    env_id: Pendulum-v1\n    max_episode_steps: 40\n'
+        'learner:\n  ros__parameters:\n    env_id: Pendulum-v1\n    hidden_sizes: [32, 32]\n'
+        '    batch_size: 32\n    learning_starts: 40\n    queue_length: 3\n    advising_budget: 2\n'
+        '    max_episodes: 3\n'
+    )
+    common = ['--params', str(params_file), '--algorithms', 'eqsac', '--seeds', '0', '1', '2', '--eval-every', '2']
+    assert experiment.seeds_together_by_default(
+        experiment.load_settings(experiment.parse_args(common + ['--output', 'x']))
+    )
+    assert experiment.main([*common, '--jobs', '1', '--output', str(tmp_path / 'together')]) == 0
+    assert 'seeds together' in capsys.readouterr().out
+    assert experiment.main([*common, '--jobs', '2', '--seeds-apart', '--output', str(tmp_path / 'apart')]) == 0
+    assert 'seeds together' not in capsys.readouterr().out
+    for name in ('episodes.csv', 'eval.csv'):
+        together, apart = read(tmp_path / 'together' / name), read(tmp_path / 'apart' / name)
+        assert len(together) == len(apart) > 0
+        for a, b in zip(together, apart):
+            assert float(a['return']) == pytest.approx(float(b['return']), rel=1e-4)
+            assert {k: v for k, v in a.items() if k != 'return'} == {k: v for k, v in b.items() if k != 'return'}
+    assert sum(int(r['advice_given']) for r in read(tmp_path / 'together' / 'episodes.csv')) > 0
+    assert all((tmp_path / 'together' / 'eqsac' / f'seed{s}' / 'DONE').exists() for s in range(3))
+
+
+def test_table_1_networks_run_seeds_apart_by_default():
+    settings = experiment.load_settings(experiment.parse_args(['--params', 'pendulum', '--output', 'x']))
+    assert not experiment.seeds_together_by_default(settings)
+    settings = experiment.load_settings(experiment.parse_args(['--params', 'demo', '--output', 'x']))
+    assert experiment.seeds_together_by_default(settings)
+
+
 # ------------------------------------------------------------------ one reading path for params files
 
 
