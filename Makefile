@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: system-deps setup lint test test-fast demo bench bench-learner bench-ros bench-flood bench-actors bench-busy bench-variants profile clean lock
+.PHONY: system-deps setup lint test test-fast demo bench bench-seeds bench-learner bench-ros bench-flood bench-actors bench-busy bench-variants profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -112,6 +112,11 @@ bench-busy: $(VENV)/.stamp-eqhrl_ros
 	a=0; b=0; $(VPY) benchmarks/bench_busy.py --hidden 256 --batch 256 || a=$$?; \
 	$(VPY) benchmarks/bench_busy.py --rounds 2 --ros-episodes 8 --settings "2:default" "2:spin 1000" || b=$$?; \
 	exit $$(( a || b ))
+
+# Seeds together against seeds apart (issue 22, item 1): the curve for N seeds, and a
+# non-zero exit if 10 seeds together miss 2x (Pendulum) or 1.5x (LunarLander) seeds apart.
+bench-seeds: $(VENV)/.stamp-eqhrl_ros
+	$(VPY) benchmarks/bench_seeds.py
 
 bench-variants: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_update_variants.py

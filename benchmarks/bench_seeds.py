@@ -150,6 +150,26 @@ def check_equal(env_id: str) -> float:
     )
 
 
+# 256x256x256 matrix products in one EQSAC update at Table 1's sizes (bench_learner.PRODUCTS).
+EQSAC_PRODUCTS = 25
+
+
+def product_floor(processes: int, size: int = 256) -> float:
+    """Seed-steps per second if an update cost only its size^3 matrix products, on ``processes``
+    cores of one thread: the most any way of running the seeds can reach (float32)."""
+    import torch
+
+    torch.set_num_threads(1)
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    for _ in range(30):
+        a @ b
+    start = time.perf_counter()
+    for _ in range(300):
+        a @ b
+    product_s = (time.perf_counter() - start) / 300
+    return processes / (EQSAC_PRODUCTS * product_s)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--envs', nargs='+', default=list(TARGETS))
@@ -182,6 +202,12 @@ def main(argv=None) -> int:
             figures[n] = (apart, best)
             print(f'{n:>3} {apart:8.1f} {one:9.1f} {split:8.1f} {best / apart:10.2f}', flush=True)
         apart, best = figures[args.seeds]
+        if args.hidden == 256 and args.batch == 256:
+            floor = product_floor(args.processes)
+            print(
+                f'floor: the 256^3 matrix products alone on {args.processes} cores allow {floor:.1f} seed-steps/s, '
+                f'{floor / apart:.2f}x apart'
+            )
         target = TARGETS.get(env_id)
         if target is not None:
             verdict = 'met' if best / apart >= target else 'MISSED'

@@ -53,3 +53,14 @@ def test_every_interface_field_has_a_comment_and_the_readme_links_the_type(path)
         documented = '#' in line or (above >= 0 and lines[above].strip().startswith('#'))
         assert documented, f'{path.name}: field without a comment: {line!r}'
     assert f'{path.parent.name}/{path.name}' in README, f'the README does not link {path.name}'
+
+
+def test_the_readme_states_where_seeds_learn_together():
+    """The README's rule for --seeds-together's default is the code's (experiment.TOGETHER_MAX_WORK)."""
+    import re
+
+    from eqhrl_ros.cli import experiment
+
+    text = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
+    width, _, batch = re.search(r'hidden width² × batch size ≤ (\d+) × (\d+) × (\d+)', text).groups()[0:3]
+    assert int(width) ** 2 * int(batch) == experiment.TOGETHER_MAX_WORK
