@@ -262,7 +262,7 @@ def run_together(settings: Settings, algorithm: str, seeds, output: Path, progre
 
 # Seeds learn together (run_together) by default where that is faster: measured with
 # benchmarks/bench_seeds.py (docs/performance.md, "Many seeds in one process"), 10 seeds on
-# 2 cores were 2.25x faster together with 64x64 networks and batch 128, and no faster with
+# 2 cores were 2.2x faster together with 64x64 networks and batch 128, and no faster with
 # 128x128 and batch 256 or Table 1's 256x256 and 256, where the matrix products fill the cores.
 TOGETHER_MAX_WORK = 64 * 64 * 256  # hidden width squared times batch size
 
