@@ -269,7 +269,16 @@ TOGETHER_MAX_WORK = 64 * 64 * 256  # hidden width squared times batch size
 
 def seeds_together_by_default(settings: Settings) -> bool:
     config = learner_config(settings, 'sac', 0)
-    return max(config.hidden) ** 2 * config.batch_size <= TOGETHER_MAX_WORK
+    return config.advice_batch == 'full' and max(config.hidden) ** 2 * config.batch_size <= TOGETHER_MAX_WORK
+
+
+def seeds_together_refusal(settings: Settings, through_ros: bool) -> str:
+    """Why --seeds-together cannot be had with these settings, or ''."""
+    if through_ros:
+        return '--seeds-together runs in-process; --through-ros runs each seed in nodes of its own'
+    if learner_config(settings, 'sac', 0).advice_batch != 'full':
+        return "--seeds-together needs advice_batch 'full' (with 'proportional' each seed has a batch size of its own)"
+    return ''
 
 
 GATE_FIELDS = ('episode', 'step', 'discrepancy', 'd_threshold', 'entropy', 'e_threshold', 'ask', 'respond', 'fire')
@@ -510,6 +519,9 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     try:
         settings = load_settings(args)
+        refusal = seeds_together_refusal(settings, args.through_ros) if args.seeds_together else ''
+        if refusal:
+            raise ValueError(refusal)
     except (ValueError, FileNotFoundError) as error:
         print(f'eqhrl-experiment: {error}', file=sys.stderr)
         return 2

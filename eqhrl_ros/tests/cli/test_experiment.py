@@ -200,6 +200,22 @@ def test_seeds_together_write_what_seeds_apart_write(tmp_path, capsys):
     assert all((tmp_path / 'together' / 'eqsac' / f'seed{s}' / 'DONE').exists() for s in range(3))
 
 
+@pytest.mark.parametrize(
+    'extra,message', [(['--through-ros'], 'runs in-process'), (['--params', 'PROPORTIONAL'], "advice_batch 'full'")]
+)
+def test_seeds_together_that_cannot_be_had_are_refused_before_anything_runs(tmp_path, capsys, extra, message):
+    params = tmp_path / 'p.yaml'
+    params.write_text('learner:\n  ros__parameters:\n    hidden_sizes: [16, 16]\n    advice_batch: proportional\n')
+    extra = [str(params) if word == 'PROPORTIONAL' else word for word in extra]
+    args = ['--params', 'demo', '--seeds', '0', '--episodes', '1', '--seeds-together', '--output', str(tmp_path / 'o')]
+    assert experiment.main(args + extra) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / 'o').exists()
+    if '--through-ros' not in extra:  # by default such settings simply run apart
+        settings = experiment.load_settings(experiment.parse_args(['--params', str(params), '--output', 'x']))
+        assert not experiment.seeds_together_by_default(settings)
+
+
 def test_table_1_networks_run_seeds_apart_by_default():
     settings = experiment.load_settings(experiment.parse_args(['--params', 'pendulum', '--output', 'x']))
     assert not experiment.seeds_together_by_default(settings)
