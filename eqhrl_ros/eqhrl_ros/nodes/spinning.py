@@ -22,7 +22,7 @@ from typing import Callable, Optional
 import rclpy
 import rclpy.exceptions
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
@@ -173,13 +173,26 @@ def spin(node_or_executor, stop: Optional[StopSignals] = None) -> None:
                 _spin_executor(executor, context, stop)
             finally:
                 executor.remove_node(node_or_executor)
+                _end(executor)
         else:
-            _spin_executor(node_or_executor, context, stop)
+            try:
+                _spin_executor(node_or_executor, context, stop)
+            finally:
+                _end(node_or_executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
         if context.ok():
             raise
+
+
+def _end(executor) -> None:
+    """End a Python executor's spinning for good. A stop read between callbacks that were ready
+    together leaves rclpy's executor in the middle of iterating them, with the handles of
+    ready waitables held; destroy_node() then waits for them forever (an expert node hung on
+    SIGTERM this way). shutdown() drops that iteration and releases them."""
+    if isinstance(executor, Executor):
+        executor.shutdown(timeout_sec=0)
 
 
 def spin_apart(executors: list, stop: Optional[StopSignals] = None) -> None:

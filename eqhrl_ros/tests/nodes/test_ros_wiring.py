@@ -153,3 +153,35 @@ def test_a_raw_subscription_reads_any_publishers_layout(ros_context):
     finally:
         executor.shutdown()
         node.destroy_node()
+
+
+def test_a_node_stopped_between_two_ready_callbacks_is_destroyed_at_once(ros_context):
+    """destroy_node() right after spin() returns on a stop read between two ready callbacks.
+    (CI once saw an expert node wait forever in destroy_node() after SIGTERM, for handles of
+    ready waitables that rclpy's executor still held; spin() now shuts its executor down. This
+    test covers the timers' path, which never held handles; the waitables' case was not
+    reproduced here.)"""
+    import threading
+
+    from eqhrl_ros.nodes.spinning import spin
+
+    class Stop:
+        requested = False
+
+    stop = Stop()
+    node = rclpy.create_node('two_timers', context=ros_context)
+    calls = []
+
+    def tick(which):
+        calls.append(which)
+        stop.requested = True
+
+    time.sleep(0.01)
+    node.create_timer(0.001, lambda: tick('a'))
+    node.create_timer(0.001, lambda: tick('b'))
+    time.sleep(0.01)  # both timers are due before the first wait
+    spin(node, stop)
+    assert calls  # it spun until the stop was read
+    destroyed = threading.Event()
+    threading.Thread(target=lambda: (node.destroy_node(), destroyed.set()), daemon=True).start()
+    assert destroyed.wait(5.0), 'destroy_node() is still waiting for handles the executor holds'
