@@ -106,6 +106,11 @@ class LearnerConfig:
         'memory stays in host memory and each batch is copied over)',
         choices=DEVICES,
     )
+    compile_update: bool = hyper(
+        False,
+        'Compile the whole update into one program (torch.compile) in the background while the first '
+        'updates run eagerly; same numbers to float rounding. Off: the eager update (no compiler start-up)',
+    )
 
     def __post_init__(self):
         check_fields(self)

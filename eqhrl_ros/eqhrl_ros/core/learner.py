@@ -238,6 +238,9 @@ class EQSACLearner:
         # (torch._dynamo, over a second: docs/performance.md) when the first one is made,
         # which would otherwise delay the first env step by that much.
         self._optimizers_made = False
+        # compile_update: made after the first eager update (compiled_update.py); None until then.
+        self.compiled_update = None
+        self.log = None  # the compiler's logger (info, warning); None: Python's; a node sets its own
 
         # One random stream per purpose, so that e.g. estimating E(s) never shifts
         # the noise of the policy's own actions. CPU generators on every device (noise()):
@@ -471,6 +474,12 @@ class EQSACLearner:
                 size, self.rng['replay'], replacement=len(self.advice_replay) < size
             ).to(self.device)
 
+        if self.compiled_update and self.compiled_update.ready:
+            # The same steps as below, as one compiled program (compiled_update.py).
+            info = self.compiled_update(batch, advice_batch)
+            self.updates += 1
+            return info
+
         # Eq. 4 targets of both batches. The actor, alpha and the target critics stay
         # as they are until the end of the update, so both come from one forward pass.
         y, advice_y = self._soft_bellman_targets(batch, advice_batch)
@@ -489,7 +498,24 @@ class EQSACLearner:
         # Target critics: theta^- <- tau * theta + (1 - tau) * theta^-.
         eq.soft_update(self.critic_target.parameters(), self.critic.parameters(), cfg.tau)
         self.updates += 1
+        if cfg.compile_update and self.compiled_update is None:
+            self.start_compiling()
         return info
+
+    def start_compiling(self, background: bool = True):
+        """compile_update: the whole update compiled in a background thread (compiled_update.py),
+        from the optimisers' state after an eager update; a configuration that cannot be compiled
+        stays eager, said in one log line. Returns the CompiledUpdate (or None)."""
+        from .compiled_update import LOG, CompiledUpdate, compile_refusal
+
+        refusal = compile_refusal(self.config)
+        if refusal:
+            self.compiled_update = False  # asked once, refused once
+            (self.log or LOG).warning(f'compile_update: {refusal}; the learner stays with the eager update')
+            return None
+        self._make_optimizers()
+        self.compiled_update = CompiledUpdate(self, log=self.log, background=background)
+        return self.compiled_update
 
     @torch.no_grad()
     def _soft_bellman_targets(self, batch: Batch, advice_batch: Batch | None):

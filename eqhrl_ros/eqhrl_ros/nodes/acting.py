@@ -136,6 +136,7 @@ class ActingNode(Node):
         learner = EQSACLearner(
             spec.observation_size, spec.action_low, spec.action_high, self.config, spec.success_criterion()
         )
+        learner.log = self.get_logger()  # compile_update's one line
         self._prepare(learner)
         with self._lock:
             self._action_out = messages.action_out(learner.action_dim)  # rewritten per step

@@ -90,6 +90,7 @@ class TrainerNode(RunFiles, Node):
     def _build(self, obs_dim: int, action_low, action_high) -> None:
         """The learner for these spaces (with resume, from the checkpoint); weights go out at once."""
         learner = EQSACLearner(obs_dim, action_low, action_high, self.config)
+        learner.log = self.get_logger()  # compile_update's one line
         if self.params['resume']:
             load_checkpoint(learner, self.checkpoint_path, self.replay_path)
             self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')

@@ -1,0 +1,292 @@
+"""The whole update as one compiled program (LearnerConfig.compile_update; issue 22, item 2).
+
+EQSACLearner.update() runs Algorithm 1's inner loop eagerly: PyTorch dispatches hundreds
+of small operations per update and builds an autograd graph for each loss. Here the same
+update, step by step in the same order with the same loss functions (learner.py) and the
+same equations (equations.py), is one pure function of tensors: gradients come from
+torch.func, Adam is torch's own functional Adam applied in place to the learner's weights
+and to its optimisers' own moments and step counts. torch.compile(fullgraph=True) turns that
+function into one program, with everything around the matrix products fused.
+
+What a user sees:
+- The first updates run eagerly. The compiler runs in a background thread on copies of the
+  weights, off the acting path; once it is done, the next update is the compiled one.
+- Its cost (seconds, and whether inductor's on-disk cache had it) is reported in one log
+  line, as is any failure, after which the learner stays eager. Nothing else changes.
+- Random draws (the replay batches and the noise) are made outside, in the eager update's
+  order from the same streams, so compiled and eager updates compute the same numbers to
+  float rounding (tests/core/test_compiled_update.py).
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import threading
+import time
+from typing import Optional
+
+import torch
+from torch.func import functional_call, grad_and_value
+from torch.optim.adam import adam as functional_adam
+
+from . import equations as eq
+from .learner import policy_loss, soft_bellman_targets, twin_critic_loss  # learner.py imports this module late
+
+LOG = logging.getLogger('eqhrl_ros.compile')
+
+
+def compile_refusal(config) -> str:
+    """Why this configuration cannot be compiled (''=it can). A batch from D_advising whose
+    size follows D_advising's ('proportional') would recompile at every new size."""
+    if config.advice_batch != 'full':
+        return f"advice_batch '{config.advice_batch}' changes the batch size at every step"
+    if config.updates_per_step < 1:
+        return 'updates_per_step is 0: there is no update to compile'
+    return ''
+
+
+# --------------------------------------------------------------------------- the pure update
+
+
+def _adam_(params, grads, state, lr: float) -> None:
+    """torch's functional Adam, in place on ``params`` and on the optimiser's own moments."""
+    exp_avgs, exp_avg_sqs, steps = state
+    functional_adam(
+        params,
+        grads,
+        exp_avgs,
+        exp_avg_sqs,
+        [],
+        steps,
+        foreach=False,
+        # Compiled: step counts stay tensors (no .item()), so the update is one graph.
+        capturable=torch.compiler.is_compiling(),
+        amsgrad=False,
+        beta1=0.9,
+        beta2=0.999,
+        lr=lr,
+        weight_decay=0.0,
+        eps=1e-8,
+        maximize=False,
+    )
+
+
+def _with(net, weights):
+    """``net`` as a function of its inputs, computed with ``weights`` (name -> tensor)."""
+    return lambda *inputs: functional_call(net, weights, inputs)
+
+
+def algorithm1_update(nets, weights, state, batch, advice, noise, hyper) -> dict:
+    """One update of Algorithm 1's inner loop in its order; learner.EQSACLearner.update() eagerly.
+
+    ``nets``: the actor and twin-critic modules (their structure; their weights come from
+    ``weights``: name -> tensor dicts for 'actor', 'critic', 'critic_target' and the tensor
+    'log_alpha'); ``state``: each optimiser's (exp_avgs, exp_avg_sqs, steps) in the order of
+    ``weights``; ``batch``/``advice``: (obs, action, reward, next_obs, terminated) from D and
+    from D_advising (or None); ``noise``: the target noise of both batches, the actor's noise
+    and the actor's noise on advice (or None). Updates the weights in place; returns the losses.
+    """
+    actor_net, critic_net = nets
+    actor_w, critic_w, target_w = weights['actor'], weights['critic'], weights['critic_target']
+    actor = _with(actor_net, actor_w)
+    critic_target = _with(critic_net, target_w)
+    target_noise, actor_noise, advice_actor_noise = noise
+    losses = {}
+
+    # Eq. 4 targets of both batches in one pass (the actor, alpha and the target critics
+    # stay as they are until the end of the update).
+    with torch.no_grad():
+        both = batch if advice is None else [torch.cat(pair) for pair in zip(batch, advice)]
+        alpha = weights['log_alpha'].exp()
+        y = soft_bellman_targets(actor, critic_target, both[3], both[2], both[4], target_noise, alpha, hyper['gamma'])
+        y, advice_y = (y, None) if advice is None else y.split([len(batch[2]), len(advice[2])])
+
+    def critic_step(obs, action, y):
+        def loss_of(w):
+            return twin_critic_loss(_with(critic_net, w), obs, action, y)
+
+        grads, loss = grad_and_value(loss_of)(critic_w)
+        _adam_(list(critic_w.values()), list(grads.values()), state['critic'], hyper['critic_lr'])
+        return loss
+
+    # 1st critic update: the batch from D (Eq. 5); 2nd: the batch from D_advising.
+    losses['critic_loss'] = critic_step(batch[0], batch[1], y)
+    if advice is not None:
+        losses['advice_critic_loss'] = critic_step(advice[0], advice[1], advice_y)
+
+    def actor_and_alpha_step(obs, noise):
+        alpha = weights['log_alpha'].detach().exp()
+        critic = _with(critic_net, {k: v.detach() for k, v in critic_w.items()})
+
+        def loss_of(w):  # Eq. 6; log pi for the temperature
+            return policy_loss(_with(actor_net, w), critic, obs, noise, alpha)
+
+        grads, (loss, log_prob) = grad_and_value(loss_of, has_aux=True)(actor_w)
+        _adam_(list(actor_w.values()), list(grads.values()), state['actor'], hyper['actor_lr'])
+
+        def alpha_loss_of(log_alpha):
+            return eq.temperature_loss(log_alpha, log_prob, hyper['target_entropy'])
+
+        alpha_grad, alpha_loss = grad_and_value(alpha_loss_of)(weights['log_alpha'])
+        _adam_([weights['log_alpha']], [alpha_grad], state['alpha'], hyper['alpha_lr'])
+        return loss, alpha_loss
+
+    # Actor (Eq. 6) and temperature on the batch from D (and on advice, actor_on_advice).
+    losses['actor_loss'], losses['alpha_loss'] = actor_and_alpha_step(batch[0], actor_noise)
+    if advice_actor_noise is not None and advice is not None:
+        losses['advice_actor_loss'], _ = actor_and_alpha_step(advice[0], advice_actor_noise)
+
+    # Target critics: theta^- <- tau * theta + (1 - tau) * theta^-.
+    eq.soft_update(list(target_w.values()), list(critic_w.values()), hyper['tau'])
+    return losses
+
+
+# --------------------------------------------------------------------------- the learner's side
+
+
+class CompiledUpdate:
+    """A learner's update compiled in the background; ``ready`` once it can be called.
+
+    ``log``: where the one line about the compiler goes: info() with its cost, or warning() with
+    why the learner stays eager. Python's logger 'eqhrl_ros.compile' by default; a node passes
+    its ROS logger (rclpy's loggers have the same two methods).
+    """
+
+    def __init__(self, learner, log=None, background: bool = True):
+        self.learner = learner
+        self.log = log or LOG
+        self.ready = False
+        self.failed = ''
+        self.seconds: Optional[float] = None
+        # The networks' structure, on copies: functional_call() gives them their weights, and
+        # tracing them in the background must not touch the modules the learner acts with.
+        self._nets = (copy.deepcopy(learner.actor), copy.deepcopy(learner.critic))
+        self._function = torch.compile(algorithm1_update, fullgraph=True, dynamic=False)
+        self._variants = self._advice_variants()
+        if background:
+            self._thread = threading.Thread(target=self._warm_up, args=(self._copies(),), daemon=True)
+            self._thread.start()
+        else:
+            self._thread = None
+            self._warm_up(self._copies())
+
+    def _advice_variants(self) -> list:
+        """(with an advice batch?, the actor on advice?) of every update this learner can make."""
+        cfg = self.learner.config
+        if self.learner.mode == 'sac' or not cfg.dual_replay:
+            return [False]
+        return [False, True]
+
+    # The inputs of algorithm1_update(), from the learner's live tensors or copies of them.
+
+    def _weights(self, copy: bool = False) -> dict:
+        take = (lambda t: t.detach().clone()) if copy else (lambda t: t.detach())
+        learner = self.learner
+        return {
+            'actor': {k: take(v) for k, v in learner.actor.named_parameters()},
+            'critic': {k: take(v) for k, v in learner.critic.named_parameters()},
+            'critic_target': {k: take(v) for k, v in learner.critic_target.named_parameters()},
+            'log_alpha': take(learner.log_alpha),
+        }
+
+    def _state(self, copy: bool = False) -> dict:
+        take = (lambda t: t.clone()) if copy else (lambda t: t)
+        learner = self.learner
+        state = {}
+        for name, optimizer in (
+            ('actor', learner.actor_optimizer),
+            ('critic', learner.critic_optimizer),
+            ('alpha', learner.alpha_optimizer),
+        ):
+            params = [p for group in optimizer.param_groups for p in group['params']]
+            per = [optimizer.state[p] for p in params]
+            state[name] = tuple([take(s[key]) for s in per] for key in ('exp_avg', 'exp_avg_sq', 'step'))
+        return state
+
+    def _hyper(self) -> dict:
+        cfg = self.learner.config
+        return {
+            'gamma': cfg.gamma,
+            'tau': cfg.tau,
+            'actor_lr': cfg.actor_lr,
+            'critic_lr': cfg.critic_lr,
+            'alpha_lr': cfg.alpha_lr,
+            'target_entropy': self.learner.target_entropy,
+        }
+
+    def _copies(self):
+        """Copies of the weights and the optimiser state, and made-up batches of the right shapes,
+        for compiling without touching the learner (made here, in the caller's thread)."""
+        learner, size = self.learner, self.learner.config.batch_size
+        device = learner.device
+
+        def made_up_batch():
+            return (
+                torch.randn(size, learner.obs_dim, device=device),
+                torch.rand(size, learner.action_dim, device=device) * 2 - 1,
+                torch.randn(size, device=device),
+                torch.randn(size, learner.obs_dim, device=device),
+                torch.zeros(size, device=device),
+            )
+
+        return self._weights(copy=True), self._state(copy=True), made_up_batch, self._hyper()
+
+    def _noise(self, sizes: list, actor_on_advice: bool, draw) -> tuple:
+        m = self.learner.action_dim
+        target = torch.cat([draw((n, m)) for n in sizes])
+        actor = draw((sizes[0], m))
+        advice_actor = draw((sizes[1], m)) if actor_on_advice and len(sizes) > 1 else None
+        return target, actor, advice_actor
+
+    def _warm_up(self, copies) -> None:
+        weights, state, made_up_batch, hyper = copies
+        device = self.learner.device
+        start = time.perf_counter()
+        try:
+            for with_advice in self._variants:
+                batch = made_up_batch()
+                advice = made_up_batch() if with_advice else None
+                sizes = [len(batch[2])] + ([len(advice[2])] if advice is not None else [])
+                noise = self._noise(
+                    sizes, self.learner.config.actor_on_advice, lambda shape: torch.randn(shape, device=device)
+                )
+                self._function(self._nets, weights, state, batch, advice, noise, hyper)
+        except Exception as error:  # noqa: BLE001 - any compiler failure leaves the eager update
+            self.failed = f'{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ""}'
+            self.log.warning(
+                f'compile_update: the compiler failed ({self.failed}); the learner stays with the eager update'
+            )
+            return
+        self.seconds = time.perf_counter() - start
+        self.ready = True
+        self.log.info(
+            f'compile_update: the whole update is compiled ({self.seconds:.1f} s in the background; '
+            f'{len(self._variants)} variant(s)); updates from now on run compiled'
+        )
+
+    def wait(self, timeout: Optional[float] = None) -> bool:
+        """Block until the background compile ended (tests, benchmarks); True if it is ready."""
+        if self._thread is not None:
+            self._thread.join(timeout)
+        return self.ready
+
+    def __call__(self, batch, advice_batch) -> dict:
+        """The update on the learner's live weights, with the noise drawn as the eager update draws it."""
+        learner = self.learner
+        fields = ('obs', 'action', 'reward', 'next_obs', 'terminated')
+
+        def as_tuple(b):
+            # Contiguous, as in the warm-up: a compiled program is specialised to its inputs'
+            # layout, and a batch's fields are column views of its rows (replay.py).
+            return tuple(getattr(b, f).contiguous() for f in fields)
+
+        advice = as_tuple(advice_batch) if advice_batch is not None else None
+        sizes = [len(batch.reward)] + ([len(advice_batch.reward)] if advice_batch is not None else [])
+        noise = self._noise(sizes, learner.config.actor_on_advice, lambda shape: learner.noise(shape, 'update'))
+        losses = self._function(
+            self._nets, self._weights(), self._state(), as_tuple(batch), advice, noise, self._hyper()
+        )
+        info = {name: float(value) for name, value in losses.items()}
+        info['alpha'] = learner.alpha
+        return info

@@ -1,0 +1,172 @@
+"""compile_update (issue 22, item 2): the whole update as one compiled program, off the acting path.
+
+The compiled update must compute what the eager update computes (same draws, same order,
+float rounding apart), compile without holding up the updates that run meanwhile, and fall
+back to the eager update with one log line when the compiler fails or cannot be used.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+import torch
+
+from eqhrl_ros.core import EQSACLearner, LearnerConfig
+from eqhrl_ros.core import compiled_update as compiled
+
+# Small networks: the program's size (and so the compile time) does not depend on the widths.
+SMALL = {'hidden': (32, 32), 'batch_size': 32, 'learning_starts': 1, 'seed': 3}
+
+
+class Lines:
+    """A logger that keeps its lines (what a ROS node's logger would print)."""
+
+    def __init__(self):
+        self.info_lines, self.warning_lines = [], []
+
+    def info(self, line):
+        self.info_lines.append(line)
+
+    def warning(self, line):
+        self.warning_lines.append(line)
+
+
+def filled(transitions: int = 200, advised_every: int = 0, **overrides) -> EQSACLearner:
+    learner = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(**{**SMALL, **overrides}))
+    rng = np.random.default_rng(0)
+    for i in range(transitions):
+        learner.store(
+            rng.normal(size=3),
+            rng.uniform(-1, 1, size=1),
+            float(rng.normal()),
+            rng.normal(size=3),
+            bool(i % 50 == 49),
+            advised=bool(advised_every) and i % advised_every == 0,
+        )
+    return learner
+
+
+def largest_difference(a: EQSACLearner, b: EQSACLearner) -> float:
+    pairs = [
+        *zip(a.actor.state_dict().values(), b.actor.state_dict().values()),
+        *zip(a.critic.state_dict().values(), b.critic.state_dict().values()),
+        *zip(a.critic_target.state_dict().values(), b.critic_target.state_dict().values()),
+        (a.log_alpha.detach(), b.log_alpha.detach()),
+    ]
+    return max(float((x - y).abs().max()) for x, y in pairs)
+
+
+@pytest.mark.slow  # the compiler: about a minute on 2 cores with a cold cache
+def test_the_compiled_update_computes_what_the_eager_update_computes():
+    """EQSAC with the actor also trained on advice: first updates without advice (SAC's update),
+    then with D_advising filled, so both compiled variants are checked against the eager update."""
+    settings = {'mode': 'eqsac', 'actor_on_advice': True}
+    eager, fast = filled(**settings), filled(compile_update=True, **settings)
+    log = Lines()
+    fast.log = log
+    eager.update(), fast.update()  # eager, both; the second one starts the compiler
+    assert isinstance(fast.compiled_update, compiled.CompiledUpdate)
+    assert fast.compiled_update.wait(timeout=900), fast.compiled_update.failed
+    assert len(log.info_lines) == 1 and 'compiled' in log.info_lines[0] and not log.warning_lines
+
+    for _ in range(5):
+        expected, got = eager.update(), fast.update()
+        assert 'advice_critic_loss' not in got  # D_advising is still empty
+    for learner in (eager, fast):  # advice arrives: the second critic step and the actor on advice
+        for i in range(40):
+            learner.store([0.1 * i, 0.0, 1.0], [0.5], 1.0, [0.1 * i, 0.1, 1.0], False, advised=True)
+    for _ in range(20):
+        expected, got = eager.update(), fast.update()
+    assert set(got) == set(expected)
+    for name in expected:
+        assert got[name] == pytest.approx(expected[name], rel=1e-4, abs=1e-5), name
+    assert largest_difference(eager, fast) < 1e-4
+    assert fast.updates == eager.updates == 26
+    # The optimisers' own state moved with the compiled steps (checkpoints save it): with advice,
+    # two critic steps and two actor steps per update.
+    for a, b in ((eager.critic_optimizer, fast.critic_optimizer), (eager.actor_optimizer, fast.actor_optimizer)):
+        for p, q in zip(a.param_groups[0]['params'], b.param_groups[0]['params']):
+            assert float(b.state[q]['step']) == float(a.state[p]['step']) == 1 + 5 + 2 * 20
+            torch.testing.assert_close(b.state[q]['exp_avg_sq'], a.state[p]['exp_avg_sq'], rtol=1e-3, atol=1e-7)
+    # The random streams were drawn in the eager update's order: the next draws agree.
+    assert torch.equal(eager.noise((4,), 'update'), fast.noise((4,), 'update'))
+
+
+class SlowCompiler:
+    """torch.compile's stand-in: the 'compiled' function is the eager function, and the first
+    (warm-up) call waits until the test lets it go, as a slow compiler would."""
+
+    def __init__(self):
+        self.release = threading.Event()
+        self.calls = 0
+
+    def __call__(self, function, **options):
+        def run(*args):
+            self.release.wait(60)
+            self.calls += 1
+            return function(*args)
+
+        return run
+
+
+def test_updates_go_on_eagerly_while_the_compiler_works_and_use_it_once_it_is_done(monkeypatch):
+    compiler = SlowCompiler()
+    monkeypatch.setattr(compiled.torch, 'compile', compiler)
+    # The stand-in runs algorithm1_update eagerly: numpy's tanh kernel cannot run under torch.func.
+    monkeypatch.setattr('eqhrl_ros.core.networks.NUMPY_TANH_FROM', 10**9)
+    learner = filled(mode='sac', compile_update=True)
+    learner.log = Lines()
+    learner.update()
+    thread = learner.compiled_update._thread
+    for _ in range(3):  # the compiler is still busy: these updates are eager and do not wait for it
+        learner.update()
+    assert thread.is_alive() and not learner.compiled_update.ready and compiler.calls == 0
+    compiler.release.set()
+    assert learner.compiled_update.wait(timeout=60)
+    assert compiler.calls == 1  # the warm-up, on copies
+    learner.update()
+    assert compiler.calls == 2 and learner.updates == 5
+
+
+def test_a_failing_compiler_leaves_the_eager_update_and_says_so_once(monkeypatch):
+    def broken(function, **options):
+        def run(*args):
+            raise RuntimeError('no C++ compiler found\nmore detail')
+
+        return run
+
+    monkeypatch.setattr(compiled.torch, 'compile', broken)
+    eager, learner = filled(mode='eqsac'), filled(mode='eqsac', compile_update=True)
+    learner.log = log = Lines()
+    eager.update(), learner.update()
+    assert not learner.compiled_update.wait(timeout=60)
+    assert log.warning_lines == [
+        'compile_update: the compiler failed (RuntimeError: no C++ compiler found); '
+        'the learner stays with the eager update'
+    ]
+    for _ in range(3):
+        assert learner.update() == eager.update()
+    assert largest_difference(eager, learner) == 0.0
+    assert len(log.warning_lines) == 1 and not log.info_lines
+
+
+def test_a_configuration_that_cannot_be_compiled_stays_eager_with_one_line():
+    learner = filled(mode='eqsac', advice_batch='proportional', compile_update=True, advised_every=3)
+    learner.log = log = Lines()
+    for _ in range(3):
+        learner.update()
+    assert learner.compiled_update is False and learner.updates == 3
+    assert log.warning_lines == [
+        "compile_update: advice_batch 'proportional' changes the batch size at every step; "
+        'the learner stays with the eager update'
+    ]
+
+
+def test_compile_update_is_off_by_default_and_a_learner_parameter():
+    learner = filled()
+    learner.update()
+    assert learner.config.compile_update is False and learner.compiled_update is None
+    with pytest.raises(ValueError, match='compile_update must be true or false'):
+        LearnerConfig(compile_update='yes')
