@@ -78,12 +78,12 @@ test-fast: setup
 demo: setup
 	$(VENV)/bin/eqhrl-demo
 
-# Benchmarks (not part of the tests): Stable-Baselines3 is a benchmark-only dependency.
+# Benchmarks (not part of the tests): Stable-Baselines3 and SBX are benchmark-only dependencies.
 $(VENV)/.stamp-bench: $(VENV)/.stamp-eqhrl_ros benchmarks/requirements.txt
 	$(VPY) -m pip install -q -r benchmarks/requirements.txt -c constraints.txt 2>&1 | $(PIP_QUIET)
 	touch $@
 
-# Each exits non-zero when a speed target of issue 8 is missed; `bench` runs both.
+# Each exits non-zero when a speed target is missed (bench_learner: issue 22, against SBX); `bench` runs both.
 # bench_ros's targets are for the EventsExecutor (opt-in since issue 16; see flood.py).
 bench: $(VENV)/.stamp-bench
 	$(VPY) benchmarks/bench_learner.py; learner=$$?; $(VPY) benchmarks/bench_ros.py --executor events; ros=$$?; \

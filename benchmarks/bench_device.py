@@ -11,6 +11,7 @@ budget with the heuristic expert, so it also pays for D(s), E(s) and the second 
 Prints, for each env and mode, side by side in interleaved rounds on the same machine:
 - env steps per second of one lone learner on the CPU (--threads torch threads) and on the device;
 - milliseconds per update alone (the replay memory full, no env), median of --updates;
+- with --compiled, the same with compile_update: true (compiled before timing);
 - the device's curve of seeds together (core/seed_batch.py): seed-steps per second for N seeds.
 The figures are the machine's: the script prints which CPU and which GPU made them.
 """
@@ -36,23 +37,30 @@ def _sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def _learner(env, mode: str, seed: int, warmup: int, device: str) -> EQSACLearner:
-    config = LearnerConfig(mode=mode, seed=seed, learning_starts=warmup, advising_budget=10**6, device=device)
+def _learner(env, mode: str, seed: int, warmup: int, device: str, compiled: bool = False) -> EQSACLearner:
+    config = LearnerConfig(
+        mode=mode, seed=seed, learning_starts=warmup, advising_budget=10**6, device=device, compile_update=compiled
+    )
     return EQSACLearner(int(np.prod(env.observation_space.shape)), env.action_space.low, env.action_space.high, config)
 
 
 class Loop:
     """One lone learner's Algorithm 1 loop, advanced some env steps at a time."""
 
-    def __init__(self, env_id: str, mode: str, device: str, warmup: int):
+    def __init__(self, env_id: str, mode: str, device: str, warmup: int, compiled: bool = False, foreground=False):
         from eqhrl_ros.core.training import _Acting
 
         self.device = device
         self.env = make_env(env_id)
-        self.learner = _learner(self.env, mode, 0, warmup, device)
+        self.learner = _learner(self.env, mode, 0, warmup, device, compiled and not foreground)
         self.acting = _Acting(self.env, self.learner, heuristic_expert(env_id))
         self.acting.reset(0)
         self.run(warmup)
+        if compiled:  # the first update starts the compiler; timing starts once it is done
+            self.run(1)
+            if foreground:  # in this thread (some torch versions' inductor fails in another one)
+                self.learner.start_compiling(background=False)
+            self.learner.compiled_update.wait()  # a failure: eager, said in one log line
 
     def run(self, steps: int) -> None:
         for _ in range(steps):
@@ -63,7 +71,12 @@ class Loop:
 
 
 def steps_per_second(env_id: str, devices, args) -> dict:
-    loops = {(mode, device): Loop(env_id, mode, device, args.warmup) for mode in MODES for device in devices}
+    loops = {
+        (mode, device, compiled): Loop(env_id, mode, device, args.warmup, compiled, args.foreground_compile)
+        for mode in MODES
+        for device in devices
+        for compiled in ((False, True) if args.compiled else (False,))
+    }
     seconds = dict.fromkeys(loops, 0.0)
     for _ in range(args.rounds):
         for key, loop in loops.items():
@@ -79,7 +92,8 @@ def steps_per_second(env_id: str, devices, args) -> dict:
             _sync(loop.device)
             times.append(time.perf_counter() - start)
         update_ms[key] = statistics.median(times) * 1e3
-    return {key: (args.rounds * args.round_steps / s, update_ms[key]) for key, s in seconds.items()}
+    figures = {key: (args.rounds * args.round_steps / s, update_ms[key]) for key, s in seconds.items()}
+    return figures, loops
 
 
 def seeds_together(env_id: str, device: str, n: int, args) -> float:
@@ -124,6 +138,10 @@ def main(argv=None) -> int:
     parser.add_argument('--rounds', type=int, default=4)
     parser.add_argument('--round-steps', type=int, default=150)
     parser.add_argument('--updates', type=int, default=200, help='updates alone, timed one by one')
+    parser.add_argument('--compiled', action='store_true', help='also each learner with compile_update: true')
+    parser.add_argument(
+        '--foreground-compile', action='store_true', help='compile in the main thread (before timing either way)'
+    )
     parser.add_argument('--curve', nargs='*', type=int, default=[1, 2, 5, 10, 20], help='N seeds together')
     parser.add_argument('--seed-steps', type=int, default=100, help='timed env steps per seed of the curve')
     args = parser.parse_args(argv)
@@ -133,12 +151,15 @@ def main(argv=None) -> int:
     devices = ['cpu'] if args.device == 'cpu' else ['cpu', args.device]
     print(machine(args.device))
     for env_id in args.envs:
-        figures = steps_per_second(env_id, devices, args)
+        figures, loops = steps_per_second(env_id, devices, args)
         print(f'\n{env_id}, one lone learner, one update per env step')
-        print(f'  {"mode":<6} {"device":<8} {"steps/s":>8} {"update ms":>10} {"vs cpu":>7}')
-        for (mode, device), (rate, ms) in figures.items():
-            ratio = rate / figures[(mode, 'cpu')][0]
-            print(f'  {mode:<6} {device:<8} {rate:>8.1f} {ms:>10.2f} {ratio:>6.2f}x')
+        print(f'  {"mode":<6} {"device":<8} {"update":<9} {"steps/s":>8} {"update ms":>10} {"vs cpu eager":>13}')
+        for (mode, device, compiled), (rate, ms) in figures.items():
+            ratio = rate / figures[(mode, 'cpu', False)][0]
+            kind = 'eager'
+            if compiled:
+                kind = 'compiled' if loops[(mode, device, compiled)].learner.compiled_update.ready else 'failed'
+            print(f'  {mode:<6} {device:<8} {kind:<9} {rate:>8.1f} {ms:>10.2f} {ratio:>12.2f}x')
         if args.curve:
             device = devices[-1]
             print(f'{env_id}, EQSAC seeds together on {device}: seed-steps/s')

@@ -158,11 +158,16 @@ class CompiledUpdate:
         self.log = log or LOG
         self.ready = False
         self.failed = ''
+        self.error: Optional[BaseException] = None
         self.seconds: Optional[float] = None
         # The networks' structure, on copies: functional_call() gives them their weights, and
         # tracing them in the background must not touch the modules the learner acts with.
         self._nets = (copy.deepcopy(learner.actor), copy.deepcopy(learner.critic))
-        self._function = torch.compile(algorithm1_update, fullgraph=True, dynamic=False)
+        # loop_ordering_after_fusion off: with it, torch 2.11's inductor failed an assertion on
+        # this program on CUDA; on the CPU it makes no difference in speed (docs/performance.md).
+        self._function = torch.compile(
+            algorithm1_update, fullgraph=True, dynamic=False, options={'loop_ordering_after_fusion': False}
+        )
         self._variants = self._advice_variants()
         if background:
             self._thread = threading.Thread(target=self._warm_up, args=(self._copies(),), daemon=True)
@@ -253,6 +258,7 @@ class CompiledUpdate:
                 )
                 self._function(self._nets, weights, state, batch, advice, noise, hyper)
         except Exception as error:  # noqa: BLE001 - any compiler failure leaves the eager update
+            self.error = error  # the whole exception, for whoever wants more than the line
             self.failed = f'{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ""}'
             self.log.warning(
                 f'compile_update: the compiler failed ({self.failed}); the learner stays with the eager update'
