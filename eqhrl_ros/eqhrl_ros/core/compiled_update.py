@@ -11,8 +11,8 @@ function into one program, with everything around the matrix products fused.
 What a user sees:
 - The first updates run eagerly. The compiler runs in a background thread on copies of the
   weights, off the acting path; once it is done, the next update is the compiled one.
-- Its cost (seconds, and whether inductor's on-disk cache had it) is reported in one log
-  line, as is any failure, after which the learner stays eager. Nothing else changes.
+- Its cost in seconds is reported in one log line, as is any failure, after which the
+  learner stays eager. Nothing else changes.
 - Random draws (the replay batches and the noise) are made outside, in the eager update's
   order from the same streams, so compiled and eager updates compute the same numbers to
   float rounding (tests/core/test_compiled_update.py).
@@ -49,8 +49,9 @@ def compile_refusal(config) -> str:
 # --------------------------------------------------------------------------- the pure update
 
 
-def _adam_(params, grads, state, lr: float) -> None:
-    """torch's functional Adam, in place on ``params`` and on the optimiser's own moments."""
+def _adam_(params, grads, state, settings: dict) -> None:
+    """torch's functional Adam, in place on ``params`` and on the optimiser's own moments;
+    ``settings``: lr, betas and eps, as the learner's torch.optim.Adam holds them."""
     exp_avgs, exp_avg_sqs, steps = state
     functional_adam(
         params,
@@ -63,11 +64,11 @@ def _adam_(params, grads, state, lr: float) -> None:
         # Compiled: step counts stay tensors (no .item()), so the update is one graph.
         capturable=torch.compiler.is_compiling(),
         amsgrad=False,
-        beta1=0.9,
-        beta2=0.999,
-        lr=lr,
+        beta1=settings['betas'][0],
+        beta2=settings['betas'][1],
+        lr=settings['lr'],
         weight_decay=0.0,
-        eps=1e-8,
+        eps=settings['eps'],
         maximize=False,
     )
 
@@ -107,7 +108,7 @@ def algorithm1_update(nets, weights, state, batch, advice, noise, hyper) -> dict
             return twin_critic_loss(_with(critic_net, w), obs, action, y)
 
         grads, loss = grad_and_value(loss_of)(critic_w)
-        _adam_(list(critic_w.values()), list(grads.values()), state['critic'], hyper['critic_lr'])
+        _adam_(list(critic_w.values()), list(grads.values()), state['critic'], hyper['critic_adam'])
         return loss
 
     # 1st critic update: the batch from D (Eq. 5); 2nd: the batch from D_advising.
@@ -123,13 +124,13 @@ def algorithm1_update(nets, weights, state, batch, advice, noise, hyper) -> dict
             return policy_loss(_with(actor_net, w), critic, obs, noise, alpha)
 
         grads, (loss, log_prob) = grad_and_value(loss_of, has_aux=True)(actor_w)
-        _adam_(list(actor_w.values()), list(grads.values()), state['actor'], hyper['actor_lr'])
+        _adam_(list(actor_w.values()), list(grads.values()), state['actor'], hyper['actor_adam'])
 
         def alpha_loss_of(log_alpha):
             return eq.temperature_loss(log_alpha, log_prob, hyper['target_entropy'])
 
         alpha_grad, alpha_loss = grad_and_value(alpha_loss_of)(weights['log_alpha'])
-        _adam_([weights['log_alpha']], [alpha_grad], state['alpha'], hyper['alpha_lr'])
+        _adam_([weights['log_alpha']], [alpha_grad], state['alpha'], hyper['alpha_adam'])
         return loss, alpha_loss
 
     # Actor (Eq. 6) and temperature on the batch from D (and on advice, actor_on_advice).
@@ -177,7 +178,7 @@ class CompiledUpdate:
             self._warm_up(self._copies())
 
     def _advice_variants(self) -> list:
-        """(with an advice batch?, the actor on advice?) of every update this learner can make."""
+        """Whether an update has an advice batch, for every kind of update this learner makes."""
         cfg = self.learner.config
         if self.learner.mode == 'sac' or not cfg.dual_replay:
             return [False]
@@ -210,15 +211,12 @@ class CompiledUpdate:
         return state
 
     def _hyper(self) -> dict:
-        cfg = self.learner.config
-        return {
-            'gamma': cfg.gamma,
-            'tau': cfg.tau,
-            'actor_lr': cfg.actor_lr,
-            'critic_lr': cfg.critic_lr,
-            'alpha_lr': cfg.alpha_lr,
-            'target_entropy': self.learner.target_entropy,
-        }
+        learner = self.learner
+        hyper = {'gamma': learner.config.gamma, 'tau': learner.config.tau, 'target_entropy': learner.target_entropy}
+        for name in ('actor', 'critic', 'alpha'):  # Adam's settings from the optimisers themselves
+            group = getattr(learner, f'{name}_optimizer').param_groups[0]
+            hyper[f'{name}_adam'] = {'lr': group['lr'], 'betas': tuple(group['betas']), 'eps': group['eps']}
+        return hyper
 
     def _copies(self):
         """Copies of the weights and the optimiser state, and made-up batches of the right shapes,
