@@ -170,6 +170,7 @@ class CompiledUpdate:
             algorithm1_update, fullgraph=True, dynamic=False, options={'loop_ordering_after_fusion': False}
         )
         self._variants = self._advice_variants()
+        self._settings = self._hyper()  # the config's constants, baked into the program
         if background:
             self._thread = threading.Thread(target=self._warm_up, args=(self._copies(),), daemon=True)
             self._thread.start()
@@ -188,7 +189,7 @@ class CompiledUpdate:
 
     def _weights(self, copy: bool = False) -> dict:
         take = (lambda t: t.detach().clone()) if copy else (lambda t: t.detach())
-        learner = self.learner
+        learner = self.learner  # read at every call: loading a checkpoint replaces the modules
         return {
             'actor': {k: take(v) for k, v in learner.actor.named_parameters()},
             'critic': {k: take(v) for k, v in learner.critic.named_parameters()},
@@ -233,7 +234,7 @@ class CompiledUpdate:
                 torch.zeros(size, device=device),
             )
 
-        return self._weights(copy=True), self._state(copy=True), made_up_batch, self._hyper()
+        return self._weights(copy=True), self._state(copy=True), made_up_batch, self._settings
 
     def _noise(self, sizes: list, actor_on_advice: bool, draw) -> tuple:
         m = self.learner.action_dim
@@ -289,7 +290,7 @@ class CompiledUpdate:
         sizes = [len(batch.reward)] + ([len(advice_batch.reward)] if advice_batch is not None else [])
         noise = self._noise(sizes, learner.config.actor_on_advice, lambda shape: learner.noise(shape, 'update'))
         losses = self._function(
-            self._nets, self._weights(), self._state(), as_tuple(batch), advice, noise, self._hyper()
+            self._nets, self._weights(), self._state(), as_tuple(batch), advice, noise, self._settings
         )
         info = {name: float(value) for name, value in losses.items()}
         info['alpha'] = learner.alpha

@@ -125,7 +125,9 @@ def adam(params, lr: float, state: dict | None = None) -> torch.optim.Adam:
     """
     optimizer = torch.optim.Adam(params, lr=lr, fused=True)
     if state is not None:
-        optimizer.load_state_dict(state)
+        # A copy: torch's load_state_dict keeps the given moment and step tensors themselves, so
+        # loading another live learner's state_dict() would have both step the same moments.
+        optimizer.load_state_dict(copy.deepcopy(state))
         for group in optimizer.param_groups:
             group.update(fused=True, foreach=None)
     return optimizer

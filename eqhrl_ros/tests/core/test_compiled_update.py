@@ -94,6 +94,27 @@ def test_the_compiled_update_computes_what_the_eager_update_computes():
     assert torch.equal(eager.noise((4,), 'update'), fast.noise((4,), 'update'))
 
 
+@pytest.mark.slow  # the compiler
+def test_a_checkpoint_loaded_into_a_compiled_learner_is_what_it_updates():
+    """Loading a state replaces the learner's modules and optimisers: the compiled update must
+    then step the loaded weights, as the eager update does."""
+    eager, fast = filled(mode='sac'), filled(mode='sac', compile_update=True)
+    fast.log = Lines()
+    eager.update(), fast.update()
+    assert fast.compiled_update.wait(timeout=900), fast.compiled_update.failed
+    donor = filled(mode='sac', seed=11)
+    for _ in range(3):
+        donor.update()
+    for learner in (eager, fast):
+        learner.load_state_dict(donor.state_dict())
+    assert largest_difference(eager, fast) == 0.0
+    for _ in range(5):
+        expected, got = eager.update(), fast.update()
+    assert got['critic_loss'] == pytest.approx(expected['critic_loss'], rel=1e-4)
+    assert largest_difference(eager, fast) < 1e-5
+    assert largest_difference(donor, fast) > 1e-4  # it learned from the loaded weights on
+
+
 class SlowCompiler:
     """torch.compile's stand-in: the 'compiled' function is the eager function, and the first
     (warm-up) call waits until the test lets it go, as a slow compiler would."""

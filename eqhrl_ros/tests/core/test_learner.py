@@ -221,6 +221,33 @@ def test_checkpoint_round_trip_gives_identical_actions_and_counters(tmp_path):
     assert all(torch.equal(p, q) for p, q in zip(learner.actor.parameters(), restored.actor.parameters()))
 
 
+def test_a_state_loaded_in_process_shares_no_tensor_with_the_learner_it_came_from():
+    """load_state_dict(other.state_dict()) without a file between (a copy of a learner, weights
+    handed over in memory): torch's optimisers keep the given state tensors, so the two
+    learners' Adam moments and step counts were one, and each of them stepped both."""
+    donor, twin = small_learner(seed=1, learning_starts=1), small_learner(seed=2, learning_starts=1)
+    for learner in (donor, twin):
+        pendulum_episode(learner, ScriptedExpert(Advice(np.array([1.0], dtype=np.float32))))
+        learner.update()
+    assert donor.critic_optimizer.state  # there are moments to share
+    twin.load_state_dict(donor.state_dict())
+    mine = {t.data_ptr() for t in _state_tensors(twin)}
+    assert mine.isdisjoint(t.data_ptr() for t in _state_tensors(donor))
+    steps = [float(s['step']) for s in donor.critic_optimizer.state.values()]
+    twin.update()  # steps the twin alone
+    assert [float(s['step']) for s in donor.critic_optimizer.state.values()] == steps
+
+
+def _state_tensors(learner):
+    modules = (learner.actor, learner.critic, learner.critic_target)
+    optimizers = (learner.actor_optimizer, learner.critic_optimizer, learner.alpha_optimizer)
+    return [
+        *(t for m in modules for t in m.state_dict().values()),
+        learner.log_alpha,
+        *(t for o in optimizers for s in o.state.values() for t in s.values()),
+    ]
+
+
 def test_corrupt_and_foreign_checkpoints_give_clear_errors_and_change_nothing(tmp_path):
     learner = small_learner()
     save_checkpoint(learner, tmp_path / 'good.pt')
