@@ -11,7 +11,9 @@ marker when finished; <output>/episodes.csv gathers all finished runs with the
 columns of COLUMNS. In-process runs also evaluate the policy without advice every
 --eval-every episodes from --eval-starts fixed start states (core/evaluation.py):
 <run>/eval.csv, gathered into <output>/eval.csv (EVAL_COLUMNS). Interrupt with Ctrl-C and run the same command again:
-finished runs are skipped, unfinished ones start over.
+finished runs are skipped; an unfinished lone in-process run continues from its last save
+(every --save-every minutes, between episodes: core/resume_point.py) and writes what it
+would have written uninterrupted; runs through ROS and seeds learning together start over.
 
 Seeds of an algorithm learn together in one process where that is faster (small networks,
 see --seeds-together; core/seed_batch.py): the same numbers as learning apart, to float
@@ -30,6 +32,8 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
+import math
 import multiprocessing as mp
 import os
 import queue
@@ -68,6 +72,9 @@ class Settings:
     # fields, the expert backend then simulated_human), 'delay_steps', 'gain' (imperfect_experts).
     expert_options: dict = field(default_factory=dict)
     gate_trace: bool = False  # write <run>/gates.csv: D(s), E(s) and thresholds inside the budget
+    # A lone in-process run saves its state between episodes this often (seconds; 0: never),
+    # and an interrupted one continues from there (core/resume_point.py). --save-every.
+    save_every_s: float = 300.0
 
 
 def load_settings(args) -> Settings:
@@ -91,6 +98,9 @@ def load_settings(args) -> Settings:
     check_section('expert', expert, EXPERT_PARAMS)
     if args.budget is not None:
         learner['advising_budget'] = args.budget
+    save_every = getattr(args, 'save_every', None)
+    if save_every is not None and not (save_every >= 0 and math.isfinite(save_every)):
+        raise ValueError(f'--save-every must be >= 0 minutes (0: never), got {save_every}')
     if args.eval_every < 0 or args.eval_starts < 1:
         raise ValueError(
             f'--eval-every must be >= 0 and --eval-starts >= 1 (got {args.eval_every}, {args.eval_starts})'
@@ -111,6 +121,8 @@ def load_settings(args) -> Settings:
         eval_every=0 if args.through_ros else args.eval_every,
         eval_starts=args.eval_starts,
     )
+    if save_every is not None:
+        settings.save_every_s = 60.0 * save_every
     return settings
 
 
@@ -150,9 +162,10 @@ def run_dir(output: Path, algorithm: str, seed: int) -> Path:
     return output / algorithm / f'seed{seed}'
 
 
-def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, progress):
+def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, progress, resume=None):
     """One seed's env, learner, expert and record files as a training.SeedRun, and a function
-    that closes them."""
+    that closes them. ``resume``: a core.resume_point.ResumePoint to continue from if it
+    holds a usable save (the records then keep their rows up to it), or None."""
     from ..core import EpisodeSummary, EQSACLearner, make_env, success_criterion
     from ..core.evaluation import EVAL_FIELDS, eval_seeds
     from ..core.records import EpisodeRecord
@@ -166,10 +179,15 @@ def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, pr
         learner_config(settings, algorithm, seed),
         success_criterion(settings.env_id),
     )
-    record = EpisodeRecord(directory / 'episodes.csv', EpisodeSummary.CSV_FIELDS)  # the learner node's record
+    expert = make_expert(settings, seed)
+    resumed = resume is not None and resume.restore(learner, env, expert)
+    # Resumed after episode E: episodes 0..E-1, evaluations after up to E episodes, and the
+    # gates of episodes 0..E-1 are kept; later rows are made again.
+    keep = learner.episode if resumed else None
+    record = EpisodeRecord(directory / 'episodes.csv', EpisodeSummary.CSV_FIELDS, keep)  # the learner node's record
     evaluation, eval_record = None, None
     if settings.eval_every:
-        eval_record = EpisodeRecord(directory / 'eval.csv', EVAL_FIELDS)
+        eval_record = EpisodeRecord(directory / 'eval.csv', EVAL_FIELDS, None if keep is None else keep + 1)
 
         def on_eval(results):
             for result in results:
@@ -192,7 +210,7 @@ def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, pr
 
     gate_record, on_proposal = None, None
     if settings.gate_trace:
-        gate_record = EpisodeRecord(directory / 'gates.csv', GATE_FIELDS)
+        gate_record = EpisodeRecord(directory / 'gates.csv', GATE_FIELDS, keep)
 
         def on_proposal(learner, proposal):
             decision = proposal.decision
@@ -210,30 +228,39 @@ def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, pr
             eval_record.close()
             evaluation.env.close()
 
-    run = SeedRun(env, learner, make_expert(settings, seed), seed, on_episode, evaluation, on_proposal)
+    # A resumed run's env stream goes on from the save; a fresh one starts from the seed.
+    run = SeedRun(env, learner, expert, None if resumed else seed, on_episode, evaluation, on_proposal)
     return run, close
 
 
-def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id=None) -> None:
+def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id=None) -> float:
+    """One run in this process, continued from its resume point if it has one (saved every
+    settings.save_every_s between episodes: core/resume_point.py). Returns the wall time of
+    the run so far in seconds, earlier processes included."""
     import torch
 
     from ..core import train
+    from ..core.resume_point import ResumePoint
 
     torch.set_num_threads(1)  # one process per core
-    run, close = _seed_run(settings, algorithm, seed, directory, progress)
+    identity = {'settings': dataclasses.asdict(settings), 'algorithm': algorithm, 'seed': seed}
+    point = ResumePoint(directory, identity, settings.save_every_s, log=lambda line: print(line, flush=True))
+    run, close = _seed_run(settings, algorithm, seed, directory, progress, resume=point)
     try:
         train(
             run.env,
             run.learner,
             settings.episodes,
             run.expert,
-            seed=seed,
+            seed=run.seed,
             on_episode=run.on_episode,
             evaluation=run.evaluation,
             on_proposal=run.on_proposal,
+            between_episodes=lambda: point.save_if_due(run.learner, run.env, run.expert),
         )
     finally:
         close()
+    return point.seconds
 
 
 def run_together(settings: Settings, algorithm: str, seeds, output: Path, progress) -> None:
@@ -392,9 +419,16 @@ def _worker(settings, algorithm, seed, directory, through_ros, progress, domain_
     directory.mkdir(parents=True, exist_ok=True)
     (directory / 'DONE').unlink(missing_ok=True)
     start = time.monotonic()
-    (run_through_ros if through_ros else run_in_process)(settings, algorithm, seed, directory, progress, domain_id)
-    elapsed = time.monotonic() - start
+    if through_ros:
+        run_through_ros(settings, algorithm, seed, directory, progress, domain_id)
+        elapsed = time.monotonic() - start
+    else:
+        elapsed = run_in_process(settings, algorithm, seed, directory, progress, domain_id)
     (directory / 'DONE').write_text(f'{elapsed:.1f}\n')
+    if not through_ros:
+        from ..core.resume_point import remove_files
+
+        remove_files(directory)  # after DONE: a run killed in between is not redone
     return algorithm, seed, elapsed
 
 
@@ -458,6 +492,17 @@ def _gather_eval(output: Path, algorithms, seeds, label: str = 'algorithm') -> N
             writer.writerows(rows)
 
 
+def add_save_every(parser) -> None:
+    """--save-every, the same for eqhrl-experiment and eqhrl-study."""
+    parser.add_argument(
+        '--save-every',
+        type=float,
+        metavar='MINUTES',
+        help='a lone in-process run saves its state between episodes this often, and an interrupted one '
+        f'continues from there when the command runs again (default {Settings.save_every_s / 60:g}; 0: never)',
+    )
+
+
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(
         prog='eqhrl-experiment',
@@ -491,6 +536,7 @@ def parse_args(argv=None):
         'fixed start states; written to eval.csv (in-process runs; 0: none)',
     )
     parser.add_argument('--eval-starts', type=int, default=10, help='start states of each evaluation')
+    add_save_every(parser)
     batching = parser.add_mutually_exclusive_group()
     batching.add_argument(
         '--seeds-apart',

@@ -29,7 +29,8 @@ Runs go group by group, seed by seed, so that a cut study still holds whole, pai
 Each run writes <output>/<arm>/seed<k>/ (episodes.csv, eval.csv, gates.csv, DONE);
 <output>/episodes.csv, eval.csv and gates.csv gather the finished runs (after each one) with
 an ``arm`` column, and <output>/arms.csv says what each arm is. Interrupt with Ctrl-C and run the same
-command again: finished runs are kept, unfinished ones start over. eqhrl-study-report
+command again: finished runs are kept, unfinished ones continue from their last save (every
+--save-every minutes, between episodes: core/resume_point.py). eqhrl-study-report
 turns the output into tables and figures.
 """
 
@@ -150,8 +151,9 @@ def load_plan(name_or_path: str) -> Plan:
     )
 
 
-def arm_settings(plan: Plan, arm: Arm) -> experiment.Settings:
-    """The experiment runner's settings for one arm, checked as the runner checks a params file."""
+def arm_settings(plan: Plan, arm: Arm, save_every: float | None = None) -> experiment.Settings:
+    """The experiment runner's settings for one arm, checked as the runner checks a params file.
+    ``save_every``: --save-every (minutes; None: the runner's default)."""
     args = argparse.Namespace(
         params=plan.params,
         env=None,
@@ -164,6 +166,7 @@ def arm_settings(plan: Plan, arm: Arm) -> experiment.Settings:
         env_node=None,
         eval_every=plan.eval_every,
         eval_starts=plan.eval_starts,
+        save_every=save_every,
     )
     settings = experiment.load_settings(args)
     learner = {**settings.learner, **plan.learner, **arm.learner}
@@ -249,6 +252,7 @@ def parse_args(argv=None):
     parser.add_argument('--groups', nargs='+', help='run only these groups (default: all, in order)')
     parser.add_argument('--max-seeds', type=int, help='run only the first N seeds of each group')
     parser.add_argument('--list', action='store_true', help='print the runs and what is finished; run nothing')
+    experiment.add_save_every(parser)
     return parser.parse_args(argv)
 
 
@@ -256,7 +260,7 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     try:
         plan = load_plan(args.plan)
-        settings = {arm.name: arm_settings(plan, arm) for arm in plan.arms}
+        settings = {arm.name: arm_settings(plan, arm, args.save_every) for arm in plan.arms}
     except (ValueError, FileNotFoundError, KeyError) as error:
         print(f'eqhrl-study: {error}', file=sys.stderr)
         return 2

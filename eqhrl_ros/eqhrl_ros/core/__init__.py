@@ -16,6 +16,7 @@
 - weights.py     the networks an actor needs, as safetensors bytes
 - summary.py     one episode's statistics (the record's fields)
 - records.py     a run's folder: episodes.csv and where saves go
+- resume_point.py a lone in-process run saved between episodes and resumed exactly
 """
 
 import importlib

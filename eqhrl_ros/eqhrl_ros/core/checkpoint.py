@@ -17,6 +17,7 @@ carry the same pairing token, so a resume never combines files of two saves.
 from __future__ import annotations
 
 import io
+import json
 import os
 import pickle
 import secrets
@@ -157,9 +158,11 @@ def replay_size_limit(learner) -> int:
     return sum(4 * b.capacity * b.rows.shape[1] for b in buffers) * 2 + _OVERHEAD_BYTES
 
 
-def save_checkpoint(learner, path, replay_path=None) -> None:
+def save_checkpoint(learner, path, replay_path=None, extra: dict | None = None) -> None:
     """Save everything needed to resume; the replay memories optionally, to their own file.
 
+    ``extra``: plain values (JSON) saved with the learner and returned by load_checkpoint(),
+    for a caller's own state that must stay in step with the learner's (resume_point.py).
     Both files are written in full before either is renamed into place, and both carry
     one pairing token. Raises CheckpointWriteError (the previous files intact) when a
     write fails.
@@ -188,7 +191,14 @@ def save_checkpoint(learner, path, replay_path=None) -> None:
         written.append(
             (
                 _write_temporary(
-                    {'format': CHECKPOINT_FORMAT, 'version': FORMAT_VERSION, 'pair': pair, **learner.state_dict()}, path
+                    {
+                        'format': CHECKPOINT_FORMAT,
+                        'version': FORMAT_VERSION,
+                        'pair': pair,
+                        **learner.state_dict(),
+                        **({'extra': json.dumps(extra)} if extra is not None else {}),
+                    },
+                    path,
                 ),
                 path,
             )
@@ -210,8 +220,10 @@ def check_checkpoint_file(path) -> None:
     _check_zip(path, CHECKPOINT_FORMAT, None)
 
 
-def load_checkpoint(learner, path, replay_path=None) -> None:
-    """Restore a learner. Raises CheckpointError and leaves the learner unchanged on any problem."""
+def load_checkpoint(learner, path, replay_path=None, check_extra=None) -> dict | None:
+    """Restore a learner; returns the ``extra`` saved with it (None if none). Raises
+    CheckpointError and leaves the learner unchanged on any problem. ``check_extra(extra)``,
+    called before anything changes, may refuse the file by raising CheckpointError."""
     state = _safe_load(path, CHECKPOINT_FORMAT, checkpoint_size_limit(learner))
     replay = None
     if replay_path is not None and Path(replay_path).exists():
@@ -233,11 +245,18 @@ def load_checkpoint(learner, path, replay_path=None) -> None:
         except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as error:
             raise CheckpointError(f'{replay_path}: does not fit this learner ({error})') from error
     try:
+        extra = json.loads(state['extra']) if 'extra' in state else None
+    except (TypeError, ValueError) as error:
+        raise CheckpointError(f'{path}: its extra state is not JSON ({error})') from error
+    if check_extra is not None:
+        check_extra(extra)
+    try:
         learner.load_state_dict(state)
     except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as error:
         raise CheckpointError(f'{path}: does not fit this learner ({error})') from error
     if replay is not None:
         learner.replay, learner.advice_replay = candidate_replay, candidate_advice
+    return extra
 
 
 def export_policy(learner, path) -> None:

@@ -82,10 +82,13 @@ def train(
     on_episode: Callable[[EpisodeSummary], None] | None = None,
     evaluation: Optional['Evaluation'] = None,
     on_proposal: Callable | None = None,
+    between_episodes: Callable[[], None] | None = None,
 ) -> list[EpisodeSummary]:
     """Run episodes until the learner's episode index reaches ``episodes`` (resumes count).
+    ``seed``: the first reset's seed (None: the env's stream goes on, as after a resume);
     ``evaluation``: the advice-free evaluation every ``evaluation.every`` episodes;
-    ``on_proposal``: see run_episode."""
+    ``on_proposal``: see run_episode; ``between_episodes``: called after each episode is
+    recorded and evaluated, where the run can be saved (resume_point.py)."""
     summaries = []
     first = True
     while learner.episode < episodes:
@@ -95,6 +98,8 @@ def train(
         if on_episode is not None:
             on_episode(summary)
         _evaluate_if_due(evaluation, learner, episodes)
+        if between_episodes is not None:
+            between_episodes()
     return summaries
 
 

@@ -243,3 +243,113 @@ def test_the_experiment_refuses_a_params_file_as_the_learner_node_does(tmp_path,
     )
     assert message in capsys.readouterr().err
     assert not (tmp_path / 'out').exists()
+
+
+class _Interrupt(Exception):
+    """Stands in for a kill: the run ends in the middle, without closing anything."""
+
+
+class _Progress:
+    """The runner's progress queue; ``stop_at``: the episode whose report ends the run."""
+
+    def __init__(self, stop_at=None):
+        self.episodes, self.stop_at = [], stop_at
+
+    def put(self, item):
+        _, _, episode, _ = item
+        self.episodes.append(episode)
+        if episode == self.stop_at:
+            raise _Interrupt
+
+
+def test_an_interrupted_run_continues_from_its_last_save_and_writes_what_an_uninterrupted_one_writes(tmp_path):
+    """A run killed after episode 3 resumes from its save after episode 2: it does not start
+    over, and its episodes, evaluations and gate records are the uninterrupted run's, row for
+    row (the learner with its replay memories, the env's start states and a simulated
+    person's noise and misses all continue where they were)."""
+    import torch
+
+    params_file = tmp_path / 'tiny.yaml'
+    params_file.write_text(
+        'gym_env:\n  ros__parameters:\n    env_id: Pendulum-v1\n    max_episode_steps: 40\n'
+        'learner:\n  ros__parameters:\n    env_id: Pendulum-v1\n    hidden_sizes: [32, 32]\n'
+        '    batch_size: 32\n    learning_starts: 40\n    queue_length: 3\n    advising_budget: 5\n'
+        '    max_episodes: 6\n'
+    )
+    args = experiment.parse_args(['--params', str(params_file), '--eval-every', '2', '--output', 'x'])
+    settings = experiment.load_settings(args)
+    settings.save_every_s = 1e-9  # after every episode
+    settings.gate_trace = True
+    settings.expert_options = {'human': {'action_noise': 0.3, 'miss_probability': 0.3}}
+    threads = torch.get_num_threads()
+    try:
+        whole, cut = tmp_path / 'whole', tmp_path / 'cut'
+        for folder in (whole, cut):
+            folder.mkdir()
+        experiment.run_in_process(settings, 'eqsac', 3, whole, _Progress())
+
+        with pytest.raises(_Interrupt):
+            experiment.run_in_process(settings, 'eqsac', 3, cut, _Progress(stop_at=3))
+        assert (cut / 'resume.pt').exists() and (cut / 'resume-replay.pt').exists()
+        progress = _Progress()
+        experiment.run_in_process(settings, 'eqsac', 3, cut, progress)
+    finally:
+        torch.set_num_threads(threads)
+    assert progress.episodes == [3, 4, 5]  # episodes 0-2 were not run again
+    for name in ('episodes.csv', 'eval.csv', 'gates.csv'):
+        assert (cut / name).read_text() == (whole / name).read_text(), name
+    rows = read(whole / 'episodes.csv')
+    assert sum(int(r['advice_given']) for r in rows) > 0 and sum(int(r['advice_failed']) for r in rows) > 0
+
+
+def test_a_save_of_another_run_is_not_resumed(tmp_path, capsys):
+    """A resume point made with other settings is reported and removed; the run starts over."""
+    import torch
+
+    from eqhrl_ros.core.resume_point import CHECKPOINT
+
+    args = experiment.parse_args(['--params', 'demo', '--episodes', '3', '--max-steps', '15', '--output', 'x'])
+    settings = experiment.load_settings(args)
+    settings.save_every_s = 1e-9
+    threads = torch.get_num_threads()
+    try:
+        with pytest.raises(_Interrupt):
+            experiment.run_in_process(settings, 'sac', 0, tmp_path, _Progress(stop_at=1))
+        assert (tmp_path / CHECKPOINT).exists()
+        settings.episodes = 4  # another run's settings in the same folder
+        progress = _Progress()
+        experiment.run_in_process(settings, 'sac', 0, tmp_path, progress)
+    finally:
+        torch.set_num_threads(threads)
+    assert 'not resumed (it was saved by a run with other settings); the run starts over' in capsys.readouterr().out
+    assert progress.episodes == [0, 1, 2, 3]
+    assert [r['episode'] for r in read(tmp_path / 'episodes.csv')] == ['0', '1', '2', '3']
+
+
+def test_save_every_refuses_a_negative_interval(capsys):
+    assert experiment.main(['--save-every', '-1', '--output', 'x']) == 2
+    assert '--save-every must be >= 0 minutes' in capsys.readouterr().err
+
+
+def test_a_resume_point_that_cannot_be_written_costs_the_save_not_the_run(tmp_path, capsys, monkeypatch):
+    """A full disk at a save: one line, the run goes on to its end."""
+    import torch
+
+    from eqhrl_ros.core import resume_point
+    from eqhrl_ros.core.errors import CheckpointWriteError
+
+    def full_disk(*args, **kwargs):
+        raise CheckpointWriteError('resume.pt: No space left on device')
+
+    monkeypatch.setattr(resume_point, 'save_checkpoint', full_disk)
+    args = experiment.parse_args(['--params', 'demo', '--episodes', '3', '--max-steps', '15', '--output', 'x'])
+    settings = experiment.load_settings(args)
+    settings.save_every_s = 1e-9
+    threads = torch.get_num_threads()
+    progress = _Progress()
+    try:
+        experiment.run_in_process(settings, 'sac', 0, tmp_path, progress)
+    finally:
+        torch.set_num_threads(threads)
+    assert progress.episodes == [0, 1, 2]
+    assert capsys.readouterr().out.count('could not save the resume point') == 3
