@@ -31,6 +31,7 @@ gym_env, in the run's private ROS domain:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import dataclasses
 import math
@@ -42,6 +43,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -503,6 +505,37 @@ def add_save_every(parser) -> None:
     )
 
 
+@contextlib.contextmanager
+def stopping_like_ctrl_c():
+    """Inside: SIGTERM and SIGHUP (a closed terminal) end this command as Ctrl-C does, so that
+    its pool stops its workers. With the default handlers the command died at once and left
+    them running, orphaned, in the run folders. A second signal while stopping is ignored with
+    one line, so that it cannot cut the stopping short. SIGINT is left ignored where the shell
+    ignores it (a command started in the background). The handlers before are restored after."""
+
+    def again(signum, frame):
+        print(f'{signal.Signals(signum).name} again: already stopping', file=sys.stderr, flush=True)
+
+    def first(signum, frame):
+        for sig in signals:
+            signal.signal(sig, again)
+        raise KeyboardInterrupt
+
+    signals = [signal.SIGTERM, signal.SIGHUP]
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signals.append(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread():
+        signals = []  # Python takes signals in its main thread only
+    previous = {sig: signal.getsignal(sig) for sig in signals}
+    for sig in signals:
+        signal.signal(sig, first)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(
         prog='eqhrl-experiment',
@@ -611,7 +644,7 @@ def main(argv=None) -> int:
     progress = manager.Queue()
     context = mp.get_context('spawn')
     try:
-        with context.Pool(jobs) as pool:
+        with stopping_like_ctrl_c(), context.Pool(jobs) as pool:
             if together:
                 # Each algorithm's seeds in `jobs` shares, one process each, a share's seeds together.
                 groups = []

@@ -297,7 +297,7 @@ def main(argv=None) -> int:
     progress = mp.Manager().Queue()
     start, finished, pending, running = time.monotonic(), 0, list(todo), {}
     try:
-        with context.Pool(max(1, min(args.jobs, len(todo) or 1))) as pool:
+        with experiment.stopping_like_ctrl_c(), context.Pool(max(1, min(args.jobs, len(todo) or 1))) as pool:
             while pending or running:
                 for key, result in list(running.items()):
                     if result.ready():

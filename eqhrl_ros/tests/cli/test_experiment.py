@@ -2,6 +2,12 @@
 
 import csv
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -353,3 +359,70 @@ def test_a_resume_point_that_cannot_be_written_costs_the_save_not_the_run(tmp_pa
         torch.set_num_threads(threads)
     assert progress.episodes == [0, 1, 2]
     assert capsys.readouterr().out.count('could not save the resume point') == 3
+
+
+def _children(pid):
+    """Live (not zombie) processes whose parent is ``pid``."""
+    found = []
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        state, ppid = text.rsplit(')', 1)[1].split()[:2]
+        if int(ppid) == pid and state != 'Z':
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _alive(pid):
+    try:
+        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != 'Z'
+
+
+def _stop_and_check_workers_end(command, tmp_path, sig):
+    log = open(tmp_path / 'log.txt', 'w+')
+    process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, cwd=tmp_path)
+    workers = []
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(workers) < 2:
+            time.sleep(0.5)
+            workers = [p for p in _children(process.pid) if 'spawn_main' in Path(f'/proc/{p}/cmdline').read_text()]
+        assert len(workers) >= 2, 'the pool never started'
+        time.sleep(2)  # the workers are training
+        workers = _children(process.pid)  # and the Manager's server and multiprocessing's resource tracker
+        process.send_signal(sig)
+        assert process.wait(timeout=60) == 130  # as after Ctrl-C
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and any(_alive(p) for p in workers):
+            time.sleep(0.2)
+        assert not any(_alive(p) for p in workers), 'processes left running after the command ended'
+        log.seek(0)
+        assert 'interrupted: finished runs are kept' in log.read()
+    finally:
+        if process.poll() is None:
+            process.kill()
+        for pid in {*workers, *_children(process.pid)}:  # orphans too, should the test fail
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGHUP], ids=['SIGTERM', 'SIGHUP'])
+def test_a_terminated_experiment_stops_its_workers_with_it(tmp_path, sig):
+    """kill PID or a closed terminal: the pool's workers end with the command, not orphaned in the run folders."""
+    command = [str(Path(sys.prefix) / 'bin' / 'eqhrl-experiment'), '--params', 'demo', '--algorithms', 'sac']
+    command += ['--seeds', '0', '1', '--episodes', '500', '--seeds-apart', '--jobs', '2', '--output', 'out']
+    _stop_and_check_workers_end(command, tmp_path, sig)
+
+
+def test_a_terminated_study_stops_its_workers_with_it(tmp_path):
+    (tmp_path / 'plan.yaml').write_text(
+        'name: tiny\nparams: demo\nepisodes: 500\ngroups:\n  - name: main\n    seeds: [0, 1]\n'
+        '    arms:\n      sac: {mode: sac}\n'
+    )
+    command = [str(Path(sys.prefix) / 'bin' / 'eqhrl-study'), '--plan', 'plan.yaml', '--jobs', '2', '--output', 'out']
+    _stop_and_check_workers_end(command, tmp_path, signal.SIGTERM)
