@@ -411,6 +411,35 @@ def _report_new_rows(path: Path, seen: int, algorithm: str, seed: int, progress)
     return len(rows)
 
 
+class EpisodeCount:
+    """The progress line of a command's runs: episodes done of ``total``, where a resumed run's
+    earlier episodes count as done (its first report here is episode E, not 0), and the time
+    left from the rate of the episodes run in this process only."""
+
+    def __init__(self, total: int):
+        self.total = total
+        self.next_episode = {}  # (algorithm, seed) -> episodes the run has done
+        self.run_here = 0
+
+    def add(self, report) -> None:
+        """One progress report: (algorithm, seed, episode, return)."""
+        algorithm, seed, episode, _ = report
+        self.next_episode[(algorithm, seed)] = max(self.next_episode.get((algorithm, seed), 0), int(episode) + 1)
+        self.run_here += 1
+
+    @property
+    def done(self) -> int:
+        return sum(self.next_episode.values())
+
+    def line(self, runs_done: int, runs: int, seconds: float) -> str:
+        rate = self.run_here / max(seconds, 1e-9)
+        eta = (self.total - self.done) / rate if rate > 0 else float('nan')
+        return (
+            f'[{self.done}/{self.total} episodes, {runs_done}/{runs} runs] '
+            f'{100 * self.done / max(self.total, 1):5.1f}%  eta {eta / 60:5.1f} min'
+        )
+
+
 def domain_ids(count: int) -> list:
     """A ROS domain per run, distinct among the runs of one experiment (at most 100 at a
     time), offset by this process's id so that two experiments on one machine rarely meet."""
@@ -637,8 +666,7 @@ def main(argv=None) -> int:
         f'{", seeds together" if together else ""}',
         flush=True,
     )
-    total = len(todo) * settings.episodes
-    done_episodes, start = 0, time.monotonic()
+    count, start = EpisodeCount(len(todo) * settings.episodes), time.monotonic()
     last_print = 0.0
     manager = mp.Manager()
     progress = manager.Queue()
@@ -668,8 +696,7 @@ def main(argv=None) -> int:
             finished_tasks = 0
             while finished_tasks < len(tasks):
                 try:
-                    progress.get(timeout=0.5)
-                    done_episodes += 1
+                    count.add(progress.get(timeout=0.5))
                 except queue.Empty:
                     pass
                 newly = sum(r.ready() for _, r in tasks) - finished_tasks
@@ -680,14 +707,8 @@ def main(argv=None) -> int:
                 now = time.monotonic()
                 if now - last_print > 15.0 or newly:
                     last_print = now
-                    rate = done_episodes / max(now - start, 1e-9)
-                    eta = (total - done_episodes) / rate if rate > 0 else float('nan')
                     runs_done = sum((run_dir(output, a, s) / 'DONE').exists() for a, s in todo)
-                    print(
-                        f'[{done_episodes}/{total} episodes, {runs_done}/{len(todo)} runs] '
-                        f'{100 * done_episodes / max(total, 1):5.1f}%  eta {eta / 60:5.1f} min',
-                        flush=True,
-                    )
+                    print(count.line(runs_done, len(todo), now - start), flush=True)
     except KeyboardInterrupt:
         print('\ninterrupted: finished runs are kept; run the same command to continue', file=sys.stderr)
         gather(output, args.algorithms, args.seeds)
