@@ -11,7 +11,10 @@ Writes: the whole file is serialized in memory, written to a temporary file besi
 the target with plain ``os.write`` (so a full disk or a read-only folder is an
 ``OSError`` that names itself), flushed to disk and renamed into place. A failed
 write leaves the previous file as it was. The checkpoint and the replay memories
-carry the same pairing token, so a resume never combines files of two saves.
+carry the same pairing token, so a resume never combines files of two saves. The two
+renames of a save cannot be one: while they happen, the previous replay file stays under
+a second name (``.replay.pt.previous``, a hard link), so a save killed between them
+resumes from the previous pair instead of losing the replay memories.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from .envs import ActionScaler
 from .errors import CheckpointError, CheckpointWriteError
 from .experts import Advice, AdviceRequest
 from .networks import SquashedGaussianActor
+from .records import previous_replay_path
 
 CHECKPOINT_FORMAT = 'eqhrl_ros.checkpoint'
 REPLAY_FORMAT = 'eqhrl_ros.replay'
@@ -207,8 +211,36 @@ def save_checkpoint(learner, path, replay_path=None, extra: dict | None = None) 
         for tmp, _ in written:
             Path(tmp).unlink(missing_ok=True)
         raise
-    for tmp, target in written:
+    previous = _keep_previous(replay_path) if replay_path is not None else None
+    for tmp, target in written:  # the replay first, then the checkpoint that names it
         _replace(tmp, target)
+    if previous is not None:
+        previous.unlink(missing_ok=True)  # the new pair is in place
+
+
+def _keep_previous(replay_path: Path) -> Path | None:
+    """A second name for the replay file about to be replaced (a hard link: no copy), so that
+    a save killed between its two renames leaves the previous pair whole. None where there
+    is no previous file or the filesystem has no hard links (then such a kill costs the
+    replay memories, and the resume says so)."""
+    previous = previous_replay_path(replay_path)
+    previous.unlink(missing_ok=True)  # left by a save killed before it could remove it
+    if not replay_path.exists():
+        return None
+    try:
+        os.link(replay_path, previous)
+    except OSError:
+        return None
+    return previous
+
+
+def _restore_previous(previous: Path, replay_path: Path) -> None:
+    """Put the replay file that pairs with the checkpoint back under its name, so that the
+    next save keeps it as its previous one."""
+    try:
+        os.replace(previous, replay_path)
+    except OSError:
+        pass  # a folder that cannot be written: the memories are loaded; the next save fails loudly
 
 
 def check_checkpoint_file(path) -> None:
@@ -225,9 +257,13 @@ def load_checkpoint(learner, path, replay_path=None, check_extra=None) -> dict |
     CheckpointError and leaves the learner unchanged on any problem. ``check_extra(extra)``,
     called before anything changes, may refuse the file by raising CheckpointError."""
     state = _safe_load(path, CHECKPOINT_FORMAT, checkpoint_size_limit(learner))
-    replay = None
+    replay, from_previous = None, False
     if replay_path is not None and Path(replay_path).exists():
         replay = _safe_load(replay_path, REPLAY_FORMAT, replay_size_limit(learner))
+        previous = previous_replay_path(replay_path)
+        if replay.get('pair') != state.get('pair') and previous.exists():
+            # A save killed between its two renames: the new replay file, the previous checkpoint.
+            replay, from_previous = _safe_load(previous, REPLAY_FORMAT, replay_size_limit(learner)), True
         if replay.get('pair') != state.get('pair'):
             raise CheckpointError(
                 f'{replay_path} and {path} come from different saves (one was interrupted between '
@@ -256,6 +292,8 @@ def load_checkpoint(learner, path, replay_path=None, check_extra=None) -> dict |
         raise CheckpointError(f'{path}: does not fit this learner ({error})') from error
     if replay is not None:
         learner.replay, learner.advice_replay = candidate_replay, candidate_advice
+    if from_previous:
+        _restore_previous(previous, Path(replay_path))
     return extra
 
 

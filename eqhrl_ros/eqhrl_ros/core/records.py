@@ -23,9 +23,18 @@ from typing import Optional, Sequence
 
 from .errors import RunFolderError
 
-RUN_FILES = ('episodes.csv', 'checkpoint.pt', 'replay.pt', 'policy.pt')
 # Saves write '.<name>.<random>.tmp' beside their target, then rename it (core/checkpoint.py).
 TEMPORARY_GLOB = '.*.pt.*.tmp'
+
+
+def previous_replay_path(replay_path) -> Path:
+    """Where a save keeps the previous replay file until its new checkpoint is in place
+    (core/checkpoint.py): a resume may need it, so it is not a temporary."""
+    replay_path = Path(replay_path)
+    return replay_path.with_name(f'.{replay_path.name}.previous')
+
+
+RUN_FILES = ('episodes.csv', 'checkpoint.pt', 'replay.pt', previous_replay_path('replay.pt').name, 'policy.pt')
 
 
 def remove_stale_temporaries(folder) -> list[Path]:

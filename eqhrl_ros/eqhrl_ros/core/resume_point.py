@@ -30,6 +30,7 @@ import numpy as np
 
 from .checkpoint import load_checkpoint, save_checkpoint
 from .errors import CheckpointError, CheckpointWriteError
+from .records import previous_replay_path
 
 CHECKPOINT = 'resume.pt'
 REPLAY = 'resume-replay.pt'
@@ -129,5 +130,6 @@ class ResumePoint:
 
 def remove_files(folder) -> None:
     """Delete a run's resume files (the run finished, or they cannot be used)."""
-    for name in (CHECKPOINT, REPLAY):
-        (Path(folder) / name).unlink(missing_ok=True)
+    folder = Path(folder)
+    for path in (folder / CHECKPOINT, folder / REPLAY, previous_replay_path(folder / REPLAY)):
+        path.unlink(missing_ok=True)

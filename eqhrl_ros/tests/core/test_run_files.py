@@ -99,6 +99,51 @@ def test_checkpoint_and_replay_of_two_saves_are_refused_as_a_pair(tmp_path):
     assert fresh.total_steps == 50
 
 
+KILLED_BETWEEN_THE_RENAMES = textwrap.dedent("""
+    import os, signal, sys
+    from pathlib import Path
+    import numpy as np
+    from eqhrl_ros.core import checkpoint
+    from eqhrl_ros.core.learner import EQSACLearner, LearnerConfig
+    folder = Path(sys.argv[1])
+    config = LearnerConfig(hidden=(16, 16), batch_size=8, learning_starts=10, replay_capacity=500)
+    learner = EQSACLearner(3, np.array([-2.0], np.float32), np.array([2.0], np.float32), config)
+    rng = np.random.default_rng(0)
+    def train(n):
+        for _ in range(n):
+            obs = rng.normal(size=3).astype(np.float32)
+            learner.step(obs, learner.propose(obs).action, -1.0, rng.normal(size=3).astype(np.float32), False, False)
+    train(20)
+    checkpoint.save_checkpoint(learner, folder / 'checkpoint.pt', folder / 'replay.pt')
+    train(30)
+    replace = checkpoint._replace
+    def killed_before_the_checkpoint(tmp, target):
+        if target.name == 'checkpoint.pt':
+            os.kill(os.getpid(), signal.SIGKILL)  # the new replay file is in place, the checkpoint not
+        replace(tmp, target)
+    checkpoint._replace = killed_before_the_checkpoint
+    checkpoint.save_checkpoint(learner, folder / 'checkpoint.pt', folder / 'replay.pt')
+""")
+
+
+def test_a_save_killed_between_its_two_renames_resumes_from_the_previous_pair_with_its_replay(tmp_path):
+    result = subprocess.run(
+        [sys.executable, '-c', KILLED_BETWEEN_THE_RENAMES, str(tmp_path)], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == -9, result.stderr[-2000:]
+    RunFolder(tmp_path, resume=True)  # what a node does first: its stale temporaries go
+    fresh = small_learner(seed=1)
+    load_checkpoint(fresh, tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
+    assert fresh.total_steps == 20 and len(fresh.replay) == 20  # the first save, whole
+    # The folder holds one pair again: the next save and resume go as usual.
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['checkpoint.pt', 'replay.pt']
+    train_steps(fresh, 5)
+    save_checkpoint(fresh, tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
+    again = small_learner(seed=2)
+    load_checkpoint(again, tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
+    assert again.total_steps == 25 and len(again.replay) == 25
+
+
 def test_stale_temporaries_are_removed_when_a_run_folder_is_opened(tmp_path):
     learner = small_learner()
     save_checkpoint(learner, tmp_path / 'checkpoint.pt')
