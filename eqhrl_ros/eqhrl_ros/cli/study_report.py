@@ -213,13 +213,19 @@ def _pyplot():
     return plt
 
 
-def plot_curves(arms: list, scores: dict, group: str, path: Path, threshold: float) -> None:
-    """Evaluation return per arm of a group (and its SAC reference): IQM over seeds, with the
-    band between the 25th and 75th percentiles."""
-    plt = _pyplot()
+def curve_arms(arms: list, group: str) -> list:
+    """The arms a group's figure shows: its own, with the SAC arms and the matched arms they
+    are measured against from other groups first."""
     shown = [a for a in arms if a.group == group]
-    references = {sac_reference(a, arms) for a in shown if a.mode != 'sac'} - {a.name for a in shown}
-    shown = [a for a in arms if a.name in references] + shown
+    references = {sac_reference(a, arms) for a in shown if a.mode != 'sac'} | {a.match for a in shown if a.match}
+    return [a for a in arms if a.name in references - {a.name for a in shown}] + shown
+
+
+def plot_curves(arms: list, scores: dict, group: str, path: Path, threshold: float) -> None:
+    """Evaluation return per arm of a group (and the arms it is measured against): IQM over
+    seeds, with the band between the 25th and 75th percentiles."""
+    plt = _pyplot()
+    shown = curve_arms(arms, group)
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for arm in shown:
         runs = [s.curve for (a, _), s in scores.items() if a == arm.name]

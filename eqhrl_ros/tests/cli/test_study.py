@@ -155,3 +155,16 @@ def test_each_advising_arm_is_measured_against_the_sac_arm_that_learns_as_it_doe
         ('random_ls256', 'sac_ls256', 'vs SAC'),
         ('eqsac_b10', 'sac', 'vs SAC'),  # SAC never reads the budget
     ]  # no SAC learns with initial_alpha 0.1 here: no comparison rather than a wrong one
+
+
+def test_a_groups_figure_shows_the_arms_it_is_measured_against_from_other_groups():
+    from eqhrl_ros.cli.study_report import ArmInfo, curve_arms
+
+    arms = [  # the LunarLander plan's shape: the baselines apart from the pair they are measured against
+        ArmInfo('sac', 'SAC', 'main', 'sac', ''),
+        ArmInfo('eqsac', 'EQSAC', 'main', 'eqsac', ''),
+        ArmInfo('random', 'random', 'baselines', 'random', 'eqsac'),
+        ArmInfo('qasac', 'QASAC', 'baselines', 'qasac', ''),
+    ]
+    assert [a.name for a in curve_arms(arms, 'baselines')] == ['sac', 'eqsac', 'random', 'qasac']
+    assert [a.name for a in curve_arms(arms, 'main')] == ['sac', 'eqsac']
