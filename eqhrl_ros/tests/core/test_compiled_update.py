@@ -115,6 +115,36 @@ def test_a_checkpoint_loaded_into_a_compiled_learner_is_what_it_updates():
     assert largest_difference(donor, fast) > 1e-4  # it learned from the loaded weights on
 
 
+@pytest.mark.slow  # the compiler, twice
+def test_learners_that_differ_only_in_a_constant_get_a_program_each():
+    """The programs are shared by every learner in a process, and most of their guards are
+    dropped (compiled_update.keep_guard): the constants baked into a program (gamma here) must
+    still tell two learners apart, or the second would learn with the first one's gamma."""
+    pairs = []
+    for gamma in (0.99, 0.5):
+        eager, fast = filled(mode='sac', gamma=gamma), filled(mode='sac', gamma=gamma, compile_update=True)
+        fast.log = Lines()
+        eager.update(), fast.update()
+        assert fast.compiled_update.wait(timeout=900), fast.compiled_update.failed
+        pairs.append((eager, fast))
+    for eager, fast in pairs:
+        for _ in range(3):
+            expected, got = eager.update(), fast.update()
+        assert got['critic_loss'] == pytest.approx(expected['critic_loss'], rel=1e-4)
+        assert largest_difference(eager, fast) < 1e-5
+
+
+def test_the_guards_kept_are_those_on_the_data_and_torchs_state():
+    for name in ('batch[0]', 'advice', 'noise[2]', "hyper['gamma']", "weights['actor']['heads.weight']", ''):
+        assert compiled.keep_guard(name, is_global=False), name
+    for name in ('nets[0].action_dim', "nets[1]._modules['biases']", "__import__('torch').utils._pytree"):
+        assert not compiled.keep_guard(name, is_global=False), name
+    assert not compiled.keep_guard("G['torch']", is_global=True)
+    # Every argument of the update but the modules is guarded: a new argument must be added.
+    arguments = compiled.algorithm1_update.__code__.co_varnames[: compiled.algorithm1_update.__code__.co_argcount]
+    assert set(arguments) - set(compiled.GUARDED_ARGUMENTS) == {'nets'}
+
+
 class SlowCompiler:
     """torch.compile's stand-in: the 'compiled' function is the eager function, and the first
     (warm-up) call waits until the test lets it go, as a slow compiler would."""
