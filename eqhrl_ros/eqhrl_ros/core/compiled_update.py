@@ -259,9 +259,22 @@ class CompiledUpdate:
         )
         held, inputs = self._live_inputs
         if held is None or any(a is not b for a, b in zip(owners, held)):
+            if not self._has_moments():
+                return None
             inputs = (self._weights(), self._state())
             self._live_inputs = (owners, inputs)
         return inputs
+
+    def _has_moments(self) -> bool:
+        """Whether every optimiser holds Adam's moments: a learner that loaded a state saved
+        before its first update holds none until an eager update makes them."""
+        learner = self.learner
+        optimizers = (learner.actor_optimizer, learner.critic_optimizer, learner.alpha_optimizer)
+        return all(
+            'exp_avg' in optimizer.state.get(p, {})
+            for optimizer in optimizers
+            for p in optimizer.param_groups[0]['params']
+        )
 
     def _hyper(self) -> dict:
         learner = self.learner
@@ -328,9 +341,14 @@ class CompiledUpdate:
             self._thread.join(timeout)
         return self.ready
 
-    def __call__(self, batch, advice_batch) -> dict:
-        """The update on the learner's live weights, with the noise drawn as the eager update draws it."""
+    def __call__(self, batch, advice_batch) -> Optional[dict]:
+        """The update on the learner's live weights, with the noise drawn as the eager update draws
+        it; None, having drawn nothing, while the optimisers hold no moments (the eager update makes them)."""
         learner = self.learner
+        live = self._inputs()
+        if live is None:
+            return None
+        weights, state = live
         fields = ('obs', 'action', 'reward', 'next_obs', 'terminated')
 
         def as_tuple(b):
@@ -341,7 +359,6 @@ class CompiledUpdate:
         advice = as_tuple(advice_batch) if advice_batch is not None else None
         sizes = [len(batch.reward)] + ([len(advice_batch.reward)] if advice_batch is not None else [])
         noise = self._noise(sizes, learner.config.actor_on_advice, lambda shape: learner.noise(shape, 'update'))
-        weights, state = self._inputs()
         losses = self._function(self._nets, weights, state, as_tuple(batch), advice, noise, self._settings)
         info = {name: float(value) for name, value in losses.items()}
         info['alpha'] = learner.alpha

@@ -478,9 +478,12 @@ class EQSACLearner:
 
         if self.compiled_update and self.compiled_update.ready:
             # The same steps as below, as one compiled program (compiled_update.py).
-            info = self.compiled_update(batch, advice_batch)
-            self.updates += 1
-            return info
+            compiled_info = self.compiled_update(batch, advice_batch)
+            if compiled_info is not None:
+                self.updates += 1
+                return compiled_info
+            # None: the optimisers hold no moments yet (a state saved before any update was
+            # loaded); this update runs eagerly and makes them.
 
         # Eq. 4 targets of both batches. The actor, alpha and the target critics stay
         # as they are until the end of the update, so both come from one forward pass.

@@ -113,6 +113,15 @@ def test_a_checkpoint_loaded_into_a_compiled_learner_is_what_it_updates():
     assert got['critic_loss'] == pytest.approx(expected['critic_loss'], rel=1e-4)
     assert largest_difference(eager, fast) < 1e-5
     assert largest_difference(donor, fast) > 1e-4  # it learned from the loaded weights on
+    # A state saved before any update holds no Adam moments: the next update runs eagerly and
+    # makes them, then the compiled ones go on (before, the update raised KeyError 'exp_avg').
+    newborn = filled(mode='sac', seed=12)
+    for learner in (eager, fast):
+        learner.load_state_dict(newborn.state_dict())
+    for _ in range(3):
+        expected, got = eager.update(), fast.update()
+    assert got['critic_loss'] == pytest.approx(expected['critic_loss'], rel=1e-4)
+    assert largest_difference(eager, fast) < 1e-5 and fast.updates == eager.updates
 
 
 @pytest.mark.slow  # the compiler, twice
