@@ -24,7 +24,8 @@ import copy
 import logging
 import threading
 import time
-from typing import Optional
+import types
+from typing import Callable, Optional
 
 import torch
 from torch.func import functional_call, grad_and_value
@@ -171,6 +172,33 @@ def _guards_to_keep(entries) -> list:
     return [keep_guard(entry.name, entry.is_global) for entry in entries]
 
 
+# --------------------------------------------------------------------------- one program per setting
+
+# Dynamo keeps the programs it compiles on the function's code object, at most 8 of them
+# (torch._dynamo.config.recompile_limit); past that, a fullgraph compile fails. A learner needs
+# one or two (with and without an advice batch), but a process with learners of several
+# settings (a sweep, a benchmark) would pass 8. So each setting gets a copy of
+# algorithm1_update with a code object of its own, shared by the learners of that setting.
+_COPIES: dict = {}
+_COPIES_LOCK = threading.Lock()
+# One warm-up at a time in a process: learners started together would each miss the program
+# that the first of them is compiling, and compile it again, up to the limit above.
+_COMPILING = threading.Lock()
+
+
+def update_function_for(setting) -> Callable:
+    """algorithm1_update, the same copy for every learner whose ``setting`` (a hashable
+    summary of what its program is specialised to) is equal."""
+    with _COPIES_LOCK:
+        function = _COPIES.get(setting)
+        if function is None:
+            original = algorithm1_update
+            function = types.FunctionType(original.__code__.replace(), original.__globals__, original.__name__)
+            function.__doc__, function.__qualname__ = original.__doc__, original.__qualname__
+            _COPIES[setting] = function
+        return function
+
+
 # --------------------------------------------------------------------------- the learner's side
 
 
@@ -192,23 +220,30 @@ class CompiledUpdate:
         # The networks' structure, on copies: functional_call() gives them their weights, and
         # tracing them in the background must not touch the modules the learner acts with.
         self._nets = (copy.deepcopy(learner.actor), copy.deepcopy(learner.critic))
+        self._live_inputs = (None, None)  # (the objects they came from, (weights, state))
+        self._variants = self._advice_variants()
+        self._settings = self._hyper()  # the config's constants, baked into the program
         # loop_ordering_after_fusion off: with it, torch 2.11's inductor failed an assertion on
         # this program on CUDA; on the CPU it makes no difference in speed (docs/performance.md).
         self._function = torch.compile(
-            algorithm1_update,
+            update_function_for(self._setting()),
             fullgraph=True,
             dynamic=False,
             options={'loop_ordering_after_fusion': False, 'guard_filter_fn': _guards_to_keep},
         )
-        self._live_inputs = (None, None)  # (the objects they came from, (weights, state))
-        self._variants = self._advice_variants()
-        self._settings = self._hyper()  # the config's constants, baked into the program
         if background:
             self._thread = threading.Thread(target=self._warm_up, args=(self._copies(),), daemon=True)
             self._thread.start()
         else:
             self._thread = None
             self._warm_up(self._copies())
+
+    def _setting(self) -> tuple:
+        """What the program is specialised to: the shapes, the device, the variants and the
+        constants. (Its guards check all of it again; this only keeps the settings apart.)"""
+        learner, cfg = self.learner, self.learner.config
+        shapes = (learner.obs_dim, learner.action_dim, tuple(cfg.hidden), cfg.batch_size)
+        return (*shapes, str(learner.device), cfg.actor_on_advice, tuple(self._variants), repr(self._settings))
 
     def _advice_variants(self) -> list:
         """Whether an update has an advice batch, for every kind of update this learner makes."""
@@ -309,18 +344,10 @@ class CompiledUpdate:
         return target, actor, advice_actor
 
     def _warm_up(self, copies) -> None:
-        weights, state, made_up_batch, hyper = copies
-        device = self.learner.device
         start = time.perf_counter()
         try:
-            for with_advice in self._variants:
-                batch = made_up_batch()
-                advice = made_up_batch() if with_advice else None
-                sizes = [len(batch[2])] + ([len(advice[2])] if advice is not None else [])
-                noise = self._noise(
-                    sizes, self.learner.config.actor_on_advice, lambda shape: torch.randn(shape, device=device)
-                )
-                self._function(self._nets, weights, state, batch, advice, noise, hyper)
+            with _COMPILING:
+                self._compile(*copies)
         except Exception as error:  # noqa: BLE001 - any compiler failure leaves the eager update
             self.error = error  # the whole exception, for whoever wants more than the line
             self.failed = f'{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ""}'
@@ -334,6 +361,18 @@ class CompiledUpdate:
             f'compile_update: the whole update is compiled ({self.seconds:.1f} s in the background; '
             f'{len(self._variants)} variant(s)); updates from now on run compiled'
         )
+
+    def _compile(self, weights, state, made_up_batch, hyper) -> None:
+        """One call of each variant on made-up inputs: the first call of a variant compiles it."""
+        device = self.learner.device
+        for with_advice in self._variants:
+            batch = made_up_batch()
+            advice = made_up_batch() if with_advice else None
+            sizes = [len(batch[2])] + ([len(advice[2])] if advice is not None else [])
+            noise = self._noise(
+                sizes, self.learner.config.actor_on_advice, lambda shape: torch.randn(shape, device=device)
+            )
+            self._function(self._nets, weights, state, batch, advice, noise, hyper)
 
     def wait(self, timeout: Optional[float] = None) -> bool:
         """Block until the background compile ended (tests, benchmarks); True if it is ready."""

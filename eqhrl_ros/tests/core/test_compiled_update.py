@@ -154,6 +154,50 @@ def test_the_guards_kept_are_those_on_the_data_and_torchs_state():
     assert set(arguments) - set(compiled.GUARDED_ARGUMENTS) == {'nets'}
 
 
+@pytest.mark.slow  # the compiler (once: the other learners find its program)
+def test_learners_started_together_in_one_process_all_get_the_compiled_update():
+    """Five learners of one setting start compiling at once. Before, each background thread
+    missed the program the others were compiling and compiled it again; two of the five went
+    past dynamo's limit of 8 programs per function and stayed eager."""
+    settings = {'mode': 'eqsac', 'actor_on_advice': True, 'advised_every': 3}
+    learners = [filled(compile_update=True, **settings) for _ in range(5)]
+    logs = []
+    for learner in learners:
+        learner.log = Lines()
+        logs.append(learner.log)
+        learner.update()
+    assert all(learner.compiled_update.wait(timeout=900) for learner in learners), [
+        learner.compiled_update.failed for learner in learners
+    ]
+    assert not any(log.warning_lines for log in logs)
+    eager = filled(**settings)
+    eager.update()
+    for _ in range(3):
+        expected, got = eager.update(), learners[-1].update()
+    assert got['advice_critic_loss'] == pytest.approx(expected['advice_critic_loss'], rel=1e-4)
+
+
+def test_each_setting_gets_a_function_of_its_own_and_learners_of_one_setting_share_it(monkeypatch):
+    """Dynamo keeps at most 8 programs per function: a ninth learner of another setting in one
+    process failed to compile. Each setting now has its own copy of the update function."""
+    compiled_functions = []
+
+    def recording(function, **options):
+        compiled_functions.append(function)
+        return lambda *args: None
+
+    monkeypatch.setattr(compiled.torch, 'compile', recording)
+    for gamma in (0.9, 0.9, 0.5):
+        learner = filled(mode='sac', gamma=gamma, compile_update=True)
+        learner.update()
+        learner.compiled_update.wait(timeout=60)
+    same, again, other = compiled_functions
+    assert same is again and other is not same
+    # (dynamo keeps its programs on the code object itself: equal code, distinct objects)
+    codes = [compiled.algorithm1_update.__code__, same.__code__, other.__code__]
+    assert len({id(code) for code in codes}) == 3
+
+
 class SlowCompiler:
     """torch.compile's stand-in: the 'compiled' function is the eager function, and the first
     (warm-up) call waits until the test lets it go, as a slow compiler would."""
