@@ -10,7 +10,10 @@ Table 1's sizes (256x256, batch 256) inside its advising budget with the heurist
   torch thread each, each running its share of the seeds one after the other;
 - together: the seeds in one process (core/seed_batch.py), with --processes torch threads;
 - together x P: the seeds split over --processes processes of one thread each, each
-  process running its share together (what eqhrl-experiment does by default).
+  process running its share together (what eqhrl-experiment does by default);
+- with --compiled, also apart compiled: apart with compile_update on (compiled_update.py),
+  at the target's N only; printed beside the target, not counted in it (the target is
+  about running seeds together).
 
 The contenders are measured one after the other on the same machine, so run it on a quiet
 one. Prints the curve for N seeds together and each target's figure beside its anchor
@@ -32,17 +35,20 @@ TARGETS = {'Pendulum-v1': 2.0, 'LunarLanderContinuous-v3': 1.5}
 SIZES = {'hidden': (256, 256), 'batch_size': 256}  # Table 1; --hidden and --batch change them
 
 
-def _make(env_id: str, seed: int, warmup: int, budget: int, sizes: dict = SIZES):
+def _make(env_id: str, seed: int, warmup: int, budget: int, sizes: dict = SIZES, compiled: bool = False):
     from eqhrl_ros.core import EQSACLearner, LearnerConfig, make_env
 
     env = make_env(env_id)
-    config = LearnerConfig(mode='eqsac', seed=seed, learning_starts=warmup, advising_budget=budget, **sizes)
+    config = LearnerConfig(
+        mode='eqsac', seed=seed, learning_starts=warmup, advising_budget=budget, compile_update=compiled, **sizes
+    )
     learner = EQSACLearner(env.observation_space.shape[0], env.action_space.low, env.action_space.high, config)
     return env, learner
 
 
-def _seeds_apart(env_id, seeds, args, barrier, results) -> None:
-    """One process of today's runner: its seeds one after the other, one update per step."""
+def _seeds_apart(env_id, seeds, args, barrier, results, compiled: bool = False) -> None:
+    """One process of today's runner: its seeds one after the other, one update per step
+    (``compiled``: with compile_update, compiled before timing)."""
     import torch
 
     from eqhrl_ros.core import heuristic_expert
@@ -51,12 +57,15 @@ def _seeds_apart(env_id, seeds, args, barrier, results) -> None:
     torch.set_num_threads(1)
     loops = []
     for seed in seeds:  # every seed warmed up first, so that only learning is timed
-        env, learner = _make(env_id, seed, args.warmup, 10**6, args.sizes)
+        env, learner = _make(env_id, seed, args.warmup, 10**6, args.sizes, compiled)
         acting = _Acting(env, learner, heuristic_expert(env_id))
         acting.reset(seed)
         loops.append((acting, learner))
-        for _ in range(args.warmup):
+        for _ in range(args.warmup + (2 if compiled else 0)):  # the first update starts the compiler
             _step_alone(acting, learner)
+    for _, learner in loops:
+        if compiled and not learner.compiled_update.wait(timeout=900):
+            raise RuntimeError(f'compile_update failed: {learner.compiled_update.failed}')
     barrier.wait()
     start = time.perf_counter()
     for acting, learner in loops:
@@ -95,7 +104,7 @@ def _seeds_together(env_id, seeds, threads, args, barrier, results) -> None:
 
 
 def measure(kind: str, env_id: str, n: int, args) -> float:
-    """Seed-steps per second of n seeds, ``kind`` 'apart', 'together' or 'together xP'."""
+    """Seed-steps per second of n seeds, ``kind`` 'apart', 'apart compiled', 'together' or 'together xP'."""
     context = mp.get_context('spawn')
     processes = args.processes if kind != 'together' else 1
     shares = [list(range(n))[i::processes] for i in range(processes)]
@@ -103,11 +112,14 @@ def measure(kind: str, env_id: str, n: int, args) -> float:
     barrier, results = context.Barrier(len(shares)), context.Queue()
     workers = []
     for share in shares:
-        if kind == 'apart':
-            target, extra = _seeds_apart, ()
+        options = {}
+        if kind.startswith('apart'):
+            target, extra, options = _seeds_apart, (), {'compiled': kind == 'apart compiled'}
         else:
             target, extra = _seeds_together, (args.processes if kind == 'together' else 1,)
-        workers.append(context.Process(target=target, args=(env_id, share, *extra, args, barrier, results)))
+        workers.append(
+            context.Process(target=target, args=(env_id, share, *extra, args, barrier, results), kwargs=options)
+        )
     for worker in workers:
         worker.start()
     seconds = [results.get() for _ in workers]
@@ -181,6 +193,7 @@ def main(argv=None) -> int:
     parser.add_argument('--hidden', type=int, default=256, help='width of both hidden layers (Table 1: 256)')
     parser.add_argument('--batch', type=int, default=256, help='batch size (Table 1: 256)')
     parser.add_argument('--no-targets', action='store_true', help='print figures only (exit 0)')
+    parser.add_argument('--compiled', action='store_true', help='also time the seeds apart with compile_update')
     args = parser.parse_args(argv)
     args.sizes = {'hidden': (args.hidden, args.hidden), 'batch_size': args.batch}
 
@@ -217,6 +230,9 @@ def main(argv=None) -> int:
             )
             if best / apart < target:
                 missed.append(env_id)
+        if args.compiled:
+            fast = measure('apart compiled', env_id, args.seeds, args)
+            print(f'{args.seeds} seeds apart with compile_update: {fast:.1f} seed-steps/s, {fast / apart:.2f}x apart')
     return 1 if missed and not args.no_targets else 0
 
 
