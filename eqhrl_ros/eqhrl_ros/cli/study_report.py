@@ -114,6 +114,7 @@ ADVISING_ONLY = {
     'dual_replay',
     'advice_batch',
     'actor_on_advice',
+    'entropy_estimator',
     'entropy_samples',
     'threshold_kind',
     'fixed_d_threshold',

@@ -20,6 +20,7 @@ PAPER_MODES = ('sac', 'qasac', 'eqsac')
 MODES = (*PAPER_MODES, 'respond', 'random')
 ADVICE_BATCHES = ('full', 'proportional')
 THRESHOLD_KINDS = ('dynamic', 'fixed')
+ENTROPY_ESTIMATORS = ('exact', 'monte_carlo')
 DEVICES = ('cpu', 'cuda')
 INT_MAX = 2**31 - 1
 
@@ -86,7 +87,15 @@ class LearnerConfig:
     threshold_kind: str = hyper('dynamic', 'Dynamic queue thresholds (Eq. 10) or fixed ones', choices=THRESHOLD_KINDS)
     fixed_d_threshold: float = hyper(1.0, 'Ask when D(s) exceeds this (threshold_kind fixed)', range=(0.0, 1e9))
     fixed_e_threshold: float = hyper(0.0, 'Respond when E(s) is below this (threshold_kind fixed)', range=(-1e9, 1e9))
-    entropy_samples: int = hyper(32, 'Monte Carlo samples K of the entropy estimate E(s) (Eq. 9)', range=(1, 100_000))
+    entropy_estimator: str = hyper(
+        'exact',
+        'How E(s) (Eq. 9) is computed: exact (the integral by fixed-node quadrature, deterministic) or '
+        'monte_carlo (an average over entropy_samples draws, the earlier default)',
+        choices=ENTROPY_ESTIMATORS,
+    )
+    entropy_samples: int = hyper(
+        32, 'Monte Carlo samples K of E(s) (Eq. 9) with entropy_estimator monte_carlo', range=(1, 100_000)
+    )
     random_ask_rate: float = hyper(
         0.0, 'Mode random: chance of asking at each step inside the budget (an ablation baseline)', range=(0.0, 1.0)
     )

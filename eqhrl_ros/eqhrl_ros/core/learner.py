@@ -319,8 +319,11 @@ class EQSACLearner:
                 q1, q2 = self.critic(obs_t, action)
                 discrepancy = float(eq.q_discrepancy(q1, q2))
             if self.gates.uses_entropy:
-                k_noise = self.noise((self.config.entropy_samples, *mean.shape), 'entropy')
-                entropy = float(eq.policy_entropy(mean, log_std, k_noise))
+                if self.config.entropy_estimator == 'exact':
+                    entropy = float(eq.policy_entropy(mean, log_std))
+                else:
+                    k_noise = self.noise((self.config.entropy_samples, *mean.shape), 'entropy')
+                    entropy = float(eq.policy_entropy_monte_carlo(mean, log_std, k_noise))
             if self.gates.uses_draw:
                 draw = float(torch.rand((), generator=self.rng['request']))
             decision = self.gates.decide(self.episode, discrepancy, entropy, draw)
