@@ -22,7 +22,13 @@ learner settings and expert:
   requests), ``delay_steps`` (the answer is for the state that many steps before),
   ``gain`` (a timid controller): core/imperfect_experts.py.
 - ``match`` (mode random): the arm's random_ask_rate for seed k is the named arm's requests
-  per step inside the budget in seed k; the run waits for that one to finish.
+  per step inside the budget in seed k; the run waits for that one to finish. With
+  ``match_timing: episode``, the arm instead asks in each episode exactly as many times as the
+  named arm did in that episode of seed k, at random steps of it (random_ask_schedule): matched
+  in number and in timing.
+- ``match`` and ``thins`` (mode ask_random): the arm's random_ask_rate for seed k is the
+  ``match`` arm's requests over the ``thins`` arm's (e.g. EQSAC's over QASAC's): the ask gate
+  thinned by chance to about the number of requests the entropy gate let through.
 - ``gate_trace``: write gates.csv, D(s), E(s) and their thresholds at every step inside the budget.
 
 Runs go group by group, seed by seed, so that a cut study still holds whole, paired seeds.
@@ -55,7 +61,8 @@ from . import experiment
 
 PLAN_KEYS = {'name', 'description', 'params', 'episodes', 'max_steps', 'eval_every', 'eval_starts', 'learner', 'groups'}
 GROUP_KEYS = {'name', 'seeds', 'arms', 'description'}
-ARM_KEYS = {'mode', 'learner', 'expert', 'match', 'gate_trace', 'label'}
+ARM_KEYS = {'mode', 'learner', 'expert', 'match', 'match_timing', 'thins', 'gate_trace', 'label'}
+MATCH_TIMINGS = ('rate', 'episode')
 
 
 @dataclass
@@ -67,6 +74,8 @@ class Arm:
     learner: dict = field(default_factory=dict)
     expert: dict = field(default_factory=dict)
     match: str = ''
+    match_timing: str = 'rate'  # mode random: 'rate' (requests per step) or 'episode' (per-episode counts)
+    thins: str = ''  # mode ask_random: the rate is match's requests over this arm's
     gate_trace: bool = False
     label: str = ''  # how tables and figures name it (default: the arm's name)
 
@@ -122,6 +131,8 @@ def load_plan(name_or_path: str) -> Plan:
                     learner=dict(spec.get('learner') or {}),
                     expert=dict(spec.get('expert') or {}),
                     match=spec.get('match', ''),
+                    match_timing=spec.get('match_timing', 'rate'),
+                    thins=spec.get('thins', ''),
                     gate_trace=bool(spec.get('gate_trace', False)),
                     label=spec.get('label', name),
                 )
@@ -130,14 +141,24 @@ def load_plan(name_or_path: str) -> Plan:
         raise ValueError(f'{path}: no arms')
     names = {a.name for a in arms}
     for arm in arms:
-        if arm.match:
-            if arm.mode != 'random':
-                raise ValueError(f'{path}: arm {arm.name!r}: match is for mode random')
-            if arm.match not in names:
-                raise ValueError(f'{path}: arm {arm.name!r} matches {arm.match!r}, which is not an arm')
-            missing = sorted(set(arm.seeds) - set(next(a for a in arms if a.name == arm.match).seeds))
+        if arm.match_timing not in MATCH_TIMINGS:
+            raise ValueError(f'{path}: arm {arm.name!r}: match_timing must be one of {MATCH_TIMINGS}')
+        if arm.mode == 'ask_random' and not (arm.match and arm.thins):
+            raise ValueError(f'{path}: arm {arm.name!r}: mode ask_random needs match and thins')
+        if arm.thins and arm.mode != 'ask_random':
+            raise ValueError(f'{path}: arm {arm.name!r}: thins is for mode ask_random')
+        if arm.match_timing != 'rate' and arm.mode != 'random':
+            raise ValueError(f'{path}: arm {arm.name!r}: match_timing is for mode random')
+        for key, other in (('match', arm.match), ('thins', arm.thins)):
+            if not other:
+                continue
+            if arm.mode not in ('random', 'ask_random'):
+                raise ValueError(f'{path}: arm {arm.name!r}: {key} is for modes random and ask_random')
+            if other not in names:
+                raise ValueError(f'{path}: arm {arm.name!r} {key} {other!r}, which is not an arm')
+            missing = sorted(set(arm.seeds) - set(next(a for a in arms if a.name == other).seeds))
             if missing:
-                raise ValueError(f'{path}: arm {arm.name!r} has seeds {missing} that {arm.match!r} does not run')
+                raise ValueError(f'{path}: arm {arm.name!r} has seeds {missing} that {other!r} does not run')
     return Plan(
         name=data.get('name', path.stem),
         params=data.get('params', 'pendulum'),
@@ -180,14 +201,20 @@ def budget_of(settings: experiment.Settings) -> int:
     return int(experiment.learner_config(settings, 'sac', 0).advising_budget)
 
 
-def matched_rate(run: Path, budget: int) -> tuple[float, int, int]:
-    """(requests per step, requests, steps) inside the first ``budget`` episodes of a finished run."""
-    asked = steps = 0
+def requests_per_episode(run: Path, budget: int) -> list[tuple[int, int]]:
+    """(requests, steps) of each of the first ``budget`` episodes of a finished run, in order."""
+    rows = {}
     with (run / 'episodes.csv').open(newline='') as f:
         for row in csv.DictReader(f):
             if int(row['episode']) < budget:
-                asked += int(row['advice_asked'])
-                steps += int(row['length'])
+                rows[int(row['episode'])] = (int(row['advice_asked']), int(row['length']))
+    return [rows.get(e, (0, 0)) for e in range(max(rows) + 1)] if rows else []
+
+
+def matched_rate(run: Path, budget: int) -> tuple[float, int, int]:
+    """(requests per step, requests, steps) inside the first ``budget`` episodes of a finished run."""
+    episodes = requests_per_episode(run, budget)
+    asked, steps = sum(a for a, _ in episodes), sum(n for _, n in episodes)
     return (asked / steps if steps else 0.0), asked, steps
 
 
@@ -325,7 +352,10 @@ def main(argv=None) -> int:
                     except queue.Empty:
                         break
                 if pending and not running:
-                    stuck = ', '.join(f'{a.name} seed {s} (matches {a.match})' for a, s in pending)
+                    stuck = ', '.join(
+                        f'{a.name} seed {s} (matches {" and ".join(filter(None, (a.match, a.thins)))})'
+                        for a, s in pending
+                    )
                     print(f'eqhrl-study: waiting on runs outside this selection: {stuck}', file=sys.stderr)
                     return 2
                 time.sleep(0.5)
@@ -344,15 +374,27 @@ def _ready(plan: Plan, arm: Arm, seed: int, output: Path, settings: dict):
     if not arm.match:
         return own
     matched = experiment.run_dir(output, arm.match, seed)
-    if not (matched / 'DONE').exists():
+    thinned = experiment.run_dir(output, arm.thins, seed) if arm.thins else None
+    if not (matched / 'DONE').exists() or (thinned and not (thinned / 'DONE').exists()):
         return None
     rate, asked, steps = matched_rate(matched, budget_of(settings[arm.match]))
+    record = {'matches': arm.match, 'requests': asked, 'steps': steps}
+    if arm.thins:  # ask_random: the matched arm's requests over the thinned one's
+        _, thin_asked, _ = matched_rate(thinned, budget_of(settings[arm.thins]))
+        rate = min(1.0, asked / thin_asked) if thin_asked else 0.0
+        learner = {'random_ask_rate': rate}
+        record.update(thins=arm.thins, thinned_requests=thin_asked, random_ask_rate=rate)
+    elif arm.match_timing == 'episode':
+        schedule = [a for a, _ in requests_per_episode(matched, budget_of(settings[arm.match]))]
+        learner = {'random_ask_schedule': schedule, 'random_ask_horizon': own.max_episode_steps}
+        record.update(random_ask_schedule=schedule, random_ask_horizon=own.max_episode_steps)
+    else:
+        learner = {'random_ask_rate': rate}
+        record.update(random_ask_rate=rate)
     run = experiment.run_dir(output, arm.name, seed)
     run.mkdir(parents=True, exist_ok=True)
-    (run / 'match.yaml').write_text(
-        yaml.safe_dump({'matches': arm.match, 'requests': asked, 'steps': steps, 'random_ask_rate': rate})
-    )
-    return dataclasses.replace(own, learner={**own.learner, 'random_ask_rate': rate})
+    (run / 'match.yaml').write_text(yaml.safe_dump(record, default_flow_style=None))
+    return dataclasses.replace(own, learner={**own.learner, **learner})
 
 
 if __name__ == '__main__':

@@ -59,7 +59,9 @@ class GateDecision:
             return 'queues filling'
         has_d, has_e = not math.isnan(self.discrepancy), not math.isnan(self.entropy)
         if not (has_d or has_e):  # mode random
-            return 'a random draw below random_ask_rate' if self.fire else 'the random draw said no'
+            return 'a random request' if self.fire else 'no random request this step'
+        if has_d and self.ask and not has_e and not self.fire:  # mode ask_random
+            return 'D(s) > threshold, but the random draw said no'
         if self.fire:
             return ' and '.join([*(['D(s) > threshold'] if has_d else []), *(['E(s) < threshold'] if has_e else [])])
         if has_d and not self.ask:
@@ -74,8 +76,13 @@ class AdvisingGates:
     - ``qasac``: asks when D(s) > max(D_queue) (the ask gate only).
     - ``eqsac``: asks when D(s) > max(D_queue) and E(s) < min(E_queue).
     - ``respond`` (ablation): asks when E(s) < min(E_queue) (the respond gate only).
-    - ``random`` (ablation): asks when a uniform draw is below ``random_ask_rate``: as many
-      requests as a gate that fires at that rate, at states chosen by chance.
+    - ``random`` (baseline): asks when a uniform draw is below ``random_ask_rate``: as many
+      requests as a gate that fires at that rate, at states chosen by chance. With
+      ``random_ask_schedule``, exactly schedule[e] requests in episode e (while it lasts), at
+      steps drawn uniformly among its first ``random_ask_horizon``: a baseline matched to
+      another run episode by episode, so that it asks when that run asked, at other states.
+    - ``ask_random`` (baseline): asks when D(s) > max(D_queue) and a uniform draw is below
+      ``random_ask_rate``: the ask gate thinned at random, where EQSAC thins it by E(s).
     All only while episode < advising_budget (Eq. 7).
 
     Dynamic thresholds compare the current value with the queue *as it was before
@@ -93,6 +100,8 @@ class AdvisingGates:
         fixed_d_threshold: float = 1.0,
         fixed_e_threshold: float = 0.0,
         random_ask_rate: float = 0.0,
+        random_ask_schedule: tuple = (),
+        random_ask_horizon: int = 200,
     ):
         # The rules of each value live with LearnerConfig's fields (core/config.py).
         self.mode = check_value('mode', mode)
@@ -102,12 +111,15 @@ class AdvisingGates:
         self.fixed_d_threshold = float(fixed_d_threshold)
         self.fixed_e_threshold = float(fixed_e_threshold)
         self.random_ask_rate = check_value('random_ask_rate', random_ask_rate)
+        self.random_ask_schedule = check_value('random_ask_schedule', random_ask_schedule)
+        self.random_ask_horizon = check_value('random_ask_horizon', random_ask_horizon)
+        self._scheduled_episode, self._scheduled_asked = -1, 0  # requests made so far in that episode
         self.d_queue = FifoQueue(queue_length)
         self.e_queue = FifoQueue(queue_length)
 
     @property
     def uses_discrepancy(self) -> bool:
-        return self.mode in ('qasac', 'eqsac')
+        return self.mode in ('qasac', 'eqsac', 'ask_random')
 
     @property
     def uses_entropy(self) -> bool:
@@ -115,7 +127,7 @@ class AdvisingGates:
 
     @property
     def uses_draw(self) -> bool:
-        return self.mode == 'random'
+        return self.mode in ('random', 'ask_random')
 
     def needs_evaluation(self, episode: int) -> bool:
         """Whether D(s), E(s) or the random draw are needed this step (skipped when they cannot matter)."""
@@ -127,9 +139,11 @@ class AdvisingGates:
         discrepancy: float | None = None,
         entropy: float | None = None,
         draw: float | None = None,
+        step: int = 0,
     ) -> GateDecision:
         """``discrepancy`` D(s) where uses_discrepancy, ``entropy`` E(s) where uses_entropy,
-        ``draw`` (uniform in [0, 1)) where uses_draw; each needed only inside the budget."""
+        ``draw`` (uniform in [0, 1)) where uses_draw; each needed only inside the budget.
+        ``step``: the step's index in its episode (random_ask_schedule spreads over it)."""
         if self.mode == 'sac' or not eq.early_advising(episode, self.advising_budget):
             return GateDecision(False, within_budget=False)
         if (
@@ -138,8 +152,8 @@ class AdvisingGates:
             or (self.uses_draw and draw is None)
         ):
             raise ValueError(f'mode {self.mode} needs D(s), E(s) or its draw inside the budget')
-        if self.uses_draw:
-            return GateDecision(draw < self.random_ask_rate, within_budget=True, queues_ready=True)
+        if self.mode == 'random':
+            return GateDecision(self._random_request(episode, step, draw), within_budget=True, queues_ready=True)
 
         if self.threshold_kind == 'fixed':
             d_threshold, e_threshold = self.fixed_d_threshold, self.fixed_e_threshold
@@ -161,6 +175,8 @@ class AdvisingGates:
             if self.uses_entropy:
                 self.e_queue.push(entropy)
 
+        if self.mode == 'ask_random':
+            respond = draw < self.random_ask_rate  # chance in place of the respond gate
         return GateDecision(
             fire=ask and respond,
             within_budget=True,
@@ -172,6 +188,19 @@ class AdvisingGates:
             d_threshold=d_threshold if self.uses_discrepancy else float('nan'),
             e_threshold=e_threshold if self.uses_entropy else float('nan'),
         )
+
+    def _random_request(self, episode: int, step: int, draw: float) -> bool:
+        if not self.random_ask_schedule:
+            return draw < self.random_ask_rate
+        if episode != self._scheduled_episode:
+            self._scheduled_episode, self._scheduled_asked = episode, 0
+        wanted = self.random_ask_schedule[episode] if episode < len(self.random_ask_schedule) else 0
+        left = wanted - self._scheduled_asked
+        # Selection sampling (Knuth's Algorithm S): ask with chance left / steps left, which
+        # places the requests at a uniformly random set of steps of the horizon.
+        fire = left > 0 and draw * max(1, self.random_ask_horizon - step) < left
+        self._scheduled_asked += int(fire)
+        return fire
 
     def state_dict(self) -> dict:
         return {'d_queue': self.d_queue.values(), 'e_queue': self.e_queue.values()}

@@ -13,11 +13,13 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-# The paper's three algorithms, then two ablations of the gates for studies (docs/results.md):
-# 'respond', the respond gate alone (E(s) < min(E_queue)); 'random', requests at random
-# steps with chance random_ask_rate, inside the same budget (a baseline matched in count).
+# The paper's three algorithms, then baselines and ablations of the gates for studies
+# (docs/results.md): 'respond', the respond gate alone (E(s) < min(E_queue)); 'random',
+# requests at random steps (chance random_ask_rate, or random_ask_schedule's count in each
+# episode), inside the same budget; 'ask_random', the ask gate and a random draw below
+# random_ask_rate (the ask gate thinned by chance instead of by E(s)).
 PAPER_MODES = ('sac', 'qasac', 'eqsac')
-MODES = (*PAPER_MODES, 'respond', 'random')
+MODES = (*PAPER_MODES, 'respond', 'random', 'ask_random')
 ADVICE_BATCHES = ('full', 'proportional')
 THRESHOLD_KINDS = ('dynamic', 'fixed')
 ENTROPY_ESTIMATORS = ('exact', 'monte_carlo')
@@ -97,7 +99,21 @@ class LearnerConfig:
         32, 'Monte Carlo samples K of E(s) (Eq. 9) with entropy_estimator monte_carlo', range=(1, 100_000)
     )
     random_ask_rate: float = hyper(
-        0.0, 'Mode random: chance of asking at each step inside the budget (an ablation baseline)', range=(0.0, 1.0)
+        0.0,
+        'Modes random and ask_random: chance of asking at each step inside the budget (random), or at each '
+        'step the ask gate opens (ask_random); baselines',
+        range=(0.0, 1.0),
+    )
+    random_ask_schedule: tuple[int, ...] = hyper(
+        (),
+        'Mode random: requests in each episode (one count per episode from the first), at steps drawn '
+        'uniformly among its first random_ask_horizon; a baseline matched in timing. Empty: random_ask_rate',
+        range=(0, 100_000),
+    )
+    random_ask_horizon: int = hyper(
+        200,
+        'Mode random with random_ask_schedule: the steps of an episode its requests are spread over',
+        range=(1, INT_MAX),
     )
     actor_on_advice: bool = hyper(False, 'Also train the actor on the advice batch (an ablation; off in the paper)')
     dual_replay: bool = hyper(
@@ -172,10 +188,20 @@ def check_field(f: dataclasses.Field, value: Any, owner: str) -> Any:
         raise ValueError(f'{owner}.{name} must be {expected}, got {value!r}')
 
     if kind is tuple:
+        counts = meta['range'] is not None  # a list of counts in range; else layer sizes
+        if value is None and counts:
+            return ()  # a ROS integer array left unset
         try:
+            if isinstance(value, (str, bytes)) or any(isinstance(h, bool) or h != int(h) for h in value):
+                raise ValueError
             value = tuple(int(h) for h in value)
-        except (TypeError, ValueError):
-            refuse('a list of layer sizes')
+        except (TypeError, ValueError, OverflowError):
+            refuse('a list of integers' if counts else 'a list of layer sizes')
+        if counts:
+            low, high = meta['range']
+            if any(not low <= h <= high for h in value):
+                refuse(f'a list of integers in [{low}, {high}]')
+            return value
         if not value or any(h < 1 for h in value):
             refuse('positive layer sizes')
         return value

@@ -262,6 +262,8 @@ class EQSACLearner:
             cfg.fixed_d_threshold,
             cfg.fixed_e_threshold,
             cfg.random_ask_rate,
+            cfg.random_ask_schedule,
+            cfg.random_ask_horizon,
         )
 
         self.episode = 0  # index of the current episode: Eq. 7's "Iteration"
@@ -326,7 +328,7 @@ class EQSACLearner:
                     entropy = float(eq.policy_entropy_monte_carlo(mean, log_std, k_noise))
             if self.gates.uses_draw:
                 draw = float(torch.rand((), generator=self.rng['request']))
-            decision = self.gates.decide(self.episode, discrepancy, entropy, draw)
+            decision = self.gates.decide(self.episode, discrepancy, entropy, draw, self.episode_step)
         else:
             decision = self.gates.decide(self.episode)
 

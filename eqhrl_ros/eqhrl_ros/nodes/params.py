@@ -52,8 +52,13 @@ class Param:
 
 def params_of(declared) -> tuple[Param, ...]:
     """ROS parameters for the fields of a dataclass declared with core.config.hyper()."""
-    return tuple(
-        Param(
+
+    def param(f):
+        if f.default == ():  # an empty list would be typed as bytes: declared typed and unset
+            return Param(
+                ros_name(f), None, f.metadata['description'], kind='integer_array', dynamic=f.metadata['dynamic']
+            )
+        return Param(
             ros_name(f),
             list(f.default) if isinstance(f.default, tuple) else f.default,
             f.metadata['description'],
@@ -61,8 +66,8 @@ def params_of(declared) -> tuple[Param, ...]:
             f.metadata['choices'],
             f.metadata['dynamic'],
         )
-        for f in dataclasses.fields(declared)
-    )
+
+    return tuple(param(f) for f in dataclasses.fields(declared))
 
 
 # Parameters of the learner that map one-to-one onto core.LearnerConfig fields: derived
@@ -283,7 +288,7 @@ def describe(*tables: tuple[Param, ...]) -> str:
     return '\n'.join(lines)
 
 
-UNSET_KINDS = {'double_array': Parameter.Type.DOUBLE_ARRAY}
+UNSET_KINDS = {'double_array': Parameter.Type.DOUBLE_ARRAY, 'integer_array': Parameter.Type.INTEGER_ARRAY}
 
 
 def declare(node: Node, params: tuple[Param, ...]) -> dict:
@@ -294,6 +299,8 @@ def declare(node: Node, params: tuple[Param, ...]) -> dict:
         value = node.declare_parameter(param.name, default, param.descriptor()).value
         if param.kind == 'double_array' and value is not None:
             value = [float(v) for v in value]
+        if param.kind == 'integer_array' and value is not None:
+            value = [int(v) for v in value]
         if param.choices and value not in param.choices:
             raise ValueError(f"parameter '{param.name}' is {value!r}; expected one of {param.choices}")
         values[param.name] = value
@@ -339,6 +346,10 @@ def check_section(node_name: str, values: dict, *tables: tuple[Param, ...]) -> N
                 and all(isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool)) for v in value)
             ):
                 raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected a list of numbers")
+            continue
+        if param.kind == 'integer_array':
+            if not (isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
+                raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected a list of integers")
             continue
         kind = type(param.default)
         same = (

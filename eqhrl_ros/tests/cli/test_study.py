@@ -101,7 +101,10 @@ def test_list_shows_the_order_without_running(tmp_path, capsys):
     'change, message',
     [
         (lambda p: p['groups'][0]['arms'].update(x={'mode': 'fast'}), 'mode must be one of'),
-        (lambda p: p['groups'][0]['arms'].update(x={'mode': 'sac', 'match': 'qasac'}), 'match is for mode random'),
+        (
+            lambda p: p['groups'][0]['arms'].update(x={'mode': 'sac', 'match': 'qasac'}),
+            'match is for modes random and ask_random',
+        ),
         (lambda p: p['groups'][0]['arms'].update(x={'mode': 'random', 'match': 'nope'}), 'not an arm'),
         (lambda p: p['groups'][1]['arms'].update(x={'mode': 'random', 'match': 'qasac_weak', 'sead': 1}), 'sead'),
         (lambda p: p['groups'][0]['arms']['sac'].update(learner={'learning_start': 5}), 'learning_start'),

@@ -98,3 +98,49 @@ def test_bad_settings_are_refused(kwargs):
     settings.update(kwargs)
     with pytest.raises(ValueError):
         AdvisingGates(**settings)
+
+
+def test_a_random_schedule_asks_its_count_in_each_episode_at_uniform_steps():
+    import random
+
+    schedule = (0, 3, 1, 7, 0, 2) * 50
+    gates = AdvisingGates('random', advising_budget=len(schedule), random_ask_schedule=schedule, random_ask_horizon=100)
+    rng = random.Random(0)
+    asked_steps = []
+    for episode, wanted in enumerate(schedule):
+        fired = [step for step in range(100) if gates.decide(episode, draw=rng.random(), step=step).fire]
+        assert len(fired) == wanted, episode
+        asked_steps += fired
+    # Uniform over 0..99: mean 49.5, SD of the mean of n draws about 28.9 / sqrt(n).
+    n = len(asked_steps)
+    assert abs(sum(asked_steps) / n - 49.5) < 4 * 28.9 / n**0.5
+    first_half = sum(step < 50 for step in asked_steps)
+    assert abs(first_half - n / 2) < 4 * (n / 4) ** 0.5
+
+
+def test_a_random_schedule_asks_nothing_past_its_end_or_the_budget():
+    gates = AdvisingGates('random', advising_budget=2, random_ask_schedule=(5,), random_ask_horizon=10)
+    assert sum(gates.decide(0, draw=0.99, step=s).fire for s in range(10)) == 5  # the last steps must ask
+    assert not any(gates.decide(1, draw=0.0, step=s).fire for s in range(10))  # no count for episode 1
+    assert not gates.decide(2, draw=0.0, step=0).within_budget
+
+
+def test_an_episode_shorter_than_the_horizon_asks_fewer():
+    gates = AdvisingGates('random', advising_budget=1, random_ask_schedule=(10,), random_ask_horizon=100)
+    assert sum(gates.decide(0, draw=0.5, step=s).fire for s in range(20)) < 10
+
+
+def test_ask_random_thins_the_ask_gate_by_chance_and_never_asks_without_it():
+    gates = full_gates('ask_random', random_ask_rate=0.25)
+    assert gates.uses_discrepancy and gates.uses_draw and not gates.uses_entropy
+    assert not full_gates('ask_random', random_ask_rate=1.0).decide(0, discrepancy=2.5, draw=0.0).fire  # D closed
+    opened = full_gates('ask_random', random_ask_rate=0.25).decide(0, discrepancy=3.5, draw=0.2)
+    assert opened.fire and opened.ask and not opened.respond
+    refused = full_gates('ask_random', random_ask_rate=0.25).decide(0, discrepancy=3.5, draw=0.3)
+    assert refused.ask and not refused.fire and 'random draw' in refused.reason
+
+
+@pytest.mark.parametrize('schedule', [(-1,), (1.5,), ('3',), 'abc', (True,)])
+def test_a_bad_random_schedule_is_refused(schedule):
+    with pytest.raises(ValueError, match='random_ask_schedule'):
+        AdvisingGates('random', 10, random_ask_schedule=schedule)
