@@ -36,7 +36,8 @@ system-deps:
 	@missing=""; for pair in $(SYSTEM_TOOLS); do \
 	  command -v $${pair%%:*} >/dev/null || missing="$$missing $${pair#*:}"; done; \
 	if [ -n "$$missing" ]; then \
-	  command -v apt-get >/dev/null || { echo "error: install$$missing (no apt-get here)"; exit 1; }; \
+	  command -v apt-get >/dev/null || { echo "error: the tests drive$$missing: install them (no apt-get here)"; exit 1; }; \
+	  [ "$$(id -u)" = 0 ] || { echo "error: the tests drive$$missing: run 'sudo apt-get install$$missing' (or make test as root)"; exit 1; }; \
 	  echo "installing$$missing (apt)"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
 	fi
@@ -68,7 +69,7 @@ lint: $(VENV)/.stamp-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
-test: setup lint
+test: system-deps setup lint
 	$(VENV)/bin/pytest eqhrl_ros/tests
 
 # Feedback for a developer in under a minute: everything but the tests marked slow.

@@ -111,9 +111,10 @@ def test_training_together_gives_each_seed_its_lone_run(env_id, episodes):
         return env, one
 
     seeds = (0, 1, 2)
-    alone = {}
+    alone, initial = {}, {}
     for seed in seeds:
         env, one = make(seed)
+        initial[seed] = weights(one).clone()
         alone[seed] = (train(env, one, episodes, heuristic_expert(env_id), seed=seed), one)
     together, runs, finished = {seed: [] for seed in seeds}, [], []
     for seed in seeds:
@@ -139,7 +140,13 @@ def test_training_together_gives_each_seed_its_lone_run(env_id, episodes):
             [s.episode_return for s in summaries], rel=1e-4
         )
         assert run.learner.updates == single.updates > 0
-        assert torch.allclose(weights(run.learner), weights(single), rtol=0, atol=1e-4)
+        # Not bit for bit: float sums run in another order in the batched products, and over
+        # hundreds of Adam steps (each up to lr, whatever the gradient's size) such rounding
+        # grows by an amount that differs between CPUs (AVX2, AVX-512). What must hold is that
+        # both runs learned the same thing: their difference is small beside how far training
+        # moved the weights (a seed given another's data or updates differs by about 100 %).
+        moved = (weights(single) - initial[seed]).norm()
+        assert (weights(run.learner) - weights(single)).norm() < 0.02 * moved
 
 
 def test_runs_at_different_steps_are_refused():
