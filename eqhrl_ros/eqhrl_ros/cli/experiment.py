@@ -54,6 +54,7 @@ from ..core.config import MODES as ALGORITHMS
 from ..core.config import PAPER_MODES
 from ..core.experts import EXPERT_BACKENDS
 from ..paths import params_file
+from ..yaml_files import load_mapping
 
 COLUMNS = ('algorithm', 'seed', 'episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')
 
@@ -91,7 +92,7 @@ def load_settings(args) -> Settings:
     )
 
     path = params_file(args.params)
-    data = yaml.safe_load(path.read_text()) or {}
+    data = load_mapping(path, 'params file')
     learner = file_section(data, 'learner')
     env = file_section(data, 'gym_env')
     expert = file_section(data, 'expert')

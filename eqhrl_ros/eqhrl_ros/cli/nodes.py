@@ -12,6 +12,8 @@ import importlib
 import sys
 from dataclasses import dataclass
 
+from ..yaml_files import load_mapping
+
 
 @dataclass(frozen=True)
 class NodeProgram:
@@ -118,6 +120,16 @@ def run(name: str, argv=None) -> int:
             file=sys.stderr,
         )
         return 2
+    # rcl parses params files with a parser of its own that has no limits (a 100,000-deep file
+    # hangs it): each one is checked first, as every YAML file of this package is.
+    ros_args = argv[argv.index('--ros-args') :] if '--ros-args' in argv else []
+    for i, arg in enumerate(ros_args[:-1]):
+        if arg == '--params-file':
+            try:
+                load_mapping(ros_args[i + 1], 'params file')
+            except ValueError as error:
+                print(f'{name}: {error}', file=sys.stderr)
+                return 2
     module = importlib.import_module(f'eqhrl_ros.nodes.{NODES[name].module}')
     module.main()
     return 0

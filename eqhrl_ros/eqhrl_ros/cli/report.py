@@ -30,6 +30,7 @@ import yaml
 
 from ..core.config import MODES
 from ..plots import smooth
+from ..yaml_files import load_mapping
 
 ORDER = MODES  # the algorithms in the order tables and figures show them
 LABELS = {'sac': 'SAC', 'qasac': 'QASAC', 'eqsac': 'EQSAC'}
@@ -63,7 +64,7 @@ def env_of(folders) -> str:
     for folder in folders:
         settings = Path(folder) / 'settings.yaml'
         if settings.exists():
-            return yaml.safe_load(settings.read_text()).get('env_id', '')
+            return load_mapping(settings, 'settings file').get('env_id', '')
     return ''
 
 

@@ -57,6 +57,7 @@ import yaml
 
 from ..core.config import MODES
 from ..paths import shared_file
+from ..yaml_files import load_mapping
 from . import experiment
 
 PLAN_KEYS = {'name', 'description', 'params', 'episodes', 'max_steps', 'eval_every', 'eval_starts', 'learner', 'groups'}
@@ -107,17 +108,36 @@ def _refuse_unknown(where: str, given: dict, known: set) -> None:
         raise ValueError(f'{where}: unknown key(s) {unknown}; known: {sorted(known)}')
 
 
+def _expect(where: str, value, kind, what: str):
+    """``value`` if it is a ``kind`` (bools are not ints), else a one-line ValueError."""
+    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        raise ValueError(f'{where} must be {what}, got {value!r:.60}')
+    return value
+
+
 def load_plan(name_or_path: str) -> Plan:
     """The plan, refused with the place of the first mistake in it."""
     path = plan_file(name_or_path)
-    data = yaml.safe_load(path.read_text()) or {}
+    data = load_mapping(path, 'study plan')
     _refuse_unknown(str(path), data, PLAN_KEYS)
+    if 'episodes' not in data or _expect(f'{path}: episodes', data['episodes'], int, 'a whole number') < 1:
+        raise ValueError(f'{path}: episodes must be a whole number >= 1')
+    for key in ('learner',):
+        _expect(f'{path}: {key}', data.get(key) or {}, dict, 'a mapping')
     arms = []
-    for group in data.get('groups') or []:
+    for group in _expect(f'{path}: groups', data.get('groups') or [], list, 'a list of groups'):
+        _expect(f'{path}: each group', group, dict, 'a mapping with name, seeds and arms')
         _refuse_unknown(f'{path}: group {group.get("name")!r}', group, GROUP_KEYS)
-        for name, spec in (group.get('arms') or {}).items():
-            spec = spec or {}
+        where = f'{path}: group {group.get("name")!r}'
+        _expect(f'{where}: name', group.get('name'), str, 'a name')
+        for seed in _expect(f'{where}: seeds', group.get('seeds'), list, 'a list of seeds'):
+            if _expect(f'{where}: seed', seed, int, 'a whole number') < 0:
+                raise ValueError(f'{where}: seeds must be >= 0, got {seed}')
+        for name, spec in _expect(f'{where}: arms', group.get('arms') or {}, dict, 'a mapping of arms').items():
+            spec = _expect(f'{path}: arm {name!r}', spec or {}, dict, 'a mapping')
             _refuse_unknown(f'{path}: arm {name!r}', spec, ARM_KEYS)
+            for key in ('learner', 'expert'):
+                _expect(f'{path}: arm {name!r}: {key}', spec.get(key) or {}, dict, 'a mapping')
             if spec.get('mode') not in MODES:
                 raise ValueError(f'{path}: arm {name!r}: mode must be one of {MODES}, got {spec.get("mode")!r}')
             if any(a.name == name for a in arms):

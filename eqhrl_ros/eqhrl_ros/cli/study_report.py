@@ -37,6 +37,7 @@ import numpy as np
 import yaml
 
 from ..stats import iqm, iqm_estimate, paired_difference, performance_profile
+from ..yaml_files import load_mapping
 from .report import THRESHOLDS
 
 RAW_FILES = ('arms.csv', 'episodes.csv', 'eval.csv', 'gates.csv', 'plan.yaml')
@@ -387,7 +388,7 @@ def main(argv=None) -> int:
         if not (folder / name).exists():
             print(f'eqhrl-study-report: {folder / name} is missing (run eqhrl-study first)', file=sys.stderr)
             return 2
-    plan = yaml.safe_load((folder / 'plan.yaml').read_text())
+    plan = load_mapping(folder / 'plan.yaml', 'study plan')
     from .experiment import learner_config
     from .study import arm_settings, budget_of, load_plan
 

@@ -131,9 +131,12 @@ def run(args):
     from ..nodes.teleop_expert_node import TeleopExpertNode
     from ..paths import params_file
 
+    from ..yaml_files import load_mapping
+
     try:
         path = params_file(args.params)
-    except FileNotFoundError as error:
+        load_mapping(path, 'params file')  # rcl's own parser has no limits on size or depth
+    except (FileNotFoundError, ValueError) as error:
         raise StartUpRefused(str(error)) from error
     stop = spinning.init(['--ros-args', '--params-file', str(path)], 'eqhrl-train')
     nodes = []

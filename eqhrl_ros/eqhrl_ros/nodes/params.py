@@ -376,7 +376,11 @@ def file_section(data: dict, node_name: str) -> dict:
     in both takes the value of the later one)."""
 
     def values(key):
-        return dict((data.get(key) or {}).get('ros__parameters') or {})
+        section = data.get(key) or {}
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not isinstance(params or {}, dict):
+            raise ValueError(f"params file section '{key}' must hold a ros__parameters mapping")
+        return dict(params or {})
 
     unknown = sorted(set(values('/**')) - set(SHARED_PARAM_NAMES))
     if unknown:
