@@ -130,7 +130,6 @@ def run(args):
     from ..nodes.run_files import save_and_close
     from ..nodes.teleop_expert_node import TeleopExpertNode
     from ..paths import params_file
-
     from ..yaml_files import load_mapping
 
     try:
