@@ -10,8 +10,13 @@ to it over one websocket per open page:
   sets on the learner (pause advice, budget), range-checked by the learner itself.
 
 Whoever reaches the page can steer the robot: it binds to localhost unless ``host`` says
-otherwise, and then a ``token`` is required in the page's address. A websocket from a
-page of another origin is refused, so a web site open in the same browser cannot steer.
+otherwise, and then a ``token`` is required in the page's address. Every request must name
+in its ``Host`` header an address or a name this console serves (an IP address, localhost,
+this machine's name, or one of ``allowed_hosts``), so that a web site whose name is made to
+resolve to this machine (DNS rebinding) is refused; and a websocket from a page of another
+origin is refused, so a web site open in the same browser cannot steer. Connections are
+limited in number, in total and per client, and idle or half-open ones are closed
+(connection_guard.py), so that a flood of them cannot lock the person out of the page.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import math
 import threading
 import time
 from importlib import resources
+from socket import gethostname
 from typing import Optional
 
 import numpy as np
@@ -38,8 +44,10 @@ from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 
+from ..core.config import check_value
 from ..core.env_spec import EnvSpec
 from . import messages
+from .connection_guard import ConnectionGuard, GuardedProtocol
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .params import CONSOLE_PARAMS, declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
@@ -60,6 +68,25 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
+
+
+def host_name(host_header: str) -> str:
+    """The name or address of a Host header, without the port ('[::1]:8080' -> '::1')."""
+    host = host_header.strip().lower()
+    if host.startswith('['):
+        return host[1 : host.index(']')] if ']' in host else host
+    return host.rsplit(':', 1)[0] if host.count(':') == 1 else host
+
+
+def host_allowed(host_header: str, names) -> bool:
+    """A Host header a page of this console can carry: an IP address (a browser that was given
+    the address itself, which DNS rebinding cannot produce), or one of ``names``."""
+    host = host_name(host_header)
+    try:
+        ipaddress.ip_address(host)
+        return True
+    except ValueError:
+        return host in names
 
 
 def jpeg(frame: Image, quality: int) -> Optional[bytes]:
@@ -100,6 +127,15 @@ class AdviceConsole(Node):
                 f'host {p["host"]!r} lets other machines reach the page, and whoever reaches it can steer '
                 'the robot: set a token (the page is then opened with ?token=...)'
             )
+        self.allowed_names = {
+            'localhost',
+            gethostname().lower(),
+            p['host'].lower(),
+            *(n.strip().lower() for n in (p['allowed_hosts'] or []) if n.strip()),
+        }
+        self.guard = ConnectionGuard(
+            p['max_connections'], p['max_connections_per_client'], p['header_timeout_s'], self._log_throttled
+        )
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
         self.version = 0  # bumped on every change the page must see
@@ -289,11 +325,19 @@ class AdviceConsole(Node):
             return False, f'{name!r} is not one of {LEARNER_CONTROLS}'
         if name == 'advice_enabled' and not isinstance(value, bool):
             return False, 'advice_enabled must be true or false'
-        if name == 'advising_budget' and (isinstance(value, bool) or not isinstance(value, int)):
-            return False, 'advising_budget must be an integer'
+        if name == 'advising_budget':
+            if isinstance(value, bool) or not isinstance(value, int):
+                return False, 'advising_budget must be an integer'
+            try:
+                check_value('advising_budget', value)  # the learner's own range, before any ROS call
+            except ValueError as error:
+                return False, str(error)
         if not self.learner_client.services_are_ready():
             return False, f'no learner parameter service at {self.params["learner_node"]}'
-        future = self.learner_client.set_parameters([Parameter(name, value=value)])
+        try:
+            future = self.learner_client.set_parameters([Parameter(name, value=value)])
+        except Exception as error:  # a value rclpy cannot carry: said to the page, never raised
+            return False, f'{name} = {value!r:.40} cannot be set: {error}'
         deadline = time.monotonic() + 5.0
         while not future.done() and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -319,16 +363,32 @@ class AdviceConsole(Node):
         self._server_ready.set()
         self._loop.run_forever()
 
+    def _log_throttled(self, text: str) -> None:
+        self.get_logger().warning(text)
+
     async def _start_server(self) -> None:
-        app = web.Application(client_max_size=MAX_PAGE_MESSAGE)
+        app = web.Application(client_max_size=MAX_PAGE_MESSAGE, middlewares=[self._check_host])
         app.router.add_get('/', self._page)
         app.router.add_get('/console.js', self._script)
         app.router.add_get('/ws', self._websocket)
-        self._runner = web.AppRunner(app, access_log=None)
+        # A short keep-alive: a connection that made its request and then idles gives its place back.
+        self._runner = web.AppRunner(app, access_log=None, keepalive_timeout=5.0)
         await self._runner.setup()
-        site = web.TCPSite(self._runner, self.params['host'], self.params['port'])
-        await site.start()
-        self.port = self._runner.addresses[0][1]  # the port given, or the one chosen for port 0
+        server = self._runner.server
+        self._server = await self._loop.create_server(
+            lambda: GuardedProtocol(self.guard, server), self.params['host'], self.params['port']
+        )
+        self.port = self._server.sockets[0].getsockname()[1]  # the port given, or the one chosen for port 0
+
+    @web.middleware
+    async def _check_host(self, request: web.Request, handler):
+        if not host_allowed(request.host, self.allowed_names):
+            # DNS rebinding: another site's name resolved to this machine. Its page must not load.
+            raise web.HTTPForbidden(
+                text=f'advice_console: {host_name(request.host)!r} is not a name this console serves '
+                '(open it by its address, or add the name to allowed_hosts)'
+            )
+        return await handler(request)
 
     def _authorized(self, request: web.Request) -> bool:
         token = self.params['token']
@@ -415,8 +475,10 @@ class AdviceConsole(Node):
         if self._loop.is_running():
 
             async def stop():
-                for socket in list(self._sockets):  # the page shows "disconnected" and retries
-                    await socket.close(code=1001, message=b'advice_console is stopping')
+                for page in list(self._sockets):  # the page shows "disconnected" and retries
+                    await page.close(code=1001, message=b'advice_console is stopping')
+                if getattr(self, '_server', None) is not None:
+                    self._server.close()
                 if self._runner is not None:
                     await self._runner.cleanup()
 

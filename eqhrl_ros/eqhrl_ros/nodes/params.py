@@ -288,7 +288,11 @@ def describe(*tables: tuple[Param, ...]) -> str:
     return '\n'.join(lines)
 
 
-UNSET_KINDS = {'double_array': Parameter.Type.DOUBLE_ARRAY, 'integer_array': Parameter.Type.INTEGER_ARRAY}
+UNSET_KINDS = {
+    'double_array': Parameter.Type.DOUBLE_ARRAY,
+    'integer_array': Parameter.Type.INTEGER_ARRAY,
+    'string_array': Parameter.Type.STRING_ARRAY,
+}
 
 
 def declare(node: Node, params: tuple[Param, ...]) -> dict:
@@ -301,6 +305,8 @@ def declare(node: Node, params: tuple[Param, ...]) -> dict:
             value = [float(v) for v in value]
         if param.kind == 'integer_array' and value is not None:
             value = [int(v) for v in value]
+        if param.kind == 'string_array' and value is not None:
+            value = [str(v) for v in value]
         if param.choices and value not in param.choices:
             raise ValueError(f"parameter '{param.name}' is {value!r}; expected one of {param.choices}")
         values[param.name] = value
@@ -350,6 +356,10 @@ def check_section(node_name: str, values: dict, *tables: tuple[Param, ...]) -> N
         if param.kind == 'integer_array':
             if not (isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
                 raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected a list of integers")
+            continue
+        if param.kind == 'string_array':
+            if not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
+                raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected a list of strings")
             continue
         kind = type(param.default)
         same = (
@@ -480,6 +490,21 @@ CONSOLE_PARAMS = (
     ),
     Param('port', 8080, 'TCP port of the page (0: any free port, logged at start)', (0, 65535)),
     Param('token', '', 'Secret the page address must carry (?token=...); required when host is not localhost'),
+    Param(
+        'allowed_hosts',
+        None,
+        "Names (not addresses) the page may be opened by, besides localhost, this machine's name and host: "
+        'a request whose Host header names another is refused (DNS rebinding). IP addresses are always accepted',
+        kind='string_array',
+    ),
+    Param('max_connections', 128, 'Connections the page server holds at once', (1, 10_000)),
+    Param('max_connections_per_client', 64, 'Connections it holds from one client address', (1, 10_000)),
+    Param(
+        'header_timeout_s',
+        10.0,
+        'A connection that has not sent a whole request header in this time is closed (idle, half-open)',
+        (0.1, 600.0),
+    ),
     Param('image_topic', 'gym_env/image', 'sensor_msgs/Image topic with the env frames (rgb8, bgr8 or mono8)'),
     Param('image_rate_hz', 15.0, 'Most frames per second sent to each page', (0.1, 60.0)),
     Param('jpeg_quality', 75, 'JPEG quality of the frames sent to the page', (10, 95)),

@@ -1,0 +1,127 @@
+"""advice_console under attack: DNS rebinding, floods of idle and half-open connections, and
+hostile values from a page. Raw sockets and aiohttp's client against a real console node."""
+
+import asyncio
+import socket
+import time
+
+import aiohttp
+import pytest
+
+from eqhrl_ros.nodes.advice_console_node import AdviceConsole, host_allowed, host_name
+
+from ros_helpers import params
+
+
+def get(port: int, host_header: str, path: str = '/', timeout: float = 5.0) -> int:
+    """The status code of a GET with the given Host header (0: the connection was closed)."""
+    with socket.create_connection(('127.0.0.1', port), timeout=timeout) as s:
+        s.sendall(f'GET {path} HTTP/1.1\r\nHost: {host_header}\r\nConnection: close\r\n\r\n'.encode())
+        reply = b''
+        while b'\r\n' not in reply:
+            chunk = s.recv(4096)
+            if not chunk:
+                return 0
+            reply += chunk
+    return int(reply.split()[1])
+
+
+@pytest.fixture
+def console(ros_context):
+    node = AdviceConsole(
+        context=ros_context,
+        parameter_overrides=params(
+            port=0, env_id='Pendulum-v1', header_timeout_s=0.5, max_connections=64, max_connections_per_client=64
+        ),
+    )
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+
+
+def test_host_names_and_addresses():
+    assert host_name('[::1]:8080') == '::1' and host_name('LocalHost:80') == 'localhost' and host_name('::1') == '::1'
+    names = {'localhost', 'robot-1'}
+    assert host_allowed('127.0.0.1:8080', names) and host_allowed('[::1]:1', names) and host_allowed('10.0.0.5', names)
+    assert host_allowed('localhost:8080', names) and host_allowed('ROBOT-1', names)
+    assert not host_allowed('rebind.example:8080', names) and not host_allowed('localhost.rebind.example', names)
+
+
+def test_a_page_served_under_another_name_is_refused_dns_rebinding(console):
+    port = console.port
+    assert get(port, f'127.0.0.1:{port}') == 200 and get(port, f'localhost:{port}') == 200
+    assert get(port, f'rebind.example:{port}') == 403
+    assert get(port, f'rebind.example:{port}', '/ws') == 403
+
+    async def websocket(host):
+        headers = {'Host': host, 'Origin': f'http://{host}'}
+        async with aiohttp.ClientSession() as session:
+            try:
+                async with session.ws_connect(f'http://127.0.0.1:{port}/ws', headers=headers):
+                    return 101
+            except aiohttp.WSServerHandshakeError as refused:
+                return refused.status
+
+    # Host and Origin agree, as on the attacker's own page: the page's origin check alone let it in.
+    assert asyncio.run(websocket(f'rebind.example:{port}')) == 403
+    assert asyncio.run(websocket(f'127.0.0.1:{port}')) == 101
+
+
+def test_a_flood_of_idle_connections_never_locks_the_person_out(console):
+    port, held = console.port, []
+    try:
+        for _ in range(1100):
+            held.append(socket.create_connection(('127.0.0.1', port), timeout=5))
+        # The person's page loads at once: the oldest connections without a request gave way.
+        for _ in range(6):
+            assert get(port, f'127.0.0.1:{port}') == 200
+        assert len(console.guard.open) <= 64
+        assert console.guard.evicted + console.guard.timed_out >= 1100 - 64
+    finally:
+        for s in held:
+            s.close()
+
+
+def test_half_open_and_idle_connections_are_closed_after_the_header_timeout(console):
+    port = console.port
+    with (
+        socket.create_connection(('127.0.0.1', port), timeout=5) as idle,
+        socket.create_connection(('127.0.0.1', port), timeout=5) as half,
+    ):
+        half.sendall(f'GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n'.encode())  # no blank line: never finished
+        start = time.monotonic()
+        assert idle.recv(1) == b'' and half.recv(1) == b''  # closed by the console
+        assert time.monotonic() - start < 4.0
+    assert console.guard.timed_out >= 2
+
+
+def test_connections_from_one_client_are_limited_when_all_are_in_use(ros_context):
+    console = AdviceConsole(
+        context=ros_context,
+        parameter_overrides=params(port=0, env_id='Pendulum-v1', max_connections=8, max_connections_per_client=2),
+    )
+    try:
+        port = console.port
+
+        async def pages():
+            async with aiohttp.ClientSession() as session:
+                url = f'http://127.0.0.1:{port}/ws'
+                first = await session.ws_connect(url)
+                second = await session.ws_connect(url)
+                with pytest.raises((aiohttp.ClientError, asyncio.TimeoutError, ConnectionError)):
+                    third = await session.ws_connect(url, timeout=aiohttp.ClientWSTimeout(ws_receive=2.0))
+                    await third.receive(timeout=2.0)
+                await first.close()
+                await second.close()
+
+        asyncio.run(pages())
+        assert console.guard.refused >= 1
+    finally:
+        console.destroy_node()
+
+
+@pytest.mark.parametrize('value', [2**63, 2**31, -1, 1e30, 'ten', True, None])
+def test_hostile_budget_values_from_the_page_are_refused_with_a_reason(console, value):
+    ok, reason = console.set_learner_parameter('advising_budget', value)
+    assert not ok and 'advising_budget' in reason
