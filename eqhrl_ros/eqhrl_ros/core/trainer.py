@@ -10,9 +10,12 @@ EQSACLearner.update(), unchanged. No ROS here (nodes/trainer_node.py is the adap
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import math
 
 import numpy as np
+import torch
 
 from .learner import AdviceCounts, EQSACLearner
 from .summary import EpisodeSummary
@@ -21,14 +24,48 @@ from .transitions import SequenceTracker, TransitionBatch
 # episodes.csv of a trainer: a learner's columns and the actor each episode came from.
 TRAINER_CSV_FIELDS = (*EpisodeSummary.CSV_FIELDS, 'actor')
 
+# What a batch may hold, checked by meaning before anything of it is stored (a finite value can
+# still be absurd: ten actions of 1e30 made every network NaN). Actions are normalised to [-1, 1];
+# the tolerance covers float32 rounding of the actor's own mapping.
+ACTION_TOLERANCE = 1e-3
+INT32_MAX = 2**31 - 1
+# A batch numbered this far past the last one of its actor is not a gap but a forgery (an actor
+# that really lost that many batches of 50 transitions would have lost a day at 1 kHz).
+MAX_SEQUENCE_JUMP = 1_000_000
+# The parts of a learner's state an update changes (what restore_finite puts back).
+NETWORK_STATE = (
+    'actor',
+    'critic',
+    'critic_target',
+    'log_alpha',
+    'actor_optimizer',
+    'critic_optimizer',
+    'alpha_optimizer',
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchLimits:
+    """Magnitudes a transition may have (trainer parameters max_abs_observation, max_abs_reward)."""
+
+    max_abs_observation: float = 1e6
+    max_abs_reward: float = 1e4
+
 
 class Trainer:
-    def __init__(self, learner: EQSACLearner, updates_per_transition: float = 1.0, weights_every: int = 50):
+    def __init__(
+        self,
+        learner: EQSACLearner,
+        updates_per_transition: float = 1.0,
+        weights_every: int = 50,
+        limits: BatchLimits = BatchLimits(),
+    ):
         if not updates_per_transition > 0:
             raise ValueError(f'updates_per_transition must be > 0, got {updates_per_transition}')
         if weights_every < 1:
             raise ValueError(f'weights_every must be >= 1, got {weights_every}')
         self.learner = learner
+        self.limits = limits
         self.updates_per_transition = float(updates_per_transition)
         self.weights_every = int(weights_every)
         self.sequences = SequenceTracker()
@@ -38,18 +75,22 @@ class Trainer:
         self.updates_here = 0  # updates made by this run (a resumed one starts at 0)
         self.rejected_batches = 0
         self.weights_at = None  # learner.updates when weights last went out
+        self.restored = 0  # updates undone because they made the networks non-finite
+        self._finite = None  # the networks and optimisers as they last were known finite
 
     def receive(self, batch: TransitionBatch) -> tuple[str, list[tuple[EpisodeSummary, str]]]:
         """Store a batch: (what its sequence number says, [(episode row, actor)]).
 
-        A batch with wrong sizes or a non-finite value raises ValueError and stores nothing.
+        A batch with wrong sizes, a non-finite value, a value that cannot be (an action outside
+        its bounds, an absurd magnitude, episode statistics that contradict themselves) or a
+        forged sequence number raises ValueError and stores and counts nothing of it.
         """
-        verdict = self.sequences.receive(batch.actor, batch.sequence)
         try:
             self._check(batch)
         except ValueError:
             self.rejected_batches += 1
             raise
+        verdict = self.sequences.receive(batch.actor, batch.sequence)
         learner = self.learner
         starts = learner.config.learning_starts
         for i in range(len(batch)):
@@ -83,6 +124,25 @@ class Trainer:
         for name in ('observations', 'actions', 'rewards', 'next_observations'):
             if not np.isfinite(getattr(batch, name)).all():
                 raise ValueError(f'{name} of actor {batch.actor!r} hold a non-finite value (NaN or inf)')
+        bounds = {
+            'actions': 1.0 + ACTION_TOLERANCE,
+            'observations': self.limits.max_abs_observation,
+            'next_observations': self.limits.max_abs_observation,
+            'rewards': self.limits.max_abs_reward,
+        }
+        for name, bound in bounds.items():
+            values = getattr(batch, name)
+            if values.size and float(np.abs(values).max()) > bound:
+                raise ValueError(
+                    f'{name} of actor {batch.actor!r} reach {float(np.abs(values).max()):.3g}, beyond {bound:g}'
+                )
+        state = self.sequences.actors.get(batch.actor)
+        if state is not None and batch.sequence - state.expected > MAX_SEQUENCE_JUMP:
+            raise ValueError(f'batch {batch.sequence} is {batch.sequence - state.expected} past the next one due')
+        if len(batch.episodes) > max(1, n):  # each episode ends with a transition of its batch
+            raise ValueError(f'{len(batch.episodes)} episodes end in a batch of {n} transitions')
+        for summary in batch.episodes:
+            _check_episode(summary)
 
     def add_episode(self, summary: EpisodeSummary) -> EpisodeSummary:
         """An actor's finished episode as a row of the trainer's record: the index over all
@@ -111,9 +171,33 @@ class Trainer:
         return int(self.updates_per_transition * self.eligible + 1e-9) - self.updates_here
 
     def update(self) -> dict:
+        """One update; one that leaves a loss or a network non-finite is undone: the networks and
+        optimisers go back to their last finite state (the last weights sent) and it is counted."""
         info = self.learner.update()
         self.updates_here += 1
+        if not all(math.isfinite(v) for v in info.values() if isinstance(v, float)):
+            self.restore_finite()
+            info = {**info, 'restored': True}
         return info
+
+    def networks_finite(self) -> bool:
+        learner = self.learner
+        tensors = [*learner.actor.parameters(), *learner.critic.parameters(), learner.log_alpha]
+        return all(bool(torch.isfinite(t).all()) for t in tensors)
+
+    def keep_finite(self) -> None:
+        """Note the networks and optimisers as they are now (finite) as the state to go back to."""
+        state = self.learner.state_dict()
+        self._finite = {key: copy.deepcopy(state[key]) for key in NETWORK_STATE}
+
+    def restore_finite(self) -> None:
+        """The networks and optimisers as last kept; counters, queues and random streams stay."""
+        self.restored += 1
+        if self._finite is None:
+            raise RuntimeError('an update made the networks non-finite before any finite state was kept')
+        state = self.learner.state_dict()
+        state.update({key: copy.deepcopy(value) for key, value in self._finite.items()})
+        self.learner.load_state_dict(state)
 
     def weights_due(self) -> bool:
         """Time to send weights: never sent yet, or weights_every updates since."""
@@ -121,3 +205,20 @@ class Trainer:
 
     def weights_sent(self) -> None:
         self.weights_at = self.learner.updates
+
+
+def _check_episode(summary: EpisodeSummary) -> None:
+    """Episode statistics an actor can have counted, or ValueError."""
+    s = summary
+    counts = (s.length, s.advice_asked, s.advice_given, s.advice_human, s.advice_declined, s.advice_failed)
+    if any(not 0 <= c <= INT32_MAX for c in counts):
+        raise ValueError(f'episode statistics out of range: {counts}')
+    if s.advice_asked > s.length:
+        raise ValueError(f'an episode of {s.length} steps with {s.advice_asked} requests')
+    if s.advice_given + s.advice_declined + s.advice_failed > s.advice_asked or s.advice_human > s.advice_given:
+        raise ValueError(
+            f'advice given {s.advice_given} (by a person {s.advice_human}), declined {s.advice_declined} and '
+            f'failed {s.advice_failed} of {s.advice_asked} asked'
+        )
+    if not (math.isfinite(s.episode_return) and math.isfinite(s.human_time_s) and s.human_time_s >= 0):
+        raise ValueError(f"return {s.episode_return} or a person's time {s.human_time_s} s that cannot be")

@@ -194,6 +194,24 @@ TRAINER_PARAMS = (
         'actor_silence_s', 10.0, 'Log an actor that sent nothing for this long (it may have stopped)', (0.1, 86400.0)
     ),
     Param('report_period_s', 10.0, 'Log transitions, updates and weights per second this often', (0.1, 86400.0)),
+    Param(
+        'max_abs_observation',
+        1e6,
+        'A batch holding an observation of larger magnitude is refused whole (it cannot come from the env)',
+        (1e-6, 1e30),
+    ),
+    Param(
+        'max_abs_reward',
+        1e4,
+        'A batch holding a reward of larger magnitude is refused whole (raise it for an env of larger rewards)',
+        (1e-6, 1e30),
+    ),
+    Param(
+        'inbox_limit_mb',
+        256.0,
+        'Batches received and not stored yet are held up to this size; past it a batch is dropped and counted',
+        (1.0, 1e6),
+    ),
     TORCH_THREADS,
 )
 

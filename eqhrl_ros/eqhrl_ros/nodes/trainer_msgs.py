@@ -55,6 +55,12 @@ def batch_msg(batch: Batch, action_low, action_high) -> TransitionBatch:
     )
 
 
+def batch_bytes(msg: TransitionBatch) -> int:
+    """About the memory a received batch holds (its arrays and episode rows)."""
+    floats = len(msg.observations) + len(msg.next_observations) + len(msg.actions) + len(msg.rewards)
+    return 4 * floats + len(msg.terminated) + len(msg.advised) + 128 * len(msg.episodes) + len(msg.actor) + 256
+
+
 class BatchError(ValueError):
     """A TransitionBatch whose sizes do not fit together."""
 

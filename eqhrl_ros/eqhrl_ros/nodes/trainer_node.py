@@ -32,7 +32,7 @@ from ..core.checkpoint import load_checkpoint
 from ..core.learner import EQSACLearner, LearnerConfig
 from ..core.records import EpisodeRecord
 from ..core.summary import EpisodeSummary
-from ..core.trainer import TRAINER_CSV_FIELDS, Trainer
+from ..core.trainer import TRAINER_CSV_FIELDS, BatchLimits, Trainer
 from ..core.weights import encode_weights
 from . import messages, trainer_msgs
 from .acting import printable_name
@@ -77,6 +77,8 @@ class TrainerNode(RunFiles, Node):
         )
         self.create_timer(p['report_period_s'], self._report, clock=steady_clock())
         self._inbox: deque = deque()  # batches received, not stored yet (the learning thread's)
+        self._inbox_bytes = 0
+        self.dropped_batches = 0  # refused because the inbox was full (counted as lost by their actor too)
         self._work = threading.Event()  # set when a batch arrives
         self._hold = threading.Event()  # set while another thread saves
         self._stopping = threading.Event()
@@ -100,7 +102,8 @@ class TrainerNode(RunFiles, Node):
         )
         self.learner = learner
         self.spaces = (learner.obs_dim, learner.scaler.low.copy(), learner.scaler.high.copy())
-        self.trainer = Trainer(learner, p['updates_per_transition'], p['weights_every_updates'])
+        limits = BatchLimits(p['max_abs_observation'], p['max_abs_reward'])
+        self.trainer = Trainer(learner, p['updates_per_transition'], p['weights_every_updates'], limits)
         self.get_logger().info(
             f'{self.config.mode} trainer {self.trainer_id}: obs {obs_dim}, action {learner.action_dim}, '
             f'{p["updates_per_transition"]:g} updates per transition from {self.config.learning_starts} on, '
@@ -111,7 +114,19 @@ class TrainerNode(RunFiles, Node):
     # ------------------------------------------------------------------ transitions in
 
     def _on_batch(self, msg: TransitionBatch) -> None:
-        """The executor's part: queue the batch for the learning thread, nothing more."""
+        """The executor's part: queue the batch for the learning thread, nothing more. The queue
+        holds at most inbox_limit_mb; past it a batch is dropped and counted (a flood, or updates
+        far slower than the actors), and its actor's next batch shows the gap."""
+        size = trainer_msgs.batch_bytes(msg)
+        if self._inbox_bytes + size > self.params['inbox_limit_mb'] * 1e6:
+            self.dropped_batches += 1
+            self.get_logger().warn(
+                f'inbox full ({self._inbox_bytes / 1e6:.0f} MB waiting to be stored): batch {msg.sequence} of '
+                f'actor {printable_name(msg.actor)} dropped ({self.dropped_batches} so far)',
+                throttle_duration_sec=5.0,
+            )
+            return
+        self._inbox_bytes += size
         self._inbox.append(msg)
         self._work.set()
 
@@ -202,11 +217,18 @@ class TrainerNode(RunFiles, Node):
             with self._lock:
                 stored = bool(self._inbox)
                 while self._inbox and not self._stopping.is_set():
-                    self._store(self._inbox.popleft())
+                    msg = self._inbox.popleft()
+                    self._inbox_bytes -= trainer_msgs.batch_bytes(msg)
+                    self._store(msg)
                 busy = self.trainer is not None and not self.done and self.trainer.owed() > 0
                 if busy:
                     try:
-                        self.trainer.update()
+                        if self.trainer.update().get('restored'):
+                            self.get_logger().error(
+                                f'an update made the networks non-finite: they were put back as the last '
+                                f'weights sent ({self.trainer.restored} times so far)',
+                                throttle_duration_sec=5.0,
+                            )
                         if self.trainer.weights_due():
                             self._publish_weights()
                     except Exception as error:  # never a silent death: say it and stop the node
@@ -233,7 +255,14 @@ class TrainerNode(RunFiles, Node):
         return super().destroy_node()
 
     def _publish_weights(self) -> None:
+        """The networks out on /weights, if they are finite (else back to the last that were)."""
         learner = self.learner
+        if not self.trainer.networks_finite():
+            self.trainer.restore_finite()
+            self.get_logger().error('the networks became non-finite: put back as the last weights sent, not sent')
+            self.trainer.weights_sent()
+            return
+        self.trainer.keep_finite()
         self.weights_pub.publish(
             trainer_msgs.weights_msg(
                 self.trainer_id,
@@ -260,7 +289,8 @@ class TrainerNode(RunFiles, Node):
             f'({(transitions - before_t) / seconds:.1f}/s), '
             f'{updates} updates ({(updates - before_u) / seconds:.1f}/s), {self.trainer.owed()} owed, '
             f'weights v{updates} sent {self.weights_published} times, '
-            f'{self.trainer.sequences.lost} batches lost, {self.refused_batches} refused'
+            f'{self.trainer.sequences.lost} batches lost, {self.refused_batches} refused, '
+            f'{self.dropped_batches} dropped (inbox full)'
         )
         limit = self.params['actor_silence_s']
         for actor, state in list(sequences.items()):

@@ -193,3 +193,111 @@ def test_an_actor_step_counts_but_stores_nothing():
     summary = actor.step(obs, [0.5], -1.0, obs, False, True, learn=False)
     assert summary.length == 1 and summary.episode_return == -1.0
     assert len(actor.replay) == 0 and actor.updates == 0
+
+
+def _batch(actor='a', sequence=0, n=10, episodes=(), **values):
+    fields = dict(
+        observations=np.zeros((n, 3), np.float32),
+        actions=np.zeros((n, 1), np.float32),
+        rewards=np.zeros(n, np.float32),
+        next_observations=np.zeros((n, 3), np.float32),
+        terminated=np.zeros(n, bool),
+        advised=np.ones(n, bool),
+    )
+    fields.update(values)
+    return TransitionBatch(actor, sequence, episodes=list(episodes), **fields)
+
+
+@pytest.mark.parametrize(
+    'values,problem',
+    [
+        ({'actions': np.full((10, 1), 1e30, np.float32)}, 'actions .* reach 1e[+]30'),
+        ({'actions': np.full((10, 1), 1.01, np.float32)}, 'actions .* reach 1.01'),
+        ({'observations': np.full((10, 3), 1e7, np.float32)}, 'observations .* beyond 1e[+]06'),
+        ({'rewards': np.full(10, -1e5, np.float32)}, 'rewards .* beyond 10000'),
+    ],
+    ids=['action 1e30', 'action outside bounds', 'observation 1e7', 'reward 1e5'],
+)
+def test_finite_but_impossible_transitions_are_refused_whole(values, problem):
+    trainer = Trainer(pendulum_learner())
+    with pytest.raises(ValueError, match=problem):
+        trainer.receive(_batch(**values))
+    assert len(trainer.learner.replay) == len(trainer.learner.advice_replay) == 0
+    assert trainer.rejected_batches == 1 and trainer.sequences.actors == {}
+
+
+def _summary(**changes):
+    good = dict(
+        episode=0,
+        episode_return=-100.0,
+        length=10,
+        advice_asked=2,
+        advice_given=1,
+        advice_human=0,
+        advice_declined=1,
+        advice_failed=0,
+        success=False,
+        total_steps=10,
+        alpha=0.2,
+    )
+    return EpisodeSummary(**{**good, **changes})
+
+
+@pytest.mark.parametrize(
+    'changes',
+    [
+        {'episode_return': float('nan')},
+        {'length': -5},
+        {'advice_asked': 2147483647},
+        {'advice_given': 3},
+        {'advice_human': 2},
+        {'human_time_s': float('inf')},
+        {'human_time_s': -1.0},
+        {'advice_asked': 2**40, 'length': 2**41},
+    ],
+)
+def test_episode_statistics_that_cannot_be_are_refused_with_their_batch(changes):
+    trainer = Trainer(pendulum_learner())
+    with pytest.raises(ValueError):
+        trainer.receive(_batch(episodes=[_summary(**changes)]))
+    assert trainer.learner.episode == 0 and len(trainer.learner.replay) == 0
+    _, rows = trainer.receive(_batch(episodes=[_summary()]))
+    assert [r.episode for r, _ in rows] == [0] and trainer.learner.episode == 1
+
+
+def test_a_batch_ending_more_episodes_than_it_has_transitions_is_refused():
+    trainer = Trainer(pendulum_learner())
+    with pytest.raises(ValueError, match='10000 episodes end in a batch of 4'):
+        trainer.receive(
+            _batch(n=4, episodes=[_summary(length=1, advice_asked=0, advice_given=0, advice_declined=0)] * 10_000)
+        )
+    assert trainer.learner.episode == 0  # the budget counts these: no jump from 11 to 10,023
+    trainer.receive(_batch(n=0, episodes=[_summary()]))  # an episode whose last step went in the batch before
+    assert trainer.learner.episode == 1
+
+
+def test_a_forged_sequence_number_counts_no_loss_and_is_refused():
+    trainer = Trainer(pendulum_learner())
+    for sequence in range(3):
+        trainer.receive(_batch(sequence=sequence))
+    with pytest.raises(ValueError, match='past the next one due'):
+        trainer.receive(_batch(sequence=2**64 - 1))
+    assert trainer.sequences.lost == 0
+    assert trainer.receive(_batch(sequence=3))[0] == 'next'
+
+
+def test_an_update_that_makes_the_networks_non_finite_is_undone():
+    trainer = Trainer(pendulum_learner(learning_starts=10))
+    trainer.receive(_batch(n=20))
+    trainer.update()
+    trainer.keep_finite()  # as when weights go out
+    kept = {k: v.clone() for k, v in trainer.learner.actor.state_dict().items()}
+    # Poison that got past the checks (as it did before them): huge rewards, stored directly.
+    for _ in range(300):
+        trainer.learner.store(np.zeros(3), np.zeros(1), 3e38, np.zeros(3), False, True)
+    for _ in range(3):
+        info = trainer.update()
+    assert info.get('restored') and trainer.restored >= 1
+    assert trainer.networks_finite()
+    assert all(torch.equal(v, kept[k]) for k, v in trainer.learner.actor.state_dict().items())
+    assert trainer.learner.updates == 4  # counters go on: the update happened, its result was undone

@@ -224,3 +224,28 @@ def test_weights_wait_steps_keeps_a_lock_step_actor_within_reach_of_the_trainer(
     # About one update per two steps meanwhile (5 per message, 10 steps per message).
     updates, stored = trainer.learner.updates - updates0, trainer.learner.total_steps - stored0
     assert updates >= 0.3 * stored, (updates, stored)
+
+
+def test_the_trainers_inbox_is_bounded_in_bytes_and_counts_what_it_drops(harness, ros_context, tmp_path):
+    from eqhrl_interfaces.msg import TransitionBatch as BatchMsg
+
+    trainer = add_trainer(harness, ros_context, tmp_path, inbox_limit_mb=1.0)
+    trainer.stop_learning()  # nothing is stored: the inbox only fills, as under a flood faster than updates
+    n = 9_000  # 9,000 transitions of 3 + 3 + 1 + 1 floats and 2 flags: about 0.31 MB a batch
+    msg = BatchMsg(
+        actor='/flood',
+        observation_size=3,
+        action_low=[-2.0],
+        action_high=[2.0],
+        observations=[0.0] * 3 * n,
+        next_observations=[0.0] * 3 * n,
+        actions=[0.0] * n,
+        rewards=[0.0] * n,
+        terminated=[False] * n,
+        advised=[False] * n,
+    )
+    for sequence in range(10):
+        msg.sequence = sequence
+        trainer._on_batch(msg)
+    assert len(trainer._inbox) == 3 and trainer.dropped_batches == 7
+    assert trainer._inbox_bytes <= 1e6
