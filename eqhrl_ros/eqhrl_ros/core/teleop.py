@@ -6,6 +6,7 @@ a Float32MultiArray into plain lists and calls these functions.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
@@ -24,6 +25,17 @@ class Command:
     disabled_reason: str = ''
     answer: bool = False  # the answer button is held: "use my command for this request"
     skip: bool = False  # the skip button is held: "no advice for this request"
+
+
+def unit_values(values: Sequence[float], what: str) -> np.ndarray:
+    """Joystick axes and teleop_command values: finite and in [-1, 1] (their documented range),
+    else ValueError. An inf or 1e30 would otherwise become full-scale advice, a NaN an answer."""
+    array = np.asarray(values, dtype=np.float64)
+    if not np.isfinite(array).all():
+        raise ValueError(f'{what} holds a non-finite value: {list(values)}')
+    if array.size and float(np.abs(array).max()) > 1.0 + 1e-6:
+        raise ValueError(f'{what} holds a value outside [-1, 1]: {float(np.abs(array).max()):.3g}')
+    return array
 
 
 def affine(values: Sequence[float], scales: Sequence[float], offsets: Sequence[float]) -> np.ndarray:
@@ -51,7 +63,7 @@ def joy_command(
     def held(index: int) -> bool:
         return 0 <= index < len(buttons) and bool(buttons[index])
 
-    raw = [axes[i] if 0 <= i < len(axes) else 0.0 for i in axis_indices]
+    raw = unit_values([axes[i] if 0 <= i < len(axes) else 0.0 for i in axis_indices], 'joy axes')
     values = affine(raw, scales, offsets)
     answer, skip = held(answer_button), held(skip_button)
     if require_enable_button and not held(enable_button):
@@ -70,7 +82,10 @@ def twist_command(
     ``read('angular.z')`` returns that field's value. teleop_twist_keyboard and the like
     publish a zero Twist when keys are released, so a Twist has no deadman: staleness covers it.
     """
-    return Command(affine([read(f) for f in fields], scales, offsets), True)
+    values = [read(f) for f in fields]
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f'cmd_vel holds a non-finite value: {values}')
+    return Command(affine(values, scales, offsets), True)
 
 
 # The teleop_command message (std_msgs/Float32MultiArray), as keyboard_teleop and
@@ -93,7 +108,7 @@ def array_command(fields: dict, indices: Sequence[int], scales: Sequence[float],
 
     enabled = held('enabled', True)
     return Command(
-        affine([data[i] for i in indices], scales, offsets),
+        affine(unit_values([data[i] for i in indices], 'command'), scales, offsets),
         enabled,
         '' if enabled else 'the deadman is not held',
         held('answer', False),

@@ -57,3 +57,58 @@ def apply_weights(learner, data: bytes) -> None:
         raise WeightsError(f'unexpected tensors {sorted(unknown)[:5]}')
     for network, state in states.items():
         getattr(learner, network).load_state_dict(state)
+
+
+# How far one weights message may move an actor on. A trainer publishes every weights_every
+# updates; an actor that missed weights for hours of updates at 1 kHz still sees a smaller step.
+MAX_VERSION_JUMP = 10_000_000
+MAX_EPISODE_JUMP = 1_000_000
+INT32_MAX = 2**31 - 1
+
+
+class TrainerPin:
+    """Which trainer's weights an actor obeys (nodes/actor_node.py asks before applying any).
+
+    - It follows one trainer: the one ``trainer_id`` names, or (empty) the first whose weights it
+      applies. Weights of another trainer are taken only when the actor is told to (trainer_id
+      set to it) or when that trainer is the only one publishing weights (the one followed has
+      left the graph: a trainer restarted, resumed or replaced), never beside the one followed.
+    - Within a trainer, versions only increase (an older or repeated version is ignored) and may
+      not jump by more than MAX_VERSION_JUMP; the episode count the budget (Eq. 7) follows may not
+      pass the int32 range of the record or jump by more than MAX_EPISODE_JUMP.
+    Without a shared key these rules cannot tell a forger that copies the followed trainer's id
+    from that trainer; they keep a stranger with its own id out while the real trainer runs.
+    """
+
+    def __init__(self, trainer_id: str = ''):
+        self.named = trainer_id  # set by the person (the trainer_id parameter); '' follows the first
+        self.followed = trainer_id
+        self.version: int | None = None
+
+    def name(self, trainer_id: str) -> None:
+        """Follow ``trainer_id`` from now on ('' : the next trainer that publishes alone)."""
+        self.named = self.followed = trainer_id
+        self.version = None
+
+    def judge(self, trainer_id: str, version: int, episodes: int, episode_now: int, alone: bool) -> str:
+        """'apply', 'stale' (an old version: ignore it) or why the weights are refused.
+        ``alone``: the sender is the only publisher of weights on the graph."""
+        if episodes > INT32_MAX or episodes - episode_now > MAX_EPISODE_JUMP:
+            return f"their episode count {episodes} is {episodes - episode_now} past this actor's"
+        if trainer_id != self.followed:
+            if self.named and trainer_id != self.named:
+                return f"they come from trainer '{trainer_id}', and this actor follows '{self.named}' (trainer_id)"
+            if self.followed and not alone:
+                return (
+                    f"they come from trainer '{trainer_id}' while '{self.followed}' still publishes: this actor "
+                    'follows the trainer it joined (set trainer_id to follow another)'
+                )
+            return 'apply'  # a new trainer, alone: it replaces the one followed
+        if self.version is not None and version <= self.version:
+            return 'stale'
+        if self.version is not None and version - self.version > MAX_VERSION_JUMP:
+            return f'version {version} jumps {version - self.version} past v{self.version}'
+        return 'apply'
+
+    def applied(self, trainer_id: str, version: int) -> None:
+        self.followed, self.version = trainer_id, int(version)

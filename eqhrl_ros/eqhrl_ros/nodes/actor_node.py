@@ -29,7 +29,7 @@ from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
 
 from ..core.learner import EpisodeSummary, EQSACLearner
 from ..core.transitions import Outbox
-from ..core.weights import WeightsError, apply_weights
+from ..core.weights import TrainerPin, WeightsError, apply_weights
 from . import trainer_msgs
 from .acting import ActingNode
 from .params import ACTOR_NODE_PARAMS
@@ -47,16 +47,22 @@ class ActorNode(ActingNode):
         self.sent_batches = 0
         self.sent_transitions = 0
         self._waiting_weights: Optional[PolicyWeights] = None  # arrived before the spaces were known
+        self._other_trainer: Optional[PolicyWeights] = None  # another trainer's, held until it publishes alone
         self._trainer_away_since: Optional[float] = None
         self._steps_on_weights = 0  # steps acted since the weights in use arrived
         self._deferred: Optional[tuple] = None  # (obs, key) held until newer weights arrive
         self.weights_waits = 0
         super().__init__('actor', ACTOR_NODE_PARAMS, **kwargs)
+        self.pin = TrainerPin(self.params['trainer_id'])
         self.actor_name = self.params['actor_name'] or self.get_fully_qualified_name()
         self.transitions_pub = self.create_publisher(
             TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, trainer_msgs.TRANSITIONS_QOS
         )
-        self.create_subscription(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, self._on_weights, trainer_msgs.WEIGHTS_QOS)
+        weights = self.create_subscription(
+            PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, self._on_weights, trainer_msgs.WEIGHTS_QOS
+        )
+        self.weights_topic = weights.topic_name  # after remapping
+        self.add_post_set_parameters_callback(self._follow_named_trainer)
         period = min(self.params['flush_period_s'] / 2, 0.1)
         self.create_timer(period, self._flush_if_due, clock=self._steady)
 
@@ -117,6 +123,9 @@ class ActorNode(ActingNode):
             self._send()
             if self._deferred is not None and self.transitions_pub.get_subscription_count() == 0:
                 self._act_on_deferred()  # the trainer went away: act with the weights we have
+            if self._other_trainer is not None and self.learner is not None and self._weights_publishers() <= 1:
+                msg, self._other_trainer = self._other_trainer, None
+                self._apply(msg)  # the trainer followed has left: the one that replaced it is alone
 
     def _send(self) -> None:
         """Publish sealed batches while a trainer listens; otherwise keep them (bounded)."""
@@ -164,11 +173,27 @@ class ActorNode(ActingNode):
                 msg, self._waiting_weights = self._waiting_weights, None
                 self._apply(msg)
 
+    def _weights_publishers(self) -> int:
+        return self.count_publishers(self.weights_topic)
+
     def _apply(self, msg: PolicyWeights) -> None:
-        """Between two steps (under the node's lock): the networks whole, or not at all."""
+        """Between two steps (under the node's lock): the networks whole, or not at all, and only
+        from the trainer this actor follows (core.weights.TrainerPin)."""
         new_trainer = msg.trainer_id != self.trainer_id
-        if not new_trainer and self.weights_version is not None and msg.version <= self.weights_version:
+        verdict = self.pin.judge(
+            msg.trainer_id, int(msg.version), int(msg.episodes), self.learner.episode, self._weights_publishers() <= 1
+        )
+        if verdict == 'stale':
             return  # older than what we act with
+        if verdict != 'apply':
+            self.weights_refused += 1
+            if 'still publishes' in verdict:
+                self._other_trainer = msg  # taken if the one followed leaves and this one stays alone
+            shown = ''.join(
+                c if c.isprintable() and c.isascii() else '?' for c in verdict[:300]
+            )  # ids are a sender's text
+            self.get_logger().warn(f'weights v{msg.version} refused: {shown}', throttle_duration_sec=5.0)
+            return
         try:
             apply_weights(self.learner, msg.tensors.tobytes() if hasattr(msg.tensors, 'tobytes') else msg.tensors)
         except WeightsError as error:
@@ -178,6 +203,7 @@ class ActorNode(ActingNode):
         if new_trainer:
             self.get_logger().info(f"weights from trainer '{msg.trainer_id}' (v{msg.version})")
         self.trainer_id, self.weights_version = msg.trainer_id, int(msg.version)
+        self.pin.applied(msg.trainer_id, msg.version)
         self.weights_applied += 1
         published = Time.from_msg(msg.stamp, clock_type=self.get_clock().clock_type)
         self.weights_latencies.append((self.get_clock().now() - published).nanoseconds / 1e9)
@@ -185,6 +211,15 @@ class ActorNode(ActingNode):
         self.learner.episode = max(self.learner.episode, int(msg.episodes))
         self._steps_on_weights = 0
         self._act_on_deferred()
+
+    def _follow_named_trainer(self, changes) -> None:
+        for change in changes:
+            if change.name == 'trainer_id':
+                with self._lock:
+                    self.pin.name(str(change.value))
+                    self.get_logger().info(
+                        f"following trainer '{change.value}'" if change.value else 'following the next trainer alone'
+                    )
 
     # ------------------------------------------------------------------ exit
 

@@ -157,6 +157,13 @@ ACTOR_NODE_PARAMS = (
     *ACTING_PARAMS,
     Param('actor_name', '', "This actor's name in the trainer's record and log (empty: the node's full name)"),
     Param(
+        'trainer_id',
+        '',
+        'The trainer whose weights to act with (its id, as it logs it); empty: the first one joined. Another '
+        'trainer is followed only when it publishes alone (the one followed left), or when this is set to it',
+        dynamic=True,
+    ),
+    Param(
         'batch_transitions',
         50,
         'Send transitions to the trainer in batches of this many (an episode end or flush_period_s sends sooner)',
@@ -441,6 +448,12 @@ def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
 TELEOP_EXPERT_PARAMS = (
     *ENV_PARAMS,
     Param('source', 'joy', 'Which teleop input becomes advice', choices=('joy', 'twist', 'array')),
+    Param(
+        'command_publisher',
+        '',
+        "The node the person's commands come from (full name, e.g. /advice_console); empty: any one node. "
+        'While another node publishes on the command topic too, every command is refused',
+    ),
     Param(
         'axes',
         [0],

@@ -32,6 +32,7 @@ from ..core.teleop import TWIST_FIELDS, Command, TeleopExpert, array_command, jo
 from . import messages
 from .advise_msgs import answer, fill_response, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec
+from .graph_trust import OnePublisher
 from .params import TELEOP_EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
 
@@ -76,6 +77,8 @@ class TeleopExpertNode(Node):
             callback_group=ReentrantCallbackGroup(),
         )
         topic = {'joy': 'joy', 'twist': 'cmd_vel', 'array': 'teleop_command'}[source]
+        # Commands are the person's only while one node (command_publisher, if set) publishes them.
+        self.source_guard = OnePublisher(self, self.resolve_topic_name(topic), self.params['command_publisher'])
         self.get_logger().info(
             f"advising from '{topic}' ({source}); scales {self.params['scales']}; answer mode "
             f'{self.params["answer_mode"]}'
@@ -119,10 +122,19 @@ class TeleopExpertNode(Node):
 
     # ------------------------------------------------------------------ the person's commands
 
+    def _trusted(self) -> bool:
+        refusal = self.source_guard.refusal()
+        if refusal:
+            self.rejected_commands += 1
+            self.get_logger().error(f'commands refused: {refusal}', throttle_duration_sec=5.0)
+        return not refusal
+
     def _on_joy(self, msg: Joy) -> None:
+        if not self._trusted():
+            return
         p = self.params
-        self._take(
-            joy_command(
+        try:
+            command = joy_command(
                 list(msg.axes),
                 list(msg.buttons),
                 p['axes'],
@@ -133,20 +145,32 @@ class TeleopExpertNode(Node):
                 p['answer_button'],
                 p['skip_button'],
             )
-        )
+        except ValueError as error:
+            self.rejected_commands += 1
+            self.get_logger().error(f"'joy': {error}", throttle_duration_sec=5.0)
+            return
+        self._take(command)
 
     def _on_twist(self, msg: Twist) -> None:
+        if not self._trusted():
+            return
         p = self.params
-        self._take(
-            twist_command(
+        try:
+            command = twist_command(
                 lambda field: float(reduce(getattr, field.split('.'), msg)),
                 p['twist_fields'],
                 p['scales'],
                 p['offsets'],
             )
-        )
+        except ValueError as error:
+            self.rejected_commands += 1
+            self.get_logger().error(f"'cmd_vel': {error}", throttle_duration_sec=5.0)
+            return
+        self._take(command)
 
     def _on_array(self, msg: Float32MultiArray) -> None:
+        if not self._trusted():
+            return
         p = self.params
         try:
             command = array_command(messages.read_fields(msg), p['axes'], p['scales'], p['offsets'])

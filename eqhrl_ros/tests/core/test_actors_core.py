@@ -301,3 +301,30 @@ def test_an_update_that_makes_the_networks_non_finite_is_undone():
     assert trainer.networks_finite()
     assert all(torch.equal(v, kept[k]) for k, v in trainer.learner.actor.state_dict().items())
     assert trainer.learner.updates == 4  # counters go on: the update happened, its result was undone
+
+
+def test_an_actor_follows_the_trainer_it_joined_and_no_stranger_beside_it():
+    from eqhrl_ros.core.weights import TrainerPin
+
+    pin = TrainerPin()
+    assert pin.judge('real', 0, 0, 0, alone=True) == 'apply'
+    pin.applied('real', 0)
+    assert 'still publishes' in pin.judge('rogue', 5, 0, 0, alone=False)  # a stranger beside the real one
+    assert pin.judge('real', 50, 3, 3, alone=False) == 'apply'
+    pin.applied('real', 50)
+    assert pin.judge('real', 50, 3, 3, alone=False) == 'stale' and pin.judge('real', 10, 3, 3, alone=False) == 'stale'
+    assert 'jumps' in pin.judge('real', 2**63, 3, 3, alone=False)  # locked the real trainer out before
+    assert 'episode count' in pin.judge('real', 100, 2**31, 3, alone=False)  # int32 wrap, budget ended
+    assert 'episode count' in pin.judge('real', 100, 10**7, 3, alone=False)
+    # The real trainer restarted (a new id, and the old one left the graph): followed again.
+    assert pin.judge('real-2', 0, 3, 3, alone=True) == 'apply'
+
+
+def test_a_named_trainer_is_the_only_one_followed():
+    from eqhrl_ros.core.weights import TrainerPin
+
+    pin = TrainerPin('lab-trainer')
+    assert 'follows' in pin.judge('rogue', 1, 0, 0, alone=True)
+    assert pin.judge('lab-trainer', 1, 0, 0, alone=False) == 'apply'
+    pin.name('')  # the person lets the next trainer that publishes alone take over
+    assert pin.judge('next', 0, 0, 0, alone=True) == 'apply'

@@ -249,3 +249,42 @@ def test_the_trainers_inbox_is_bounded_in_bytes_and_counts_what_it_drops(harness
         trainer._on_batch(msg)
     assert len(trainer._inbox) == 3 and trainer.dropped_batches == 7
     assert trainer._inbox_bytes <= 1e6
+
+
+def test_a_rogue_trainer_beside_the_real_one_changes_no_action(harness, ros_context, tmp_path):
+    """A well-formed PolicyWeights with a trainer id of its own, whose actor always pushes +2,
+    published at 20 Hz beside the real trainer: the actor refuses every one and keeps acting
+    with the real trainer's weights. Before, it adopted the first within 8 ms."""
+    import torch
+
+    from eqhrl_ros.core import EQSACLearner, LearnerConfig
+    from eqhrl_ros.core.weights import encode_weights
+
+    actor = add_actor(harness, ros_context, '/a0')
+    trainer = add_trainer(harness, ros_context, tmp_path)
+    assert harness.spin_until(lambda: actor.trainer_id == trainer.trainer_id, timeout=60)
+
+    rogue_learner = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(hidden=(16, 16)))
+    with torch.no_grad():
+        rogue_learner.actor.heads.bias.fill_(50.0)  # mean +50: tanh gives +1, the env's +2
+    rogue = rclpy.create_node('rogue', context=ros_context)
+    harness.add(rogue)
+    pub = rogue.create_publisher(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, trainer_msgs.WEIGHTS_QOS)
+    tensors = array.array('B', encode_weights(rogue_learner))
+    rogue.create_timer(
+        0.05,
+        lambda: pub.publish(
+            PolicyWeights(
+                trainer_id='rogue',
+                version=2**62,
+                episodes=2**31,
+                stamp=rogue.get_clock().now().to_msg(),
+                tensors=tensors,
+            )
+        ),
+    )
+    refused_before = actor.weights_refused
+    assert harness.spin_until(lambda: actor.weights_refused > refused_before + 20, timeout=30)
+    assert actor.trainer_id == trainer.trainer_id and actor.learner.episode < 2**31
+    obs = np.zeros(3, np.float32)
+    assert not np.allclose(actor.learner.act(obs, deterministic=True), rogue_learner.act(obs, deterministic=True))

@@ -358,3 +358,67 @@ def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
         assert '-icanon' not in settings and '-echo' not in settings
     finally:
         tmux.close()
+
+
+@pytest.mark.parametrize('value', [float('nan'), float('inf'), 1e30, 1.5])
+def test_commands_that_cannot_be_a_persons_are_refused(value):
+    with pytest.raises(ValueError, match=r'non-finite|outside \[-1, 1\]'):
+        array_command({'command': [value]}, [0], [2.0], [0.0])
+    with pytest.raises(ValueError, match=r'non-finite|outside \[-1, 1\]'):
+        joy_command([value], [1], [0], [2.0], [0.0])
+    if not np.isfinite(value):
+        with pytest.raises(ValueError, match='non-finite'):
+            twist_command(lambda field: value, ['angular.z'], [1.0], [0.0])
+
+
+def test_a_second_command_publisher_answers_nothing_for_the_person(harness, ros_context):
+    """The console publishes the person's command; a rogue node publishes on teleop_command too.
+    Before, the rogue answered 8 of 8 requests as the person. Now every command is refused while
+    two nodes publish, and with command_publisher set, a rogue alone is refused as well."""
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(
+                source='array',
+                axes=[0],
+                scales=[2.0],
+                offsets=[0.0],
+                answer_mode='instant',
+                stale_after_s=5.0,
+                command_publisher='/advice_console',
+            ),
+        )
+    )
+    console = harness.add(rclpy.create_node('advice_console', context=ros_context))
+    rogue = harness.add(rclpy.create_node('rogue', context=ros_context))
+    console_pub = console.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    client = console.create_client(Advise, 'advise')
+
+    def command(value):
+        return messages.command_msg([value], True, False, False)
+
+    assert harness.spin_until(lambda: console_pub.get_subscription_count() > 0)
+    console_pub.publish(command(0.5))
+    harness.spin_until(lambda: False, timeout=0.3)
+    response = call_advise(harness, client)
+    assert response.advised and list(response.action) == pytest.approx([1.0])
+
+    rogue_pub = rogue.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    assert harness.spin_until(lambda: len(teleop.get_publishers_info_by_topic('/teleop_command')) == 2, timeout=10)
+    harness.spin_until(lambda: False, timeout=0.6)  # past the graph cache
+    rejected = teleop.rejected_commands
+    for _ in range(5):
+        rogue_pub.publish(command(-1.0))
+        harness.spin_until(lambda: False, timeout=0.1)
+    assert teleop.rejected_commands >= rejected + 5
+    response = call_advise(harness, client)
+    assert not (response.advised and list(response.action) == pytest.approx([-2.0]))
+
+    console.destroy_node()  # the console goes; the rogue alone is not the configured publisher
+    harness.nodes.remove(console)
+    assert harness.spin_until(lambda: len(teleop.get_publishers_info_by_topic('/teleop_command')) == 1, timeout=10)
+    harness.spin_until(lambda: False, timeout=0.6)
+    rejected = teleop.rejected_commands
+    rogue_pub.publish(command(-1.0))
+    harness.spin_until(lambda: teleop.rejected_commands > rejected, timeout=5)
+    assert teleop.rejected_commands > rejected

@@ -1,0 +1,52 @@
+"""Who publishes a topic, judged through the ROS graph.
+
+rclpy (Jazzy) tells a subscriber nothing about which publisher sent a message, so a node that
+must take a topic from one peer only (teleop_expert's commands, the env's env_info) asks the
+graph instead: while another node publishes on the topic too, no message on it can be told
+from a stranger's, and it is refused. That is a guard against a second publisher on the graph;
+against a stranger that replaces the real one, use SROS2 (the package README's security section).
+"""
+
+from __future__ import annotations
+
+import time
+
+from rclpy.node import Node
+
+GRAPH_CACHE_S = 0.5  # the graph is asked at most this often per topic (a query walks every endpoint)
+
+
+def full_name(namespace: str, name: str) -> str:
+    return f'{namespace.rstrip("/")}/{name}'
+
+
+def publishers(node: Node, topic: str) -> set:
+    """Full names of the nodes publishing on ``topic`` (a resolved name)."""
+    return {full_name(i.node_namespace, i.node_name) for i in node.get_publishers_info_by_topic(topic)}
+
+
+class OnePublisher:
+    """Messages on ``topic`` are trusted while exactly one node publishes it, and it is
+    ``expected`` when that is set (a full node name such as /advice_console)."""
+
+    def __init__(self, node: Node, topic: str, expected: str = ''):
+        self.node, self.topic, self.expected = node, topic, expected
+        self._checked_at, self._verdict = float('-inf'), ''
+
+    def refusal(self) -> str:
+        """'' while the topic's publisher can be trusted; else why not, in one line."""
+        now = time.monotonic()
+        if now - self._checked_at >= GRAPH_CACHE_S:
+            self._checked_at, self._verdict = now, self._judge()
+        return self._verdict
+
+    def _judge(self) -> str:
+        names = publishers(self.node, self.topic)
+        if self.expected and names and self.expected not in names:
+            return f"'{self.topic}' is published by {sorted(names)}, not by '{self.expected}'"
+        if len(names) > 1:
+            return (
+                f"'{self.topic}' has {len(names)} publishers ({', '.join(sorted(names))}): a message cannot be "
+                "told from a stranger's, so none is taken until one publisher is left"
+            )
+        return ''
