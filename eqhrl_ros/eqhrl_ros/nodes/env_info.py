@@ -18,6 +18,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from eqhrl_interfaces.msg import EnvInfo
 
 from ..core.env_spec import EnvSpec, spec_from_parameters
+from .graph_trust import publishers
 from .spinning import start_up_errors, stop_with_error
 
 TOPIC = 'env_info'
@@ -116,6 +117,14 @@ class EnvInfoWatcher:
         self._on_spec = on_spec
         self.subscription = node.create_subscription(EnvInfo, TOPIC, self._on_env_info, ENV_INFO_QOS)
         self.topic = self.subscription.topic_name
+        # Only the env speaks for the env: env_info is taken while every node publishing it also
+        # publishes the observations (or is env_node). A stranger's latched env_info is held, not
+        # obeyed, and looked at again while it waits (graph_trust.py says why the graph decides).
+        self.env_node = node.get_parameter('env_node').value if node.has_parameter('env_node') else ''
+        self.observation_topic = node.resolve_topic_name('observation')
+        self.untrusted = 0
+        self._held: Optional[EnvInfo] = None
+        self._recheck = node.create_timer(0.5, self._on_recheck)
         if configured is not None:
             self._use(configured)
         else:
@@ -136,8 +145,29 @@ class EnvInfoWatcher:
         else:
             stop_with_error(self.node, message)
 
+    def refusal(self) -> str:
+        """'' when every publisher of env_info is the env (it publishes observation, or is env_node)."""
+        speakers = publishers(self.node, self.topic)
+        allowed = {self.env_node} if self.env_node else publishers(self.node, self.observation_topic)
+        strangers = sorted(speakers - allowed)
+        if strangers:
+            which = f"'{self.env_node}'" if self.env_node else f'the publisher of {self.observation_topic}'
+            return f'{self.topic} is published by {strangers}, which is not {which}'
+        return ''
+
+    def _on_recheck(self) -> None:
+        if self._held is not None and not self.refusal():
+            msg, self._held = self._held, None
+            self._on_env_info(msg)
+
     def _on_env_info(self, msg: EnvInfo) -> None:
         if self.node.context is None or not self.node.context.ok():
+            return
+        refusal = self.refusal()
+        if refusal:
+            self.untrusted += 1
+            self._held = msg  # taken once the stranger has left (or the env's observations show)
+            self.node.get_logger().warn(f'env_info held, not obeyed: {refusal}', throttle_duration_sec=5.0)
             return
         try:
             announced = spec_from_msg(msg, f"env_info from the env '{shown(msg.name)}'")

@@ -108,6 +108,12 @@ ENV_PARAMS = (
         'given as parameters)',
     ),
     *SPACE_PARAMS,
+    Param(
+        'env_node',
+        '',
+        'The node whose env_info to take (full name); empty: the node publishing observation. An env_info '
+        'while another node publishes it too is held, not obeyed',
+    ),
 )
 # What a params file's shared `/**:` section may set: every node accepts these.
 SHARED_PARAM_NAMES = ('env_id', *(p.name for p in SPACE_PARAMS), 'use_sim_time')

@@ -194,6 +194,7 @@ def test_keyboard_teleop_takes_its_dimensions_from_env_info(harness, ros_context
 def test_an_expert_with_no_controller_for_the_env_says_so(harness, ros_context):
     expert = harness.add(ExpertNode(context=ros_context))
     info = harness.add(rclpy.create_node('some_env', context=ros_context))
+    info.create_publisher(Float32MultiArray, 'observation', 10)  # an env publishes its observations
     publisher = info.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS)
     publisher.publish(env_info.env_info_msg(EnvSpec('my_arm', 6, [-1.0] * 3, [1.0] * 3)))
     assert harness.spin_until(lambda: not ros_context.ok(), timeout=10)
@@ -338,6 +339,7 @@ def test_a_hostile_env_info_is_refused_with_a_bounded_line(harness, ros_context,
     in a log line of bounded length."""
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=no_env_id(tmp_path)))
     info = harness.add(rclpy.create_node('hostile', context=ros_context))
+    info.create_publisher(Float32MultiArray, 'observation', 10)  # it poses as the env
     msg = EnvInfo(
         name='\x1b[2J' + 'x' * 1_000_000, observation_size=10**9, action_size=1, action_low=[-1.0], action_high=[1.0]
     )
@@ -346,3 +348,30 @@ def test_a_hostile_env_info_is_refused_with_a_bounded_line(harness, ros_context,
     assert learner.learner is None
     assert 'observation size must be in [1, 1,000,000], got 1000000000' in learner.exit_error
     assert len(learner.exit_error) < 300 and '\x1b' not in learner.exit_error
+
+
+def test_an_env_info_from_a_node_that_is_not_the_env_is_held_not_obeyed(harness, ros_context, tmp_path):
+    """A stranger latches env_info before the env starts: before, a learner with no spaces took
+    its bounds of +-100 and acted outside [-2, 2]; given env_id, it exited with 1 before the run.
+    Now the message is held while its publisher publishes no observation, and the real env's
+    env_info is taken once the stranger has gone."""
+    configured = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=no_env_id(tmp_path / 'a', env_id='Pendulum-v1'))
+    )
+    waiting = harness.add(
+        LearnerNode(context=ros_context, namespace='/b', parameter_overrides=no_env_id(tmp_path / 'b'))
+    )
+    rogue = rclpy.create_node('rogue', context=ros_context)
+    harness.add(rogue)
+    fake = env_info.env_info_msg(EnvSpec('Pendulum-v1', 3, [-100.0], [100.0]))
+    rogue.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(fake)
+    rogue.create_publisher(EnvInfo, '/b/env_info', env_info.ENV_INFO_QOS).publish(fake)
+    assert harness.spin_until(lambda: configured.env_info.untrusted >= 1 and waiting.env_info.untrusted >= 1)
+    harness.spin_until(lambda: False, timeout=1.5)  # rechecked meanwhile: still the stranger
+    assert ros_context.ok() and getattr(configured, 'exit_error', None) is None
+    assert waiting.learner is None  # no spaces from a stranger
+    harness.nodes.remove(rogue)
+    rogue.destroy_node()
+    env = harness.add(GymEnvNode(context=ros_context, namespace='/b', parameter_overrides=params(max_episode_steps=20)))
+    assert harness.spin_until(lambda: waiting.learner is not None, timeout=20)
+    assert waiting.learner.scaler.high.tolist() == [2.0] and env is not None
