@@ -5,14 +5,21 @@ ros2 launch eqhrl_ros actors.launch.py env:=pendulum actors:=2 trainer:=false   
     trainer runs on another machine in the same ROS domain)
 ros2 launch eqhrl_ros actors.launch.py env:=pendulum actors:=0                   (the trainer only)
 
-Actor i runs in namespace /actor<i>: /actor<i>/gym_env, /actor<i>/expert, /actor<i>/actor.
-All actors send to /transitions and take /weights. One params file configures everything:
+Actor i runs in namespace /<actor_prefix><actor_offset + i>: e.g. /actor0/gym_env, /actor0/expert,
+/actor0/actor. actor_prefix defaults to `actor` where this launch starts the trainer too (one
+machine), and to `<hostname>_actor` where it does not (a robot machine: two robots launched
+alike never share a name). actor_offset shifts the indices and the seeds alike.
+All actors send to /transitions and take /weights (transitions_topic:=, weights_topic:= remap
+both sides, for several trainers in one domain); resume:=true continues the trainer's run.
+One params file configures everything:
 its learner: section gives the algorithm to the actors and the trainer (and each the keys of
 its own table); gym_env: and expert: go to every actor's env and expert; /**: to all. Actor i
 runs with seed + i (its env's start states and its action noise differ from the others').
 """
 
 import os
+import re
+import socket
 
 import yaml
 from ament_index_python.packages import get_package_share_directory
@@ -26,6 +33,16 @@ from eqhrl_ros.nodes.params import ACTOR_NODE_PARAMS, TRAINER_PARAMS, learner_se
 
 def _section(data: dict, name: str) -> dict:
     return dict((data.get(name) or {}).get('ros__parameters') or {})
+
+
+def _prefix(given: str, with_trainer: bool) -> str:
+    """The actors' namespace prefix: as given, or one no other machine launched alike can have."""
+    if given:
+        return given
+    if with_trainer:
+        return 'actor'
+    host = re.sub(r'[^a-z0-9_]', '_', socket.gethostname().lower()).strip('_') or 'host'
+    return f'{"h" + host if host[0].isdigit() else host}_actor'
 
 
 def _nodes(context):
@@ -46,16 +63,37 @@ def _nodes(context):
         if value not in ('true', 'false'):
             raise ValueError(f'{name}:={value} is not true or false')
 
+    offset = int(LaunchConfiguration('actor_offset').perform(context))
+    if offset < 0:
+        raise ValueError(f'actor_offset:={offset} must be 0 or more')
+    resume = LaunchConfiguration('resume').perform(context).lower()
+    if resume not in ('true', 'false'):
+        raise ValueError(f'resume:={resume} is not true or false')
+    prefix = _prefix(LaunchConfiguration('actor_prefix').perform(context), with_trainer == 'true')
+    remaps = [
+        ('/transitions', LaunchConfiguration('transitions_topic').perform(context)),
+        ('/weights', LaunchConfiguration('weights_topic').perform(context)),
+    ]
+
     nodes = []
     if with_trainer == 'true':
         trainer = {**shared, **learner_section_for(learner, TRAINER_PARAMS)}
+        if resume == 'true':
+            trainer['resume'] = True
         nodes.append(
-            Node(package='eqhrl_ros', executable='trainer', name='trainer', parameters=[trainer], output='screen')
+            Node(
+                package='eqhrl_ros',
+                executable='trainer',
+                name='trainer',
+                parameters=[trainer],
+                remappings=remaps,
+                output='screen',
+            )
         )
     env_params = {**shared, **_section(data, 'gym_env')}
     actor_params = {**shared, **learner_section_for(learner, ACTOR_NODE_PARAMS)}
-    for i in range(actors):
-        ns = f'actor{i}'
+    for i in range(offset, offset + actors):
+        ns = f'{prefix}{i}'
         env_i = {**env_params, 'seed': int(env_params.get('seed', 42)) + i}
         actor_i = {**actor_params, 'seed': int(actor_params.get('seed', 42)) + i}
         nodes.append(Node(package='eqhrl_ros', executable='gym_env', name='gym_env', namespace=ns, parameters=[env_i]))
@@ -71,6 +109,7 @@ def _nodes(context):
                 name='actor',
                 namespace=ns,
                 parameters=[actor_i],
+                remappings=remaps,
                 output='screen',
             )
         )
@@ -89,6 +128,17 @@ def generate_launch_description():
             DeclareLaunchArgument(
                 'expert', default_value='true', description="start each actor's expert (false: your own, per actor)"
             ),
+            DeclareLaunchArgument(
+                'actor_prefix',
+                default_value='',
+                description="actors' namespace prefix (empty: actor with the trainer here, <hostname>_actor without)",
+            ),
+            DeclareLaunchArgument(
+                'actor_offset', default_value='0', description='index of the first actor here (its seed follows)'
+            ),
+            DeclareLaunchArgument('resume', default_value='false', description="continue the trainer's run"),
+            DeclareLaunchArgument('transitions_topic', default_value='/transitions', description='remap /transitions'),
+            DeclareLaunchArgument('weights_topic', default_value='/weights', description='remap /weights'),
             OpaqueFunction(function=_nodes),
         ]
     )

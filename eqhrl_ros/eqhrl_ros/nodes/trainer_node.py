@@ -37,6 +37,7 @@ from ..core.weights import encode_weights
 from . import messages, trainer_msgs
 from .acting import printable_name
 from .env_info import configured_spec
+from .graph_trust import GRAPH_CACHE_S, full_name
 from .params import LEARNER_CONFIG_PARAMS, TRAINER_PARAMS, choices_validator, declare, reject_unknown_overrides
 from .run_files import RunFiles, save_and_close
 from .spinning import run_node, steady_clock, stop_with_error
@@ -78,6 +79,8 @@ class TrainerNode(RunFiles, Node):
         self.create_timer(p['report_period_s'], self._report, clock=steady_clock())
         self._inbox: deque = deque()  # batches received, not stored yet (the learning thread's)
         self._inbox_bytes = 0
+        self._namesakes: dict = {}  # actor name -> (time looked up, nodes of that name publishing transitions)
+        self.transitions_topic = self.resolve_topic_name(trainer_msgs.TRANSITIONS_TOPIC)
         self.dropped_batches = 0  # refused because the inbox was full (counted as lost by their actor too)
         self._work = threading.Event()  # set when a batch arrives
         self._hold = threading.Event()  # set while another thread saves
@@ -135,6 +138,7 @@ class TrainerNode(RunFiles, Node):
         if self.done:
             return  # max_episodes reached: learning stopped, the record is closed to new rows
         try:
+            self._check_one_sender(msg.actor)
             batch, low, high = trainer_msgs.batch_from_msg(msg)
             if self.trainer is None and not self._build_from(batch, low, high):
                 return
@@ -162,6 +166,23 @@ class TrainerNode(RunFiles, Node):
             self.get_logger().info(f'actor {actor} is sending again')
         for row, who in rows:
             self._on_episode(row, who)
+
+    def _check_one_sender(self, actor: str) -> None:
+        """Two nodes of one full name publishing transitions (two machines launched alike, or a
+        stranger posing as an actor): neither's batches can be told apart, so both are refused."""
+        now = time.monotonic()
+        looked, count = self._namesakes.get(actor, (float('-inf'), 0))
+        if now - looked >= GRAPH_CACHE_S:
+            infos = self.get_publishers_info_by_topic(self.transitions_topic)
+            count = sum(full_name(i.node_namespace, i.node_name) == actor for i in infos)
+            if len(self._namesakes) > 10_000:
+                self._namesakes.clear()
+            self._namesakes[actor] = (now, count)
+        if count > 1:
+            raise ValueError(
+                f'{count} nodes named {printable_name(actor)} publish transitions: each needs a name of its own '
+                '(a namespace, or actors.launch.py on each machine with its own actor_prefix)'
+            )
 
     def _build_from(self, batch, low, high) -> bool:
         """The first batch gives the spaces (no env_id or spaces parameters were set)."""

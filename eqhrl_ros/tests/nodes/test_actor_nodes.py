@@ -184,6 +184,8 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
         'actor': {p.name for p in (*LEARNER_CONFIG_PARAMS, *ACTOR_NODE_PARAMS)} | {'use_sim_time'},
         'trainer': {p.name for p in (*LEARNER_CONFIG_PARAMS, *TRAINER_PARAMS)} | {'use_sim_time'},
     }
+    defaults = dict(actor_prefix='', actor_offset='0', resume='false', transitions_topic='/transitions')
+    arguments.update(defaults, weights_topic='/weights')
     for env in ('pendulum', 'lunar_lander', 'demo'):
         arguments.update(env=env, params_file='', actors='3', trainer='true', expert='true')
         nodes = launch_file._nodes(None)
@@ -203,7 +205,22 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
         seeds = [n['parameters'][0]['seed'] for n in nodes if n['executable'] == 'actor']
         assert len(set(seeds)) == 3  # each actor its own noise; the env seeds differ likewise
     arguments.update(actors='2', trainer='false', expert='false')
-    assert [n['executable'] for n in launch_file._nodes(None)] == ['gym_env', 'actor', 'gym_env', 'actor']
+    robot = launch_file._nodes(None)
+    assert [n['executable'] for n in robot] == ['gym_env', 'actor', 'gym_env', 'actor']
+    # A robot machine (no trainer here): names from its host, so two robots launched alike differ.
+    import socket
+
+    host = socket.gethostname().lower()
+    assert all(n['namespace'].endswith(('_actor0', '_actor1')) and n['namespace'] != 'actor0' for n in robot)
+    assert host.replace('-', '_').replace('.', '_')[:3] in robot[0]['namespace']
+    # A second robot with an offset: other indices and seeds; remaps and resume reach the nodes.
+    arguments.update(actor_prefix='team_b_', actor_offset='2', transitions_topic='/b/transitions', trainer='true')
+    arguments.update(resume='true')
+    second = launch_file._nodes(None)
+    assert second[0]['parameters'][0]['resume'] is True
+    assert [n['namespace'] for n in second if n['executable'] == 'actor'] == ['team_b_2', 'team_b_3']
+    assert [n['parameters'][0]['seed'] for n in second if n['executable'] == 'actor'] == [44, 45]
+    assert all(('/transitions', '/b/transitions') in n['remappings'] for n in second if n['executable'] != 'gym_env')
 
 
 def test_weights_wait_steps_keeps_a_lock_step_actor_within_reach_of_the_trainer(harness, ros_context, tmp_path):
@@ -288,3 +305,37 @@ def test_a_rogue_trainer_beside_the_real_one_changes_no_action(harness, ros_cont
     assert actor.trainer_id == trainer.trainer_id and actor.learner.episode < 2**31
     obs = np.zeros(3, np.float32)
     assert not np.allclose(actor.learner.act(obs, deterministic=True), rogue_learner.act(obs, deterministic=True))
+
+
+def test_two_nodes_under_one_actor_name_are_refused_by_the_trainer(harness, ros_context, tmp_path):
+    """Two machines launched alike used to put two actors in /actor0: the trainer mixed their
+    batches ('started again', 964 batches lost). Now it refuses that name's batches with one line."""
+    trainer = add_trainer(harness, ros_context, tmp_path, env_id='Pendulum-v1')
+    twins = [harness.add(rclpy.create_node('actor', namespace='/actor0', context=ros_context)) for _ in range(2)]
+    pubs = [
+        t.create_publisher(TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, trainer_msgs.TRANSITIONS_QOS) for t in twins
+    ]
+    assert harness.spin_until(
+        lambda: len(trainer.get_publishers_info_by_topic(trainer_msgs.TRANSITIONS_TOPIC)) == 2, timeout=10
+    )
+
+    def batch(sequence):
+        n = 5
+        return TransitionBatch(
+            actor='/actor0/actor',
+            sequence=sequence,
+            observation_size=3,
+            action_low=[-2.0],
+            action_high=[2.0],
+            observations=[0.0] * 3 * n,
+            next_observations=[0.0] * 3 * n,
+            actions=[0.0] * n,
+            rewards=[0.0] * n,
+            terminated=[False] * n,
+            advised=[False] * n,
+        )
+
+    pubs[0].publish(batch(0))
+    pubs[1].publish(batch(0))
+    assert harness.spin_until(lambda: trainer.refused_batches >= 2, timeout=10)
+    assert trainer.learner.total_steps == 0 and trainer.trainer.sequences.actors == {}
