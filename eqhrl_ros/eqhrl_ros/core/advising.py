@@ -59,7 +59,7 @@ class GateDecision:
             return 'queues filling'
         has_d, has_e = not math.isnan(self.discrepancy), not math.isnan(self.entropy)
         if not (has_d or has_e):  # mode random
-            return 'a random request' if self.fire else 'no random request this step'
+            return 'a random draw chose this step' if self.fire else 'the random draw said no'
         if has_d and self.ask and not has_e and not self.fire:  # mode ask_random
             return 'D(s) > threshold, but the random draw said no'
         if self.fire:

@@ -157,8 +157,7 @@ class LearnerConfig:
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        d['hidden'] = list(self.hidden)
-        return d
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}  # YAML and JSON know lists
 
 
 FIELDS = {f.name: f for f in dataclasses.fields(LearnerConfig)}

@@ -56,7 +56,12 @@ def params_of(declared) -> tuple[Param, ...]:
     def param(f):
         if f.default == ():  # an empty list would be typed as bytes: declared typed and unset
             return Param(
-                ros_name(f), None, f.metadata['description'], kind='integer_array', dynamic=f.metadata['dynamic']
+                ros_name(f),
+                None,
+                f.metadata['description'],
+                f.metadata['range'],
+                kind='integer_array',
+                dynamic=f.metadata['dynamic'],
             )
         return Param(
             ros_name(f),

@@ -187,3 +187,26 @@ def test_config_refuses_unknown_ablation_values():
     with pytest.raises(ValueError, match='mode'):
         LearnerConfig(mode='ask_only')
     assert dataclasses.asdict(LearnerConfig())['dual_replay'] is True
+
+
+def test_a_learner_with_a_random_schedule_asks_that_many_times_in_each_episode():
+    from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, train
+
+    schedule = (3, 0, 5, 1)
+    env = make_env('Pendulum-v1', 20)
+    learner = EQSACLearner(
+        3,
+        env.action_space.low,
+        env.action_space.high,
+        LearnerConfig(
+            mode='random',
+            hidden=(8, 8),
+            batch_size=8,
+            learning_starts=30,
+            advising_budget=10,
+            random_ask_schedule=schedule,
+            random_ask_horizon=20,
+        ),
+    )
+    summaries = train(env, learner, 5, heuristic_expert('Pendulum-v1'), seed=0)
+    assert [s.advice_asked for s in summaries] == [*schedule, 0]

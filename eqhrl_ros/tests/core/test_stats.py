@@ -3,6 +3,8 @@
 import math
 
 import numpy as np
+import pytest
+from scipy import stats
 
 from eqhrl_ros.stats import bootstrap, iqm, iqm_estimate, paired_difference, performance_profile
 
@@ -42,3 +44,42 @@ def test_paired_difference_uses_only_shared_seeds_and_counts_wins():
 
 def test_performance_profile_is_the_fraction_above_each_score():
     assert performance_profile([1, 2, 3, 4], [0, 2, 4]).tolist() == [1.0, 0.5, 0.0]
+
+
+def test_sign_flip_p_is_exact_for_few_seeds_and_matches_the_t_test_for_many():
+    from eqhrl_ros.stats import sign_flip_p
+
+    # Three differences of one sign: of 8 sign patterns, 2 are as extreme (all + and all -).
+    assert sign_flip_p([1.0, 2.0, 3.0]) == pytest.approx(0.25)
+    rng = np.random.default_rng(0)
+    diffs = rng.normal(0.5, 1.0, 30)
+    t_p = stats.ttest_1samp(diffs, 0.0).pvalue
+    assert sign_flip_p(diffs) == pytest.approx(t_p, abs=0.02)
+
+
+def test_tost_says_equivalent_only_when_the_90_percent_interval_is_inside_the_margin():
+    from eqhrl_ros.stats import t_interval, tost_p
+
+    rng = np.random.default_rng(1)
+    tight = rng.normal(0.3, 2.0, 40)
+    low, high = t_interval(tight, confidence=0.90)
+    assert (tost_p(tight, 5.0) < 0.05) == (-5.0 < low and high < 5.0) and tost_p(tight, 5.0) < 0.05
+    assert tost_p(tight, 0.1) > 0.05
+    assert tost_p(rng.normal(8.0, 2.0, 40), 5.0) > 0.5
+
+
+def test_holm_adjusts_in_step_down_order():
+    from eqhrl_ros.stats import holm
+
+    assert holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
+    assert holm([0.5]) == [0.5]
+
+
+def test_a_paired_test_gives_a_verdict():
+    from eqhrl_ros.stats import paired_test
+
+    a = {s: 10.0 + s % 3 for s in range(30)}
+    same = paired_test(a, {s: v + 0.1 * (-1) ** s for s, v in a.items()}, margin=5.0)
+    assert same.n == 30 and same.verdict() == 'equivalent within ±5'
+    apart = paired_test({s: v + 9 + (s % 2) for s, v in a.items()}, a, margin=5.0)
+    assert apart.verdict() == 'different' and apart.low > 5
