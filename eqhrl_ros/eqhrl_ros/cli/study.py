@@ -60,7 +60,18 @@ from ..paths import shared_file
 from ..yaml_files import load_mapping
 from . import experiment
 
-PLAN_KEYS = {'name', 'description', 'params', 'episodes', 'max_steps', 'eval_every', 'eval_starts', 'learner', 'groups'}
+PLAN_KEYS = {
+    'name',
+    'description',
+    'params',
+    'episodes',
+    'max_steps',
+    'eval_every',
+    'eval_starts',
+    'learner',
+    'groups',
+    'tests',
+}
 GROUP_KEYS = {'name', 'seeds', 'arms', 'description'}
 ARM_KEYS = {'mode', 'learner', 'expert', 'match', 'match_timing', 'thins', 'gate_trace', 'label'}
 MATCH_TIMINGS = ('rate', 'episode')

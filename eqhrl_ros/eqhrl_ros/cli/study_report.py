@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import math
 import shutil
 import sys
@@ -36,7 +37,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..stats import iqm, iqm_estimate, paired_difference, performance_profile
+from ..stats import holm, iqm, iqm_estimate, paired_difference, paired_test, performance_profile
 from ..yaml_files import load_mapping
 from .report import THRESHOLDS
 
@@ -62,6 +63,8 @@ class RunScores:
     given: int
     budget_return: float  # training return inside the budget (learner and expert mixed)
     curve: dict  # {episode: mean evaluation return}
+    success_final: float = math.nan  # share of the last evaluation's start states that succeeded
+    success_mean: float = math.nan  # the same over every evaluation
 
 
 def read_csv(path: Path) -> list[dict]:
@@ -79,8 +82,11 @@ def read_arms(folder: Path) -> list[ArmInfo]:
 def score_runs(folder: Path, threshold: float, budget: dict) -> dict:
     """{(arm, seed): RunScores} for every run with an evaluation."""
     curves = defaultdict(lambda: defaultdict(list))
+    successes = defaultdict(lambda: defaultdict(list))
     for row in read_csv(folder / 'eval.csv'):
         curves[(row['arm'], int(row['seed']))][int(row['episode'])].append(float(row['return']))
+        if row.get('success', '') != '':
+            successes[(row['arm'], int(row['seed']))][int(row['episode'])].append(float(row['success']))
     training = defaultdict(list)
     for row in read_csv(folder / 'episodes.csv'):
         training[(row['arm'], int(row['seed']))].append(row)
@@ -99,8 +105,84 @@ def score_runs(folder: Path, threshold: float, budget: dict) -> dict:
             given=sum(int(r['advice_given']) for r in rows),
             budget_return=float(np.mean(inside)) if inside else math.nan,
             curve=dict(zip(episodes, means)),
+            success_final=float(np.mean(successes[key][episodes[-1]])) if successes[key] else math.nan,
+            success_mean=float(np.mean([np.mean(v) for v in successes[key].values()])) if successes[key] else math.nan,
         )
     return scores
+
+
+def first_update_episode(folder: Path, learning_starts: dict) -> dict:
+    """{(arm, seed): the first episode in which updates ran}: the episode holding the
+    learning_starts-th transition, from the run's episode lengths (LunarLander's vary)."""
+    lengths = defaultdict(list)
+    for row in read_csv(folder / 'episodes.csv'):
+        lengths[(row['arm'], int(row['seed']))].append((int(row['episode']), int(row['length'])))
+    first = {}
+    for key, rows in lengths.items():
+        steps = 0
+        for episode, length in sorted(rows):
+            steps += length
+            if steps >= learning_starts.get(key[0], 0):
+                first[key] = episode
+                break
+    return first
+
+
+def timing_table(folder: Path, arms: list, updates_from: dict, budget: dict) -> str:
+    """When each arm asked: requests inside the budget before the first update and after."""
+    asked = defaultdict(lambda: [0, 0])
+    for row in read_csv(folder / 'episodes.csv'):
+        key = (row['arm'], int(row['seed']))
+        if key not in updates_from or int(row['episode']) >= budget.get(row['arm'], 0):
+            continue
+        asked[key][int(row['episode']) >= updates_from[key]] += int(row['advice_asked'])
+    lines = [
+        '| arm | seeds | first episode with updates (range) | requests before updates | after | share before |',
+        '|---|---|---|---|---|---|',
+    ]
+    for arm in arms:
+        keys = [k for k in asked if k[0] == arm.name]
+        before, after = sum(asked[k][0] for k in keys), sum(asked[k][1] for k in keys)
+        if not keys or before + after == 0:
+            continue
+        starts = [updates_from[k] for k in keys]
+        lines.append(
+            f'| {arm.label} | {len(keys)} | {min(starts)}–{max(starts)} | {before} | {after} '
+            f'| {100 * before / (before + after):.0f} % |'
+        )
+    return '\n'.join(lines)
+
+
+def stated_tests(tests: dict, arms: list, scores: dict) -> str:
+    """The plan's pre-stated comparisons: primary ones Holm-corrected together, secondary ones not."""
+    labels = {a.name: a.label for a in arms}
+    metric, margin = tests.get('metric', 'auc'), float(tests.get('margin', 5.0))
+    lines = [
+        f'Metric: {metric}; margin of equivalence ±{margin:g}; 95 % t intervals; p: two-sided sign-flip '
+        'permutation test of the same-seed differences; Holm over the primary family; TOST: two one-sided t '
+        'tests at 5 % (equivalent when below 0.05). Verdict: different (p, Holm-corrected for primary rows, below '
+        '0.05), equivalent (TOST below 0.05), else unresolved.',
+        '',
+        '| family | comparison | seeds | Δ mean [95 % t] | p | Holm p | TOST p | verdict |',
+        '|---|---|---|---|---|---|---|---|',
+    ]
+    for family in ('primary', 'secondary'):
+        pairs = [p for p in tests.get(family) or [] if p[0] in labels and p[1] in labels]
+        results = [
+            paired_test(per_seed(scores, a, metric), per_seed(scores, b, metric), margin, seed=i)
+            for i, (a, b) in enumerate(pairs)
+        ]
+        kept = [(p, r) for p, r in zip(pairs, results) if r.n >= 2]
+        if family == 'primary' and kept:
+            adjusted = holm([r.p for _, r in kept])
+            kept = [(p, dataclasses.replace(r, holm=h)) for (p, r), h in zip(kept, adjusted)]
+        for (a, b), r in kept:
+            holm_text = f'{r.holm:.3f}' if not math.isnan(r.holm) else '—'
+            lines.append(
+                f'| {family} | {labels[a]} − {labels[b]} | {r.n} | {r.mean:+.1f} [{r.low:+.1f}, {r.high:+.1f}] '
+                f'| {r.p:.3f} | {holm_text} | {r.tost_p:.3f} | {r.verdict()} |'
+            )
+    return '\n'.join(lines)
 
 
 def per_seed(scores: dict, arm: str, metric: str) -> dict:
@@ -152,8 +234,9 @@ def comparisons(arms: list) -> list[tuple[str, str, str]]:
 def arm_table(arms: list, scores: dict, threshold: float) -> str:
     lines = [
         '| arm | group | seeds | requests (IQM) | final eval return (IQM [95% CI]) | eval AUC (IQM [95% CI]) '
-        f'| episodes to eval ≥ {threshold:g} (IQM of runs that reach it) | reached |',
-        '|---|---|---|---|---|---|---|---|',
+        f'| episodes to eval ≥ {threshold:g} (IQM of runs that reach it) | reached | final eval success '
+        '| eval success over the run |',
+        '|---|---|---|---|---|---|---|---|---|---|',
     ]
     for arm in arms:
         seeds = sorted(per_seed(scores, arm.name, 'final'))
@@ -165,9 +248,16 @@ def arm_table(arms: list, scores: dict, threshold: float) -> str:
             f'| {arm.label} | {arm.group} | {len(seeds)} | {float(iqm(asked)):.0f} '
             f'| {iqm_estimate(list(per_seed(scores, arm.name, "final").values())).text()} '
             f'| {iqm_estimate(list(per_seed(scores, arm.name, "auc").values())).text()} '
-            f'| {iqm_estimate(reach).text(0) if reach else "—"} | {len(reach)}/{len(seeds)} |'
+            f'| {iqm_estimate(reach).text(0) if reach else "—"} | {len(reach)}/{len(seeds)} '
+            f'| {_share(per_seed(scores, arm.name, "success_final"))} '
+            f'| {_share(per_seed(scores, arm.name, "success_mean"))} |'
         )
     return '\n'.join(lines)
+
+
+def _share(values: dict) -> str:
+    kept = [v for v in values.values() if not math.isnan(v)]
+    return f'{100 * float(np.mean(kept)):.0f} %' if kept else '—'
 
 
 def comparison_table(arms: list, scores: dict) -> str:
@@ -352,19 +442,25 @@ def plot_gates(folder: Path, path: Path, arm: str, seed: int, updates_from: int,
     return True
 
 
-def gate_rates(folder: Path, updates_from: dict) -> str:
-    """How often each gate opened inside the budget, before and after updates start
-    (``updates_from``: per arm, the first episode with updates)."""
+def gate_rates(folder: Path, updates_from: dict, queue_length: dict) -> str:
+    """How often each gate opened inside the budget once its queues were full, before and after
+    updates start (``updates_from``: per run, the first episode with updates)."""
     gates = folder / 'gates.csv'
     if not gates.exists():
         return ''
     counts = defaultdict(lambda: np.zeros(4))
+    seen = defaultdict(int)
     for r in read_csv(gates):
-        if r['d_threshold'] == 'nan':
-            continue  # queue still filling
-        key = (r['arm'], 'before updates' if int(r['episode']) < updates_from[r['arm']] else 'after updates')
+        run = (r['arm'], int(r['seed']))
+        seen[run] += 1
+        if seen[run] <= queue_length.get(r['arm'], 0):
+            continue  # the queues hold fewer than queue_length earlier values: gates closed
+        key = (r['arm'], 'before updates' if int(r['episode']) < updates_from.get(run, 0) else 'after updates')
         counts[key] += (1, r['ask'] == '1', r['respond'] == '1', r['fire'] == '1')
-    lines = ['| arm | steps | ask gate open | respond gate open | both (requests) |', '|---|---|---|---|---|']
+    lines = [
+        '| arm | steps with full queues | ask gate open | respond gate open | both (requests) |',
+        '|---|---|---|---|---|',
+    ]
     for (arm, when), (n, ask, respond, fire) in sorted(counts.items()):
         lines.append(
             f'| {arm}, {when} | {int(n)} | {100 * ask / n:.1f} % | {100 * respond / n:.1f} % | {100 * fire / n:.2f} % |'
@@ -397,14 +493,16 @@ def main(argv=None) -> int:
     env_id = next(iter(settings.values())).env_id
     threshold = args.threshold if args.threshold is not None else THRESHOLDS.get(env_id, 0.0)
     budget = {name: budget_of(s) for name, s in settings.items()}
-    # The first episode with updates (episodes of max_episode_steps; LunarLander's may end sooner).
-    updates_from = {
-        arm.name: learner_config(settings[arm.name], arm.mode, 0).learning_starts
-        // settings[arm.name].max_episode_steps
-        for arm in loaded.arms
-    }
+    configs = {arm.name: learner_config(settings[arm.name], arm.mode, 0) for arm in loaded.arms}
+    # The first episode with updates, run by run (LunarLander's episodes end at other steps).
+    updates_from = first_update_episode(folder, {name: c.learning_starts for name, c in configs.items()})
     arms = read_arms(folder)
     scores = score_runs(folder, threshold, budget)
+    planned = {arm.name: len(arm.seeds) for arm in loaded.arms}
+    done = defaultdict(int)
+    for arm_name, _ in scores:
+        done[arm_name] += 1
+    short = [f'{a} ({done[a]} of {n})' for a, n in planned.items() if done[a] < n]
     output.mkdir(parents=True, exist_ok=True)
     for name in RAW_FILES:
         if (folder / name).exists() and (folder / name).resolve() != (output / name).resolve():
@@ -419,6 +517,8 @@ def main(argv=None) -> int:
         'percentile bootstrap interval; Δ: same-seed difference, its mean and interval; wins: seeds '
         'where the first arm scored higher.',
         '',
+        *([f'Not finished (seeds with an evaluation, of those planned): {", ".join(short)}.', ''] if short else []),
+        *(['## Pre-stated tests', '', stated_tests(plan['tests'], arms, scores), ''] if plan.get('tests') else []),
         '## Arms',
         '',
         arm_table(arms, scores, threshold),
@@ -430,8 +530,12 @@ def main(argv=None) -> int:
         '## Training returns inside the budget (learner and expert mixed) beside the evaluation',
         '',
         budget_table(arms, scores),
+        '',
+        '## When the arms asked: requests inside the budget before and after updates begin',
+        '',
+        timing_table(folder, arms, updates_from, budget),
     ]
-    rates = gate_rates(folder, updates_from)
+    rates = gate_rates(folder, updates_from, {name: c.queue_length for name, c in configs.items()})
     if rates:
         sections += ['', '## How often the gates opened inside the budget', '', rates]
     (output / 'table.md').write_text('\n'.join(sections) + '\n')
@@ -445,7 +549,7 @@ def main(argv=None) -> int:
     if traced:  # the first seed of the first EQSAC arm that asked at all
         asked = sorted(seed for (arm, seed), s in scores.items() if arm == traced[0] and s.asked)
         if asked:
-            plot_gates(folder, output / 'gates.png', traced[0], asked[0], updates_from[traced[0]])
+            plot_gates(folder, output / 'gates.png', traced[0], asked[0], updates_from.get((traced[0], asked[0]), 0))
     print(f'wrote {output / "table.md"} and figures')
     return 0
 

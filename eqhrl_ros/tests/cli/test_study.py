@@ -171,3 +171,48 @@ def test_a_groups_figure_shows_the_arms_it_is_measured_against_from_other_groups
     ]
     assert [a.name for a in curve_arms(arms, 'baselines')] == ['sac', 'eqsac', 'random', 'qasac']
     assert [a.name for a in curve_arms(arms, 'main')] == ['sac', 'eqsac']
+
+
+@pytest.mark.slow
+def test_timing_matched_and_thinned_arms_and_the_pre_stated_tests(tmp_path):
+    plan = {
+        **TINY,
+        'tests': {'metric': 'auc', 'margin': 5, 'primary': [['qasac', 'timed'], ['qasac', 'sac']]},
+        'groups': [
+            {
+                'name': 'main',
+                'seeds': [0, 1],
+                'arms': {
+                    'sac': {'mode': 'sac', 'label': 'SAC'},
+                    'qasac': {'mode': 'qasac'},
+                    'timed': {'mode': 'random', 'match': 'qasac', 'match_timing': 'episode'},
+                    'thinned': {'mode': 'ask_random', 'match': 'timed', 'thins': 'qasac'},
+                },
+            }
+        ],
+    }
+    output, report = tmp_path / 'out', tmp_path / 'report'
+    assert (
+        study.main(['--plan', write_plan(tmp_path / 'timed.yaml', plan), '--output', str(output), '--jobs', '2']) == 0
+    )
+    episodes = rows(output / 'episodes.csv')
+    for seed in ('0', '1'):
+        per_episode = {
+            arm: [int(r['advice_asked']) for r in episodes if r['arm'] == arm and r['seed'] == seed][:3]
+            for arm in ('qasac', 'timed')
+        }
+        assert per_episode['timed'] == per_episode['qasac'] and sum(per_episode['qasac']) > 0  # in every episode
+        match = yaml.safe_load((output / 'timed' / f'seed{seed}' / 'match.yaml').read_text())
+        assert match['random_ask_schedule'] == per_episode['qasac'] and match['random_ask_horizon'] == 40
+        thinned = yaml.safe_load((output / 'thinned' / f'seed{seed}' / 'match.yaml').read_text())
+        # ask_random's rate: the matched arm's requests over the thinned arm's (here the same number).
+        assert thinned['requests'] == sum(per_episode['timed']) and thinned['thinned_requests'] == sum(
+            per_episode['qasac']
+        )
+        assert thinned['random_ask_rate'] == pytest.approx(thinned['requests'] / thinned['thinned_requests'])
+    assert study_report.main([str(output), '--output', str(report)]) == 0
+    table = (report / 'table.md').read_text()
+    assert '## Pre-stated tests' in table and '| primary | qasac − timed | 2 |' in table
+    timing = table.split('## When the arms asked')[1]
+    line = {row.split('|')[1].strip(): row for row in timing.splitlines() if row.startswith('| ')}
+    assert line['qasac'].split('|')[4:6] == line['timed'].split('|')[4:6]  # before and after: the same counts
