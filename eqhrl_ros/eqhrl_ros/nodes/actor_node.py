@@ -28,6 +28,7 @@ from rclpy.time import Time
 from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
 
 from ..core.learner import EpisodeSummary, EQSACLearner
+from ..core.signing import signer_from
 from ..core.transitions import Outbox
 from ..core.weights import TrainerPin, WeightsError, apply_weights
 from . import trainer_msgs
@@ -54,6 +55,7 @@ class ActorNode(ActingNode):
         self.weights_waits = 0
         super().__init__('actor', ACTOR_NODE_PARAMS, **kwargs)
         self.pin = TrainerPin(self.params['trainer_id'])
+        self.signer = signer_from(self.params['key_file'])  # KeyFileError (a ValueError): refused at start-up
         self.actor_name = self.params['actor_name'] or self.get_fully_qualified_name()
         self.transitions_pub = self.create_publisher(
             TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, trainer_msgs.TRANSITIONS_QOS
@@ -151,9 +153,8 @@ class ActorNode(ActingNode):
             batch = outbox.take()
             if batch is None:
                 break
-            self.transitions_pub.publish(
-                trainer_msgs.batch_msg(batch, self.learner.scaler.low, self.learner.scaler.high)
-            )
+            msg = trainer_msgs.batch_msg(batch, self.learner.scaler.low, self.learner.scaler.high)
+            self.transitions_pub.publish(trainer_msgs.sign_batch(msg, self.signer))
             self.sent_batches += 1
             self.sent_transitions += len(batch)
 
@@ -180,9 +181,14 @@ class ActorNode(ActingNode):
         """Between two steps (under the node's lock): the networks whole, or not at all, and only
         from the trainer this actor follows (core.weights.TrainerPin)."""
         new_trainer = msg.trainer_id != self.trainer_id
-        verdict = self.pin.judge(
-            msg.trainer_id, int(msg.version), int(msg.episodes), self.learner.episode, self._weights_publishers() <= 1
-        )
+        unsigned = trainer_msgs.signature_refusal(msg, self.signer)
+        if unsigned:
+            self.weights_refused += 1
+            self.get_logger().warn(f'weights v{msg.version} refused: {unsigned}', throttle_duration_sec=5.0)
+            return
+        # A trainer that signs with this deployment's key is trusted beside another: it holds the key.
+        alone = self.signer is not None or self._weights_publishers() <= 1
+        verdict = self.pin.judge(msg.trainer_id, int(msg.version), int(msg.episodes), self.learner.episode, alone)
         if verdict == 'stale':
             return  # older than what we act with
         if verdict != 'apply':

@@ -46,6 +46,7 @@ from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 
 from ..core.config import check_value
 from ..core.env_spec import EnvSpec
+from ..core.signing import CommandSeal, signer_from
 from . import messages
 from .connection_guard import ConnectionGuard, GuardedProtocol
 from .env_info import EnvInfoWatcher, configured_spec, shown
@@ -133,6 +134,8 @@ class AdviceConsole(Node):
             p['host'].lower(),
             *(n.strip().lower() for n in (p['allowed_hosts'] or []) if n.strip()),
         }
+        signer = signer_from(p['key_file'])  # KeyFileError (a ValueError): refused at start-up
+        self.seal = CommandSeal(signer) if signer else None
         self.guard = ConnectionGuard(
             p['max_connections'], p['max_connections_per_client'], p['header_timeout_s'], self._log_throttled
         )
@@ -241,7 +244,7 @@ class AdviceConsole(Node):
     def _publish(self, answer: bool, skip: bool) -> None:
         """(with the lock held) The page's command and buttons, as keyboard_teleop sends them."""
         enabled = self.input.deadman or not self.params['require_deadman']
-        self.publisher.publish(messages.command_msg(self.input.command, enabled, answer, skip))
+        self.publisher.publish(messages.command_msg(self.input.command, enabled, answer, skip, self.seal))
         self.published += 1
 
     def _refresh_learner_params(self) -> None:

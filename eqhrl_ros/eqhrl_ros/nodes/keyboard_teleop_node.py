@@ -25,6 +25,7 @@ from std_msgs.msg import Float32MultiArray
 from eqhrl_interfaces.msg import AdviceRequest
 
 from ..core.env_spec import EnvSpec
+from ..core.signing import CommandSeal, signer_from
 from . import messages
 from .env_info import EnvInfoWatcher, configured_spec
 from .params import KEYBOARD_PARAMS, declare, reject_unknown_overrides
@@ -42,6 +43,8 @@ class KeyboardTeleop(Node):
         super().__init__('keyboard_teleop', **kwargs)
         reject_unknown_overrides(self, KEYBOARD_PARAMS)
         self.params = declare(self, KEYBOARD_PARAMS)
+        signer = signer_from(self.params['key_file'])
+        self.seal = CommandSeal(signer) if signer else None
         self.fd, self.out = fd, out
         # The action size: the dimensions parameter, else from env_id or the env's env_info.
         self.command = np.zeros(self.params['dimensions'], dtype=np.float32)
@@ -74,7 +77,7 @@ class KeyboardTeleop(Node):
 
     def _publish(self, answer: bool = False, skip: bool = False) -> None:
         if self.sending and len(self.command):
-            self.publisher.publish(messages.command_msg(self.command, True, answer, skip))
+            self.publisher.publish(messages.command_msg(self.command, True, answer, skip, self.seal))
 
     def _read_keys(self) -> None:
         while select.select([self.fd], [], [], 0)[0]:

@@ -292,10 +292,23 @@ def stats_msg(summary: EpisodeSummary) -> EpisodeStats:
     return EpisodeStats(**dataclasses.asdict(summary))
 
 
-def command_msg(command: Sequence[float], enabled: bool, answer: bool, skip: bool) -> Float32MultiArray:
-    """teleop_command as keyboard_teleop and advice_console publish it (COMMAND_FIELDS)."""
-    values = (command, [float(enabled)], [float(answer)], [float(skip)])
-    return build(list(zip(COMMAND_FIELDS, values)))
+def command_msg(command: Sequence[float], enabled: bool, answer: bool, skip: bool, seal=None) -> Float32MultiArray:
+    """teleop_command as keyboard_teleop and advice_console publish it (COMMAND_FIELDS), and with
+    a core.signing.CommandSeal its 'counter' and 'signature' fields after them."""
+    values = ([float(v) for v in command], [float(enabled)], [float(answer)], [float(skip)])
+    fields = list(zip(COMMAND_FIELDS, values))
+    if seal is not None:
+        counter, signature = seal.seal(command_values(dict(fields)))
+        fields += [('counter', counter), ('signature', signature)]
+    return build(fields)
+
+
+def command_values(fields: dict) -> list:
+    """The values a command's signature covers: its COMMAND_FIELDS, in order, as float32."""
+    import numpy as np
+
+    flat = [v for name in COMMAND_FIELDS for v in fields.get(name, ())]
+    return np.asarray(flat, dtype=np.float32).tolist()
 
 
 def read_fields(msg: Float32MultiArray) -> dict:

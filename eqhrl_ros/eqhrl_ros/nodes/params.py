@@ -140,6 +140,12 @@ ACTING_PARAMS = (
     Param('publish_gate_debug', False, 'Publish every gate decision on ~/gate_debug', dynamic=True),
 )
 TORCH_THREADS = Param('torch_threads', 0, 'torch intra-op threads (0: torch default)', (0, 256))
+KEY_FILE = Param(
+    'key_file',
+    '',
+    "A file holding this deployment's shared secret: what this node sends is signed with it, and what it "
+    'receives unsigned or signed otherwise is refused (HMAC-SHA256; integrity, no secrecy). Empty: no key',
+)
 
 
 def run_params(output_dir: str) -> tuple:
@@ -167,6 +173,7 @@ LEARNER_NODE_PARAMS = (*ACTING_PARAMS, *run_params('runs/learner'), TORCH_THREAD
 ACTOR_NODE_PARAMS = (
     *ACTING_PARAMS,
     Param('actor_name', '', "This actor's name in the trainer's record and log (empty: the node's full name)"),
+    KEY_FILE,
     Param(
         'trainer_id',
         '',
@@ -224,6 +231,7 @@ TRAINER_PARAMS = (
         'A batch holding a reward of larger magnitude is refused whole (raise it for an env of larger rewards)',
         (1e-6, 1e30),
     ),
+    KEY_FILE,
     Param(
         'inbox_limit_mb',
         256.0,
@@ -459,6 +467,7 @@ def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
 TELEOP_EXPERT_PARAMS = (
     *ENV_PARAMS,
     Param('source', 'joy', 'Which teleop input becomes advice', choices=('joy', 'twist', 'array')),
+    KEY_FILE,
     Param(
         'command_publisher',
         '',
@@ -520,6 +529,7 @@ KEYBOARD_PARAMS = (
     ),
     Param('step', 0.25, 'Change per key press, in [-1, 1] units', (0.01, 1.0)),
     Param('rate_hz', 10.0, 'Publishing rate of teleop_command', (0.5, 100.0)),
+    KEY_FILE,
 )
 
 CONSOLE_PARAMS = (
@@ -539,6 +549,7 @@ CONSOLE_PARAMS = (
         'a request whose Host header names another is refused (DNS rebinding). IP addresses are always accepted',
         kind='string_array',
     ),
+    KEY_FILE,
     Param('max_connections', 128, 'Connections the page server holds at once', (1, 10_000)),
     Param('max_connections_per_client', 64, 'Connections it holds from one client address', (1, 10_000)),
     Param(

@@ -28,6 +28,7 @@ from eqhrl_interfaces.srv import Advise
 
 from ..core.env_spec import EnvSpec
 from ..core.experts import SKIPPED, Advice
+from ..core.signing import CommandCheck, signer_from
 from ..core.teleop import TWIST_FIELDS, Command, TeleopExpert, array_command, joy_command, twist_command
 from . import messages
 from .advise_msgs import answer, fill_response, request_from_msg
@@ -46,6 +47,13 @@ class TeleopExpertNode(Node):
         reject_unknown_overrides(self, TELEOP_EXPERT_PARAMS)
         self.params = declare(self, TELEOP_EXPERT_PARAMS)
         self._check_mapping(self.params)
+        signer = signer_from(self.params['key_file'])  # KeyFileError (a ValueError): refused at start-up
+        if signer and self.params['source'] != 'array':
+            raise ValueError(
+                'key_file checks teleop_command (source array), which advice_console and keyboard_teleop sign; '
+                f"'{self.params['source']}' comes from nodes that sign nothing: use SROS2 for it, or no key_file"
+            )
+        self.command_check = CommandCheck(signer) if signer else None
         self.add_on_set_parameters_callback(choices_validator(TELEOP_EXPERT_PARAMS))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.expert = TeleopExpert(
@@ -173,7 +181,14 @@ class TeleopExpertNode(Node):
             return
         p = self.params
         try:
-            command = array_command(messages.read_fields(msg), p['axes'], p['scales'], p['offsets'])
+            fields = messages.read_fields(msg)
+            if self.command_check is not None:
+                refusal = self.command_check.refusal(
+                    messages.command_values(fields), fields.get('counter'), fields.get('signature')
+                )
+                if refusal:
+                    raise ValueError(f'command refused: {refusal}')
+            command = array_command(fields, p['axes'], p['scales'], p['offsets'])
         except ValueError as error:
             self.rejected_commands += 1
             self.get_logger().error(f"'teleop_command': {error}", throttle_duration_sec=5.0)

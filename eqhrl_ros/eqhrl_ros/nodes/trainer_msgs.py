@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import array
 import dataclasses
+import struct
+from typing import Optional
 
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionBatch
 
+from ..core.signing import Signer
 from ..core.summary import EpisodeSummary
 from ..core.transitions import TransitionBatch as Batch
 
@@ -36,6 +39,67 @@ def _floats(values) -> array.array:
     out = array.array('f')
     out.frombytes(np.ascontiguousarray(values, dtype=np.float32).tobytes())
     return out
+
+
+def _f32(values) -> bytes:
+    return np.asarray(values, dtype='<f4').tobytes()
+
+
+def _stats_bytes(stats) -> bytes:
+    """An EpisodeStats (or EpisodeSummary) field by field, as the signature covers it."""
+    out = b''
+    for name in _STATS_FIELDS:
+        value = getattr(stats, name)
+        out += struct.pack('<?', value) if isinstance(value, bool) else struct.pack('<d', float(value))
+    return out
+
+
+def batch_parts(msg: TransitionBatch) -> list:
+    """The content of a batch, in bytes, as its signature covers it (everything but the signature)."""
+    return [
+        struct.pack('<I', msg.observation_size),
+        _f32(msg.action_low),
+        _f32(msg.action_high),
+        _f32(msg.observations),
+        _f32(msg.actions),
+        _f32(msg.rewards),
+        _f32(msg.next_observations),
+        bytes(bytearray(bool(v) for v in msg.terminated)),
+        bytes(bytearray(bool(v) for v in msg.advised)),
+        *(_stats_bytes(e) for e in msg.episodes),
+    ]
+
+
+def weights_parts(msg: PolicyWeights) -> list:
+    tensors = msg.tensors.tobytes() if hasattr(msg.tensors, 'tobytes') else bytes(msg.tensors)
+    return [struct.pack('<Qii', msg.episodes, msg.stamp.sec, msg.stamp.nanosec), tensors]
+
+
+def sign_batch(msg: TransitionBatch, signer: Optional[Signer]) -> TransitionBatch:
+    if signer is not None:
+        msg.signature = array.array('B', signer.sign('transitions', msg.actor, msg.sequence, batch_parts(msg)))
+    return msg
+
+
+def sign_weights(msg: PolicyWeights, signer: Optional[Signer]) -> PolicyWeights:
+    if signer is not None:
+        msg.signature = array.array('B', signer.sign('weights', msg.trainer_id, msg.version, weights_parts(msg)))
+    return msg
+
+
+def signature_refusal(msg, signer: Optional[Signer]) -> str:
+    """'' when ``msg`` (a TransitionBatch or PolicyWeights) may be taken: no key is set, or its
+    signature is this key's over its content; else why not."""
+    if signer is None:
+        return ''
+    signature = bytes(msg.signature)
+    if not signature:
+        return 'it is unsigned and this node has a key_file'
+    if isinstance(msg, PolicyWeights):
+        ok = signer.verify(signature, 'weights', msg.trainer_id, msg.version, weights_parts(msg))
+    else:
+        ok = signer.verify(signature, 'transitions', msg.actor, msg.sequence, batch_parts(msg))
+    return '' if ok else 'its signature is not made with this key_file (another key, or altered on the way)'
 
 
 def batch_msg(batch: Batch, action_low, action_high) -> TransitionBatch:

@@ -31,6 +31,7 @@ from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionBatch
 from ..core.checkpoint import load_checkpoint
 from ..core.learner import EQSACLearner, LearnerConfig
 from ..core.records import EpisodeRecord
+from ..core.signing import signer_from
 from ..core.summary import EpisodeSummary
 from ..core.trainer import TRAINER_CSV_FIELDS, BatchLimits, Trainer
 from ..core.weights import encode_weights
@@ -55,6 +56,7 @@ class TrainerNode(RunFiles, Node):
         if p['torch_threads'] > 0:
             torch.set_num_threads(p['torch_threads'])
         self.config = LearnerConfig.from_params(values)
+        self.signer = signer_from(p['key_file'])  # KeyFileError (a ValueError): refused at start-up
         self._lock = threading.RLock()
         self._open_run_folder()
 
@@ -138,6 +140,9 @@ class TrainerNode(RunFiles, Node):
         if self.done:
             return  # max_episodes reached: learning stopped, the record is closed to new rows
         try:
+            refusal = trainer_msgs.signature_refusal(msg, self.signer)
+            if refusal:
+                raise ValueError(refusal)
             self._check_one_sender(msg.actor)
             batch, low, high = trainer_msgs.batch_from_msg(msg)
             if self.trainer is None and not self._build_from(batch, low, high):
@@ -284,15 +289,10 @@ class TrainerNode(RunFiles, Node):
             self.trainer.weights_sent()
             return
         self.trainer.keep_finite()
-        self.weights_pub.publish(
-            trainer_msgs.weights_msg(
-                self.trainer_id,
-                learner.updates,
-                learner.episode,
-                self.get_clock().now().to_msg(),
-                encode_weights(learner),
-            )
+        msg = trainer_msgs.weights_msg(
+            self.trainer_id, learner.updates, learner.episode, self.get_clock().now().to_msg(), encode_weights(learner)
         )
+        self.weights_pub.publish(trainer_msgs.sign_weights(msg, self.signer))
         self.trainer.weights_sent()
         self.weights_published += 1
 

@@ -339,3 +339,44 @@ def test_two_nodes_under_one_actor_name_are_refused_by_the_trainer(harness, ros_
     pubs[1].publish(batch(0))
     assert harness.spin_until(lambda: trainer.refused_batches >= 2, timeout=10)
     assert trainer.learner.total_steps == 0 and trainer.trainer.sequences.actors == {}
+
+
+def test_with_a_shared_key_only_signed_batches_and_weights_are_taken(harness, ros_context, tmp_path):
+    from eqhrl_ros.core.signing import Signer, new_key_file
+
+    key = str(new_key_file(tmp_path / 'deployment.key'))
+    actor = add_actor(harness, ros_context, '/a0', key_file=key)
+    trainer = add_trainer(harness, ros_context, tmp_path, key_file=key)
+    assert harness.spin_until(lambda: len(trainer.summaries) >= 2 and actor.weights_applied >= 1, timeout=90)
+    assert trainer.refused_batches == 0 and actor.trainer_id == trainer.trainer_id
+
+    stranger = harness.add(rclpy.create_node('stranger', context=ros_context))
+    batches = stranger.create_publisher(TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, trainer_msgs.TRANSITIONS_QOS)
+    weights = stranger.create_publisher(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, trainer_msgs.WEIGHTS_QOS)
+    n = 5
+    forged = TransitionBatch(
+        actor='/a0/actor',
+        sequence=10**5,
+        observation_size=3,
+        action_low=[-2.0],
+        action_high=[2.0],
+        observations=[0.0] * 3 * n,
+        next_observations=[0.0] * 3 * n,
+        actions=[0.0] * n,
+        rewards=[0.0] * n,
+        terminated=[False] * n,
+        advised=[True] * n,
+    )
+    unsigned = trainer.refused_batches
+    batches.publish(forged)
+    trainer_msgs.sign_batch(forged, Signer(b'another key, not ours!!'))
+    forged.sequence += 1
+    batches.publish(forged)
+    refused_weights = actor.weights_refused
+    stolen = PolicyWeights(trainer_id=trainer.trainer_id, version=10**6, episodes=0, tensors=[0] * 8)
+    weights.publish(trainer_msgs.sign_weights(stolen, Signer(b'another key, not ours!!')))
+    assert harness.spin_until(
+        lambda: trainer.refused_batches >= unsigned + 2 and actor.weights_refused > refused_weights, timeout=20
+    )
+    assert '/a0/actor' in trainer.trainer.sequences.actors and trainer.trainer.sequences.lost == 0
+    assert actor.weights_version < 10**6

@@ -422,3 +422,38 @@ def test_a_second_command_publisher_answers_nothing_for_the_person(harness, ros_
     rogue_pub.publish(command(-1.0))
     harness.spin_until(lambda: teleop.rejected_commands > rejected, timeout=5)
     assert teleop.rejected_commands > rejected
+
+
+def test_with_a_shared_key_only_a_signed_command_answers(harness, ros_context, tmp_path):
+    from eqhrl_ros.core.signing import CommandSeal, Signer, new_key_file, read_key
+
+    key = str(new_key_file(tmp_path / 'deployment.key'))
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(
+                source='array', axes=[0], scales=[2.0], offsets=[0.0], answer_mode='instant', key_file=key
+            ),
+        )
+    )
+    driver = harness.add(rclpy.create_node('advice_console', context=ros_context))
+    pub = driver.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    client = driver.create_client(Advise, 'advise')
+    assert harness.spin_until(lambda: pub.get_subscription_count() > 0)
+    rejected = teleop.rejected_commands
+    pub.publish(messages.command_msg([-1.0], True, False, False))  # unsigned, though alone on the topic
+    pub.publish(messages.command_msg([-1.0], True, False, False, CommandSeal(Signer(b'another key, not ours!!'))))
+    assert harness.spin_until(lambda: teleop.rejected_commands >= rejected + 2, timeout=5)
+    assert 'no teleop command' in call_advise(harness, client).reason
+    pub.publish(messages.command_msg([0.5], True, False, False, CommandSeal(Signer(read_key(key)))))
+    harness.spin_until(lambda: False, timeout=0.3)
+    response = call_advise(harness, client)
+    assert response.advised and list(response.action) == pytest.approx([1.0])
+
+
+def test_a_key_file_with_a_source_that_signs_nothing_is_refused(ros_context, tmp_path):
+    from eqhrl_ros.core.signing import new_key_file
+
+    key = str(new_key_file(tmp_path / 'deployment.key'))
+    with pytest.raises(ValueError, match='sign nothing'):
+        TeleopExpertNode(context=ros_context, parameter_overrides=params(source='joy', key_file=key))
