@@ -70,6 +70,7 @@ def _nodes(context):
     if resume not in ('true', 'false'):
         raise ValueError(f'resume:={resume} is not true or false')
     prefix = _prefix(LaunchConfiguration('actor_prefix').perform(context), with_trainer == 'true')
+    key = {'key_file': LaunchConfiguration('key_file').perform(context)}  # the deployment's shared secret
     remaps = [
         ('/transitions', LaunchConfiguration('transitions_topic').perform(context)),
         ('/weights', LaunchConfiguration('weights_topic').perform(context)),
@@ -77,7 +78,7 @@ def _nodes(context):
 
     nodes = []
     if with_trainer == 'true':
-        trainer = {**shared, **learner_section_for(learner, TRAINER_PARAMS)}
+        trainer = {**shared, **learner_section_for(learner, TRAINER_PARAMS), **key}
         if resume == 'true':
             trainer['resume'] = True
         nodes.append(
@@ -95,7 +96,7 @@ def _nodes(context):
     for i in range(offset, offset + actors):
         ns = f'{prefix}{i}'
         env_i = {**env_params, 'seed': int(env_params.get('seed', 42)) + i}
-        actor_i = {**actor_params, 'seed': int(actor_params.get('seed', 42)) + i}
+        actor_i = {**actor_params, 'seed': int(actor_params.get('seed', 42)) + i, **key}
         nodes.append(Node(package='eqhrl_ros', executable='gym_env', name='gym_env', namespace=ns, parameters=[env_i]))
         if with_expert == 'true':
             expert = {**shared, **_section(data, 'expert')}
@@ -137,6 +138,9 @@ def generate_launch_description():
                 'actor_offset', default_value='0', description='index of the first actor here (its seed follows)'
             ),
             DeclareLaunchArgument('resume', default_value='false', description="continue the trainer's run"),
+            DeclareLaunchArgument(
+                'key_file', default_value='', description="the deployment's shared key: signs weights and batches"
+            ),
             DeclareLaunchArgument('transitions_topic', default_value='/transitions', description='remap /transitions'),
             DeclareLaunchArgument('weights_topic', default_value='/weights', description='remap /weights'),
             OpaqueFunction(function=_nodes),

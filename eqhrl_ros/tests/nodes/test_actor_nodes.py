@@ -184,7 +184,7 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
         'actor': {p.name for p in (*LEARNER_CONFIG_PARAMS, *ACTOR_NODE_PARAMS)} | {'use_sim_time'},
         'trainer': {p.name for p in (*LEARNER_CONFIG_PARAMS, *TRAINER_PARAMS)} | {'use_sim_time'},
     }
-    defaults = dict(actor_prefix='', actor_offset='0', resume='false', transitions_topic='/transitions')
+    defaults = dict(actor_prefix='', actor_offset='0', resume='false', transitions_topic='/transitions', key_file='')
     arguments.update(defaults, weights_topic='/weights')
     for env in ('pendulum', 'lunar_lander', 'demo'):
         arguments.update(env=env, params_file='', actors='3', trainer='true', expert='true')
@@ -215,8 +215,11 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
     assert host.replace('-', '_').replace('.', '_')[:3] in robot[0]['namespace']
     # A second robot with an offset: other indices and seeds; remaps and resume reach the nodes.
     arguments.update(actor_prefix='team_b_', actor_offset='2', transitions_topic='/b/transitions', trainer='true')
-    arguments.update(resume='true')
+    arguments.update(resume='true', key_file='/keys/deployment.key')
     second = launch_file._nodes(None)
+    assert {n['parameters'][0]['key_file'] for n in second if n['executable'] in ('actor', 'trainer')} == {
+        '/keys/deployment.key'
+    }
     assert second[0]['parameters'][0]['resume'] is True
     assert [n['namespace'] for n in second if n['executable'] == 'actor'] == ['team_b_2', 'team_b_3']
     assert [n['parameters'][0]['seed'] for n in second if n['executable'] == 'actor'] == [44, 45]
