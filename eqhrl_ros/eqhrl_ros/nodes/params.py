@@ -363,6 +363,8 @@ def choices_validator(params: tuple[Param, ...]):
 
     def validate(changes) -> SetParametersResult:
         for change in changes:
+            if not change.name or not change.name.strip():
+                return SetParametersResult(successful=False, reason='a parameter needs a name')
             param = by_name.get(change.name)
             if param and param.choices and change.value not in param.choices:
                 return SetParametersResult(successful=False, reason=f"'{change.name}' must be one of {param.choices}")

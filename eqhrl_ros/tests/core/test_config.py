@@ -53,3 +53,15 @@ def test_from_params_refuses_unknown_keys():
     with pytest.raises(ValueError, match='unknown learner parameter.*gama'):
         LearnerConfig.from_params({'gama': 0.9})
     assert LearnerConfig.from_params({'hidden_sizes': [8, 8], 'env_id': 'X'}, node_keys=['env_id']).hidden == (8, 8)
+
+
+def test_the_on_set_callback_refuses_a_parameter_without_a_name():
+    from rclpy.parameter import Parameter
+
+    from eqhrl_ros.nodes.params import LEARNER_CONFIG_PARAMS, choices_validator
+
+    validate = choices_validator(LEARNER_CONFIG_PARAMS)
+    assert not validate([Parameter('', value=5)]).successful
+    assert not validate([Parameter(' ', value=5)]).successful
+    assert validate([Parameter('advising_budget', value=5)]).successful
+    assert not validate([Parameter('mode', value='nope')]).successful
