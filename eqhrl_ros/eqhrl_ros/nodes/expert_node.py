@@ -9,6 +9,7 @@ node stays responsive meanwhile (its service has its own callback group).
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Optional
 
@@ -21,7 +22,7 @@ from ..core.env_spec import EnvSpec
 from ..core.experts import Advice, expert_disagreements, make_expert
 from ..core.simulated_human import HumanLimits, SimulatedHuman
 from .advise_msgs import answer, fill_response, request_from_msg
-from .env_info import EnvInfoWatcher, configured_spec
+from .env_info import EnvInfoWatcher, configured_spec, shown
 from .params import EXPERT_PARAMS, HUMAN_LIMIT_PARAMS, choices_validator, declare, reject_unknown_overrides
 from .spinning import pause, run_node, steady_clock
 from .teleop_expert_node import ANSWER_MARGIN_S
@@ -72,7 +73,7 @@ class ExpertNode(Node):
                 + '; '.join(differences)
             )
 
-    def _refusal(self) -> Optional[Advice]:
+    def _refusal(self, request: Advise.Request) -> Optional[Advice]:
         """Why this request gets no answer from the backend, if it does not."""
         self.requests += 1
         delay = self.get_parameter('response_delay_s').value
@@ -82,11 +83,31 @@ class ExpertNode(Node):
             return Advice.decline('expert disabled (parameter enabled is false)')
         if self.backend is None:
             return Advice.decline(f'waiting for {self.env_info.topic}')
+        # The sizes the env announced, else those the backend was written for (a controller by name).
+        spec, backend = self.env_info.spec, self.backend
+        obs_size = spec.observation_size if spec else getattr(backend, 'observation_size', None)
+        action_size = spec.action_size if spec else getattr(backend, 'action_size', None)
+        env = shown(spec.name) if spec else self.params['env_id'] or 'env'
+        sizes = {
+            'observation': (len(request.observation), obs_size),
+            'proposed_action': (len(request.proposed_action), action_size),
+            'action_low': (len(request.action_low), action_size),
+            'action_high': (len(request.action_high), action_size),
+        }
+        for field, (got, want) in sizes.items():
+            if want is not None and got != want:
+                return Advice.decline(f'{field} has {got} values; the env {env!r} has {want}')
+        if len(request.action_low) != len(request.action_high):
+            return Advice.decline(
+                f'action_low has {len(request.action_low)} values, action_high {len(request.action_high)}'
+            )
+        if not all(math.isfinite(v) for v in (*request.observation, *request.action_low, *request.action_high)):
+            return Advice.decline('the observation or the action bounds hold a non-finite value')
         return None
 
     def _on_request(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
         name = self.get_fully_qualified_name()
-        refusal = self._refusal()
+        refusal = self._refusal(request)
         if refusal is not None:
             return fill_response(response, refusal, name)
         return answer(self.backend, request, response, name, self.get_logger())
@@ -95,7 +116,7 @@ class ExpertNode(Node):
         """The simulated person reacts after their drawn delay, within the answer window
         (cut, like teleop_expert's, to the learner's timeout)."""
         name = self.get_fully_qualified_name()
-        refusal = self._refusal()
+        refusal = self._refusal(request)
         if refusal is not None:
             return fill_response(response, refusal, name)
         human: SimulatedHuman = self.backend

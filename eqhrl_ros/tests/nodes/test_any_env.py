@@ -375,3 +375,31 @@ def test_an_env_info_from_a_node_that_is_not_the_env_is_held_not_obeyed(harness,
     env = harness.add(GymEnvNode(context=ros_context, namespace='/b', parameter_overrides=params(max_episode_steps=20)))
     assert harness.spin_until(lambda: waiting.learner is not None, timeout=20)
     assert waiting.learner.scaler.high.tolist() == [2.0] and env is not None
+
+
+@pytest.mark.parametrize(
+    'observation,low,problem',
+    [
+        ([0.5], [-2.0], "observation has 1 values; the env 'Pendulum-v1' has 3"),
+        ([0.0, 1.0, 0.0], [-2.0, -2.0], "action_low has 2 values; the env 'Pendulum-v1' has 1"),
+        ([0.0, float('nan'), 0.0], [-2.0], 'non-finite'),
+    ],
+)
+def test_an_expert_declines_a_request_of_the_wrong_size_naming_the_sizes(
+    harness, ros_context, observation, low, problem
+):
+    """Before: declined with the backend's own error ('not enough values to unpack (expected 3, got 1)')."""
+    from eqhrl_interfaces.srv import Advise
+
+    harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
+    caller = harness.add(rclpy.create_node('caller', context=ros_context))
+    client = caller.create_client(Advise, 'advise')
+    assert harness.spin_until(client.service_is_ready)
+    future = client.call_async(
+        Advise.Request(
+            observation=observation, proposed_action=[0.0], action_low=low, action_high=[2.0] * len(low), timeout_s=1.0
+        )
+    )
+    assert harness.spin_until(future.done)
+    response = future.result()
+    assert not response.advised and problem in response.reason and 'unpack' not in response.reason
