@@ -130,8 +130,14 @@ def run(name: str, argv=None) -> int:
             except ValueError as error:
                 print(f'{name}: {error}', file=sys.stderr)
                 return 2
-    module = importlib.import_module(f'eqhrl_ros.nodes.{NODES[name].module}')
-    module.main()
+    try:
+        # Until the node's own handlers are in (spinning.init), Python's default one turns a
+        # Ctrl-C into KeyboardInterrupt: while torch and rclpy still import, nothing has started
+        # that needs stopping, so it ends the program quietly.
+        module = importlib.import_module(f'eqhrl_ros.nodes.{NODES[name].module}')
+        module.main()
+    except KeyboardInterrupt:
+        return 0
     return 0
 
 

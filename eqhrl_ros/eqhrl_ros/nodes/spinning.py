@@ -116,8 +116,9 @@ STOP_REPORT_S = 20.0
 class StopSignals:
     """SIGINT and SIGTERM as a request to stop, read by the spin loop between callbacks."""
 
-    def __init__(self, name: str):
+    def __init__(self, name: str, saves: bool = True):
         self.name = name
+        self.saves = saves  # the node writes files at exit (its second signal says so)
         self.received: list[int] = []
 
     @property
@@ -145,17 +146,14 @@ class StopSignals:
             faulthandler.dump_traceback_later(STOP_REPORT_S, exit=False)
         if len(self.received) == 2:
             # os.write, not print: the signal may have landed inside a write to stderr.
-            os.write(
-                2,
-                f'{self.name}: {signal.Signals(signum).name} again: already stopping, '
-                'finishing the save (SIGKILL aborts it)\n'.encode(),
-            )
+            doing = 'finishing the save (SIGKILL aborts it)' if self.saves else 'exiting'
+            os.write(2, f'{self.name}: {signal.Signals(signum).name} again: already stopping, {doing}\n'.encode())
 
 
-def init(args=None, name: str = 'node', context=None) -> StopSignals:
+def init(args=None, name: str = 'node', context=None, saves: bool = True) -> StopSignals:
     """rclpy.init without rclpy's signal handlers, and ours installed (see the module doc)."""
     rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
-    return StopSignals(name).install()
+    return StopSignals(name, saves).install()
 
 
 def spin(node_or_executor, stop: Optional[StopSignals] = None) -> None:
@@ -246,7 +244,7 @@ def run_node(
     start-up refusal prints one line and exits with 1.
     """
     name = name or getattr(node_class, '__name__', 'node')
-    stop = init(args, name)
+    stop = init(args, name, saves=on_exit is not None)
     node = None
     try:
         node = node_class()

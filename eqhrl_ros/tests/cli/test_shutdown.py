@@ -239,3 +239,36 @@ def test_two_eqhrl_train_runs_on_one_machine_do_not_hear_each_other(tmp_path):
         assert 'does not follow' not in log and 'abandoning' not in log and 'interrupted' not in log.lower()
         rows = read_rows(out / 'episodes.csv')
         assert [int(r['total_steps']) for r in rows] == [60, 120, 180, 240], log[-3000:]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('executable', ['trainer', 'actor', 'learner'])
+def test_ctrl_c_while_the_node_still_imports_ends_it_quietly(executable, tmp_path):
+    """Before: a KeyboardInterrupt traceback and exit code -2 (torch was still importing)."""
+    process = subprocess.Popen(
+        [str(BIN / executable), '--ros-args', '-p', 'env_id:=Pendulum-v1', '-p', f'output_dir:={tmp_path}'],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=tmp_path,
+    )
+    time.sleep(0.4)  # inside the imports (torch alone takes over a second here)
+    process.send_signal(signal.SIGINT)
+    out, _ = process.communicate(timeout=30)
+    assert process.returncode == 0, out[-2000:]
+    assert clean(out), out[-2000:]
+
+
+def test_a_node_that_saves_nothing_does_not_say_it_is_finishing_a_save(capfd):
+    """The second signal's line (run_node: saves=True only for nodes with an exit action)."""
+    import faulthandler
+
+    from eqhrl_ros.nodes.spinning import StopSignals
+
+    for saves, said in ((False, 'already stopping, exiting'), (True, 'finishing the save')):
+        stops = StopSignals('gym_env', saves=saves)
+        stops._on_signal(signal.SIGINT, None)
+        stops._on_signal(signal.SIGINT, None)
+        faulthandler.cancel_dump_traceback_later()
+        err = capfd.readouterr().err
+        assert said in err and (saves or 'save' not in err), err
