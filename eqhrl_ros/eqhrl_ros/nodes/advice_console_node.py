@@ -40,7 +40,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Image
-from std_msgs.msg import Float32MultiArray
+from std_msgs.msg import Bool, Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 
@@ -155,6 +155,10 @@ class AdviceConsole(Node):
         self.published = 0
 
         self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
+        # The person's STOP: latched, so that an env node that (re)starts while stopped stays stopped.
+        self.stopped = False
+        self.stop_pub = self.create_publisher(Bool, messages.STOP_TOPIC, messages.STOP_QOS)
+        self.create_subscription(Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS)
         self.create_subscription(AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS)
         self.create_subscription(EpisodeStats, 'learner/episode_stats', self._on_stats, 100)
         self.create_subscription(Image, p['image_topic'], self._on_frame, 2)
@@ -271,9 +275,28 @@ class AdviceConsole(Node):
 
     # ------------------------------------------------------------------ the page's input
 
+    def _on_stop(self, msg: Bool) -> None:
+        with self._lock:
+            if bool(msg.data) != self.stopped:
+                self.stopped = bool(msg.data)
+                self._bump()
+
+    def set_stop(self, stopped: bool) -> None:
+        """STOP (or release it): published at once, latched, for every env node on the graph."""
+        with self._lock:
+            self.stopped = stopped
+            self._bump()
+        self.stop_pub.publish(Bool(data=stopped))
+        self.get_logger().warn('STOP pressed on the page' if stopped else 'stop released on the page')
+
     def take_input(self, data: dict) -> Optional[str]:
         """A message from the page; returns an error text for the page, or None."""
         kind = data.get('type')
+        if kind == 'stop':
+            if not isinstance(data.get('stopped'), bool):
+                return 'stop needs stopped: true or false'
+            self.set_stop(data['stopped'])
+            return None
         if kind == 'input':
             with self._lock:
                 size = len(self.input.command)
@@ -319,6 +342,7 @@ class AdviceConsole(Node):
             'episodes': self.episodes[-500:],
             'learner': self.learner_params,
             'require_deadman': self.params['require_deadman'],
+            'stopped': self.stopped,
             'command': list(self.input.command),
         }
 

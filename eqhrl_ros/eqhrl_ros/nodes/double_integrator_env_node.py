@@ -23,7 +23,7 @@ import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float32MultiArray, MultiArrayDimension, MultiArrayLayout
+from std_msgs.msg import Bool, Float32MultiArray, MultiArrayDimension, MultiArrayLayout
 
 from eqhrl_interfaces.msg import EnvInfo
 
@@ -42,6 +42,7 @@ PARAMETERS = (
     ('rate_hz', 10.0, 'Real-time step rate', (0.1, 1000.0)),
     ('action_timeout_s', 0.5, 'Real-time deadman: zero force when the latest action is older than this', (0.01, 60.0)),
     ('republish_period_s', 0.5, 'Lock-step: re-send the observation when no action came for this long', (0.01, 60.0)),
+    ('max_action_change', 0.0, 'Most the force may change from one step to the next (0: no limit)', (0.0, 1e9)),
 )
 
 
@@ -97,6 +98,11 @@ class DoubleIntegratorEnv(Node):
         self.episode, self.step_index = 0, 0
         self.action, self.action_time = 0.0, 0.0
         self.rejected_actions = 0
+        self.max_action_change = values['max_action_change']
+        self.previous_u = 0.0
+        # The person's stop (std_msgs/Bool on `stop`, latched): a robot must honour it whatever
+        # the learner sends. Here, while stopped, the system is not stepped at all (it holds).
+        self.stopped = False
 
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(
@@ -105,6 +111,7 @@ class DoubleIntegratorEnv(Node):
         self.info_pub = self.create_publisher(EnvInfo, 'env_info', latched)
         self.observation_pub = self.create_publisher(Float32MultiArray, 'observation', qos)
         self.create_subscription(Float32MultiArray, 'action', self._on_action, qos)
+        self.create_subscription(Bool, 'stop', self._on_stop, latched)
         self.info_pub.publish(
             EnvInfo(
                 name=NAME,
@@ -137,7 +144,17 @@ class DoubleIntegratorEnv(Node):
         self.step_index = 0
         self._publish(self.system.reset(), 0.0, False, False, False)
 
+    def _on_stop(self, msg: Bool) -> None:
+        if bool(msg.data) != self.stopped:
+            self.stopped = bool(msg.data)
+            self.get_logger().warn('STOPPED: holding' if self.stopped else 'stop released')
+            if not self.stopped:
+                self.observation_pub.publish(self.last_msg)  # the learner acts on from here
+
     def _step(self, u: float) -> None:
+        if self.max_action_change > 0:  # a rate limit: the force moves at most this much a step
+            u = float(np.clip(u, self.previous_u - self.max_action_change, self.previous_u + self.max_action_change))
+        self.previous_u = u
         obs, reward = self.system.step(u)
         self.step_index += 1
         truncated = self.step_index >= self.max_steps
@@ -154,6 +171,8 @@ class DoubleIntegratorEnv(Node):
             self.rejected_actions += 1
             self.get_logger().error(f'rejected action {data.tolist()}', throttle_duration_sec=5.0)
             return
+        if self.stopped:
+            return  # the person's stop outranks the learner
         if self.realtime:
             self.action, self.action_time = float(data[0]), time.monotonic()
             return
@@ -162,13 +181,15 @@ class DoubleIntegratorEnv(Node):
         self._step(float(data[0]))
 
     def _tick(self) -> None:
+        if self.stopped:
+            return
         # Deadman: a real robot must not keep pushing on an old command.
         fresh = time.monotonic() - self.action_time < self.action_timeout_s
         self._step(self.action if fresh else 0.0)
 
     def _republish_if_idle(self) -> None:
         # A learner that started late, restarted or lost the message gets the observation again.
-        if time.monotonic() - self.last_publish >= self.republish_period_s:
+        if time.monotonic() - self.last_publish >= self.republish_period_s and not self.stopped:
             self.observation_pub.publish(self.last_msg)
             self.last_publish = time.monotonic()
 

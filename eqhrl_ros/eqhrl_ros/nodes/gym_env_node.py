@@ -4,6 +4,11 @@ Announces itself on the latched ``env_info`` (eqhrl_interfaces/msg/EnvInfo), pub
 ``observation`` (obs, reward, flags, episode, step in one message) and steps when an
 action arrives on ``action``: lock-step by default, or at a fixed rate holding the last
 action (``realtime``), for people watching.
+
+A person's stop (std_msgs/Bool, latched, on ``stop``) freezes it: while true, actions are
+ignored and no step is taken, lock-step or real-time, so the simulated robot holds where it is
+and nothing of the episode is lost; it steps on from the same state once the stop is released.
+``max_action_change`` limits how far an action may move from the one before, per step.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
-from std_msgs.msg import Float32MultiArray
+from std_msgs.msg import Bool, Float32MultiArray
 
 from eqhrl_interfaces.msg import EnvInfo
 
@@ -62,6 +67,9 @@ class GymEnvNode(Node):
         self._answered = False
         self._last_publish = time.monotonic()
         self._held_action = ((self.env.action_space.low + self.env.action_space.high) / 2).astype(np.float32)
+        self._previous_action = self._held_action.copy()  # what max_action_change is measured from
+        self.stopped = False
+        self.stopped_actions = 0  # actions that arrived while stopped (ignored)
 
         self._subscribers_seen = 0
         self._started = False  # real time: the first episode's clock has started
@@ -77,6 +85,7 @@ class GymEnvNode(Node):
         # Actions arrive serialized (raw): see messages.SerializedReader.
         self._action_reader = messages.SerializedReader(messages.action_layouts(self.action_dim), 'action')
         self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS, raw=True)
+        self.create_subscription(Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS)
         # Latched: nodes that start later still learn the spaces from it.
         self.env_info_pub = self.create_publisher(EnvInfo, env_info.TOPIC, env_info.ENV_INFO_QOS)
         self.env_info_pub.publish(env_info.env_info_msg(self.spec))
@@ -107,7 +116,18 @@ class GymEnvNode(Node):
         self._last_msg = self._observation_out.fill(obs, 0.0, False, False, self.episode, 0)
         self._publish()
 
+    def _on_stop(self, msg: Bool) -> None:
+        if bool(msg.data) != self.stopped:
+            self.stopped = bool(msg.data)
+            if self.stopped:
+                self.get_logger().warn('STOPPED by the person: no step until the stop is released')
+            else:
+                self.get_logger().info(f'stop released: stepping on ({self.stopped_actions} actions ignored meanwhile)')
+                self._publish()  # the observation the learner acts on next (the episode goes on)
+
     def _step(self, action: np.ndarray) -> None:
+        action = messages.rate_limited(action, self._previous_action, self.params['max_action_change'])
+        self._previous_action = action
         obs, reward, terminated, truncated, _ = self.env.step(action)
         self.step_index += 1
         self.steps_taken += 1
@@ -135,6 +155,9 @@ class GymEnvNode(Node):
                 throttle_duration_sec=5.0,
             )
             return
+        if self.stopped:
+            self.stopped_actions += 1
+            return
         if self.params['realtime']:
             self._held_action = action
             if tag is None or tag == (self.episode, self.step_index):
@@ -150,6 +173,8 @@ class GymEnvNode(Node):
         # connected: stepping for nobody would only cut the first episode short. The first
         # observation went out before anyone listened: it is sent again at that tick, and the
         # stepping begins with the next, so the first episode is seen whole.
+        if self.stopped:
+            return
         if self.steps_taken or self._started:
             if not self._answered:
                 self.late_steps += 1
@@ -191,7 +216,7 @@ class GymEnvNode(Node):
     def _republish_if_idle(self) -> None:
         # Nobody acted on the last observation for a whole period: a learner that
         # started late, restarted, or lost the message gets it again.
-        if time.monotonic() - self._last_publish >= self.params['republish_period_s']:
+        if time.monotonic() - self._last_publish >= self.params['republish_period_s'] and not self.stopped:
             self._publish()
 
     def destroy_node(self):

@@ -66,6 +66,19 @@ def _layout(dims: tuple[tuple[str, int], ...]) -> MultiArrayLayout:
     return MultiArrayLayout(dim=[MultiArrayDimension(label=label, size=size, stride=size) for label, size in dims])
 
 
+# The person's stop (std_msgs/Bool on ``stop``): latched, so that an env node that starts or
+# restarts while the robot is stopped stays stopped.
+STOP_TOPIC = 'stop'
+STOP_QOS = LATCHED_QOS
+
+
+def rate_limited(action: np.ndarray, previous: np.ndarray, max_change: float) -> np.ndarray:
+    """``action`` moved at most ``max_change`` (env units, per dimension) from ``previous``; 0: as is."""
+    if max_change <= 0:
+        return action
+    return np.clip(action, previous - max_change, previous + max_change).astype(np.float32)
+
+
 def build(fields: Sequence[tuple[str, Sequence[float]]]) -> Float32MultiArray:
     arrays = [np.atleast_1d(np.asarray(values, dtype=np.float32)).reshape(-1) for _, values in fields]
     msg = Float32MultiArray()

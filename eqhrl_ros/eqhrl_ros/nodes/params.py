@@ -275,6 +275,12 @@ GYM_ENV_PARAMS = (
         'long (a learner that started late or restarted)',
         (0.01, 3600.0),
     ),
+    Param(
+        'max_action_change',
+        0.0,
+        'Most an action may change from the one before, per step and dimension, in env units (0: no limit)',
+        (0.0, 1e9),
+    ),
 )
 
 EXPERT_PARAMS = (

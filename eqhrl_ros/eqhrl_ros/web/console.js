@@ -9,7 +9,7 @@ const GAMEPAD_ANSWER = 0;   // A
 const GAMEPAD_SKIP = 1;     // B
 
 const $ = (id) => document.getElementById(id);
-const state = { env: null, request: null, episodes: [], learner: {}, require_deadman: true };
+const state = { env: null, request: null, episodes: [], learner: {}, require_deadman: true, stopped: false };
 const input = { command: [], deadman: false, keyDeadman: false, padDeadman: false };
 let socket = null;
 let lastRequestKey = null;
@@ -66,6 +66,8 @@ function onState(message) {
   drawPlots();
   const learner = state.learner || {};
   $('pause').textContent = learner.advice_enabled === false ? 'resume advice' : 'pause advice';
+  document.body.classList.toggle('stopped', state.stopped === true);
+  $('stop').textContent = state.stopped ? 'RESUME' : 'STOP';
   // Never under the person's cursor: a value written while the field has focus would land
   // between selecting its text and typing over it (and "100" + "7" would become "1007").
   if (!budgetEdited && document.activeElement !== $('budget') && learner.advising_budget !== undefined) {
@@ -253,3 +255,6 @@ $('set-budget').addEventListener('click', () => {
 
 connect();
 setInterval(pollGamepad, 20);
+
+// STOP: the env nodes hold (no step) until it is released; the node publishes it latched on `stop`.
+$('stop').addEventListener('click', () => send({ type: 'stop', stopped: !state.stopped }));

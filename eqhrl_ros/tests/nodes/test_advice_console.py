@@ -274,3 +274,35 @@ def test_the_page_is_installed_with_the_package():
 
     web = resources.files('eqhrl_ros').joinpath('web')
     assert 'console.js' in web.joinpath('console.html').read_text()
+
+
+def test_stop_on_the_page_holds_the_env_at_once_and_resume_lets_it_go(browser, ros_context):
+    env = GymEnvNode(
+        context=ros_context, parameter_overrides=params(realtime=True, rate_hz=30.0, max_episode_steps=10**6)
+    )
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    import rclpy
+    from std_msgs.msg import Float32MultiArray
+
+    watcher = rclpy.create_node('watcher', context=ros_context)  # a learner's stand-in: the clock starts
+    watcher.create_subscription(Float32MultiArray, 'observation', lambda msg: None, 10)
+    graph = Graph(ros_context, [env, console, watcher])
+    try:
+        browser.get(console.url)
+        wait_for(
+            lambda: browser.execute_script("return document.getElementById('connection').textContent") == 'connected'
+        )
+        wait_for(lambda: env.steps_taken > 10, what='the env stepping')
+        browser.find_element('id', 'stop').click()
+        wait_for(lambda: env.stopped, timeout=5, what='the env stopped')
+        frozen = env.steps_taken
+        time.sleep(0.5)
+        assert env.steps_taken == frozen
+        wait_for(lambda: browser.execute_script("return document.body.classList.contains('stopped')"), what='banner')
+        assert browser.find_element('id', 'stop').text == 'RESUME'
+        assert browser.find_element('id', 'stopped-banner').is_displayed()
+        browser.find_element('id', 'stop').click()
+        wait_for(lambda: env.steps_taken > frozen + 5, timeout=10, what='the env stepping again')
+        wait_for(lambda: browser.find_element('id', 'stop').text == 'STOP', what='the button back')
+    finally:
+        graph.close()

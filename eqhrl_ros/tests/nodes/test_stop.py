@@ -1,0 +1,106 @@
+"""The person's stop (std_msgs/Bool on `stop`, latched) and the action rate limit, on the env nodes
+that ship, and the console's STOP in a real browser."""
+
+import numpy as np
+import pytest
+import rclpy
+from std_msgs.msg import Bool
+
+from eqhrl_ros.nodes import messages
+from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegratorEnv
+from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+
+from ros_helpers import Probe, params
+
+
+def stopper(harness):
+    node = harness.add(rclpy.create_node('person_stop', context=harness.context))
+    return node.create_publisher(Bool, messages.STOP_TOPIC, messages.STOP_QOS)
+
+
+def test_a_stopped_lock_step_env_takes_no_step_and_goes_on_from_the_same_state(harness, ros_context):
+    env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=50)))
+    probe = Probe(harness)
+    stop = stopper(harness)
+    assert harness.spin_until(lambda: probe.action_pub.get_subscription_count() > 0 and probe.observations)
+
+    def act(value=0.5):
+        fields = messages.read_fields(probe.observations[-1])
+        probe.action_pub.publish(messages.action_msg([value], int(fields['episode'][0]), int(fields['step'][0])))
+
+    def step_and_see():
+        before = env.steps_taken
+        act()
+        assert harness.spin_until(lambda: env.steps_taken == before + 1)
+        assert harness.spin_until(lambda: messages.read_fields(probe.observations[-1])['step'][0] == env.step_index)
+
+    for _ in range(3):
+        step_and_see()
+    stop.publish(Bool(data=True))
+    assert harness.spin_until(lambda: env.stopped)
+    frozen, state = env.steps_taken, env.env.unwrapped.state.copy()
+    for _ in range(5):
+        act()
+        harness.spin_until(lambda: False, timeout=0.1)
+    assert env.steps_taken == frozen and env.stopped_actions >= 5
+    assert np.array_equal(env.env.unwrapped.state, state)  # the robot held
+    stop.publish(Bool(data=False))
+    assert harness.spin_until(lambda: not env.stopped)
+    step_and_see()  # the same episode, one step on
+    assert env.steps_taken == frozen + 1 and env.step_index == 4
+
+
+def test_a_stopped_real_time_env_holds_until_released(harness, ros_context):
+    env = harness.add(
+        GymEnvNode(
+            context=ros_context, parameter_overrides=params(realtime=True, rate_hz=50.0, max_episode_steps=10**6)
+        )
+    )
+    Probe(harness)  # a subscriber: the real-time clock starts
+    stop = stopper(harness)
+    assert harness.spin_until(lambda: env.steps_taken > 10, timeout=10)
+    stop.publish(Bool(data=True))
+    assert harness.spin_until(lambda: env.stopped)
+    frozen = env.steps_taken
+    harness.spin_until(lambda: False, timeout=0.5)
+    assert env.steps_taken == frozen
+    stop.publish(Bool(data=False))
+    assert harness.spin_until(lambda: env.steps_taken > frozen + 5, timeout=10)
+
+
+def test_a_late_env_starts_stopped_the_stop_is_latched(harness, ros_context):
+    stop = stopper(harness)
+    stop.publish(Bool(data=True))
+    env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params()))
+    assert harness.spin_until(lambda: env.stopped, timeout=10)
+
+
+def test_max_action_change_limits_each_step(harness, ros_context):
+    env = harness.add(
+        GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=50, max_action_change=0.5))
+    )
+    probe = Probe(harness)
+    assert harness.spin_until(lambda: probe.action_pub.get_subscription_count() > 0 and probe.observations)
+    applied = []
+    for value in (2.0, 2.0, -2.0, -2.0):
+        assert harness.spin_until(lambda: messages.read_fields(probe.observations[-1])['step'][0] == env.step_index)
+        fields = messages.read_fields(probe.observations[-1])
+        before = env.steps_taken
+        probe.action_pub.publish(messages.action_msg([value], int(fields['episode'][0]), int(fields['step'][0])))
+        assert harness.spin_until(lambda: env.steps_taken == before + 1)
+        applied.append(float(env._previous_action[0]))
+    assert applied == pytest.approx([0.5, 1.0, 0.5, 0.0])
+
+
+def test_the_double_integrator_holds_while_stopped(harness, ros_context):
+    env = harness.add(DoubleIntegratorEnv(context=ros_context, parameter_overrides=params(realtime=True, rate_hz=50.0)))
+    Probe(harness)
+    stop = stopper(harness)
+    assert harness.spin_until(lambda: env.step_index > 5 or env.episode > 0, timeout=10)
+    stop.publish(Bool(data=True))
+    assert harness.spin_until(lambda: env.stopped)
+    held = (env.episode, env.step_index, env.system.x, env.system.v)
+    harness.spin_until(lambda: False, timeout=0.4)
+    assert (env.episode, env.step_index, env.system.x, env.system.v) == held
+    stop.publish(Bool(data=False))
+    assert harness.spin_until(lambda: (env.episode, env.step_index) != held[:2], timeout=10)
