@@ -63,7 +63,16 @@ SKIPPED = 'skipped by the person'
 
 
 # Kinds of failed advice, counted apart from advice given and advice declined.
-FAILURE_KINDS = ('unavailable', 'timeout', 'error', 'wrong_size', 'non_finite', 'out_of_bounds', 'untrusted')
+FAILURE_KINDS = (
+    'unavailable',
+    'timeout',
+    'error',
+    'wrong_size',
+    'non_finite',
+    'out_of_bounds',
+    'untrusted',
+    'episode_ended',  # a real-time episode ended before the answer came: not the person's timeout
+)
 
 
 def check_advised_action(

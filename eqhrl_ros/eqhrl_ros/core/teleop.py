@@ -133,9 +133,10 @@ class TeleopExpert:
 
     Two ways to answer (the teleop_expert node's ``answer_mode``):
     - ``window``: ``open(request)`` holds the request until the person acts. ``update``
-      returns the answer when a command answers it: the answer button or the deadman
+      returns the answer when a command answers it, with the deadman held: the answer button
       pressed, or a command that differs from the one held when the request came (by more
-      than ``answer_change`` in some dimension); the skip button declines. ``expire`` ends
+      than ``answer_change`` in some dimension); the deadman pressed alone does not answer;
+      the skip button declines. ``expire`` ends
       it unanswered (a timeout). Each answer carries the person's reaction time.
     - ``instant`` (calling it): the latest command at once, for a person who holds the stick
       all along (HIL-SERL-style intervention).
@@ -215,8 +216,9 @@ class TeleopExpert:
             pending.values.shape != command.values.shape
             or float(np.max(np.abs(command.values - pending.values), initial=0.0)) > self.answer_change
         )
-        deadman_pressed = command.enabled and previous is not None and not previous.enabled
-        if not command.enabled or not (pressed('answer') or deadman_pressed or moved):
+        # The deadman permits an answer and never gives one: pressed alone it would send the
+        # command held before (the person who holds Shift first and then steers meant another).
+        if not command.enabled or not (pressed('answer') or moved):
             return None  # no answer yet (and nothing is given without the deadman)
         self.pending = None
         return self._advice(command, pending.request, reaction)

@@ -261,12 +261,13 @@ class ActingNode(Node):
         if not self._follows(key) or self._last_action is None:
             return
         if env_step.done:
-            # The episode ends before the answer: the request counts as timed out in it.
+            # The episode ends before the answer: counted as such (not the person's timeout), and
+            # said at once, so that the page and teleop_expert end the request too.
             pending = self._take_pending(self._pending.token)
-            self.learner.resolve_advice(pending.proposal, failure='timeout')  # acted on already
+            self.learner.resolve_advice(pending.proposal, failure='episode_ended')  # acted on already
             self.request_pub.publish(
                 messages.advice_request_msg(
-                    'failed', pending.proposal.request, self.params['advice_timeout_s'], 'timeout'
+                    'failed', pending.proposal.request, self.params['advice_timeout_s'], 'episode_ended'
                 )
             )
         self._last_advised = False
@@ -368,6 +369,7 @@ class ActingNode(Node):
                 resolution.detail,
                 human,
                 advice.response_time_s if human else time.monotonic() - pending.sent,
+                resolution.action if resolution.outcome == 'given' else (),
             )
         )
         self._finish_step(*resolution.take())

@@ -211,6 +211,7 @@ class AdviceConsole(Node):
                 'human': bool(msg.human),
                 'response_time_s': float(msg.response_time_s),
                 'proposed_action': [float(v) for v in msg.proposed_action],
+                'given_action': [float(v) for v in msg.given_action],
             }
             self.request_seen = time.monotonic()
             self._bump()

@@ -366,10 +366,18 @@ def gate_msg(episode: int, step: int, decision) -> GateDecision:
 
 
 def advice_request_msg(
-    outcome: str, request, timeout_s: float, detail: str = '', human: bool = False, response_time_s: float = 0.0
+    outcome: str,
+    request,
+    timeout_s: float,
+    detail: str = '',
+    human: bool = False,
+    response_time_s: float = 0.0,
+    given_action=(),
 ) -> AdviceRequest:
-    """learner/advice_request: ``request`` (core AdviceRequest) and what came of it so far."""
+    """learner/advice_request: ``request`` (core AdviceRequest) and what came of it so far
+    (``given_action``: the action used, env units, when it was given)."""
     return AdviceRequest(
+        given_action=np.asarray(given_action, dtype=np.float32).tolist(),
         outcome=ADVICE_OUTCOMES[outcome],
         detail=detail,
         human=bool(human),

@@ -24,6 +24,7 @@ from rclpy.task import Future
 from sensor_msgs.msg import Joy
 from std_msgs.msg import Float32MultiArray
 
+from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
 from eqhrl_interfaces.srv import Advise
 
 from ..core.env_spec import EnvSpec
@@ -93,6 +94,13 @@ class TeleopExpertNode(Node):
             + (f', window {self.params["answer_window_s"]:g} s' if self.params['answer_mode'] == 'window' else '')
         )
         self.env_info = EnvInfoWatcher(self, configured_spec(self.params), self._check_action_size)
+        # The learner's word on each request: one it has resolved without this node's answer (the
+        # episode ended, its timeout passed) is ended here too, so that no later key press lands
+        # on it and nothing is logged as answered that the learner never used.
+        self.ended_by_learner = 0
+        self.create_subscription(
+            AdviceRequestMsg, 'learner/advice_request', self._on_learner_request, messages.LATCHED_QOS
+        )
 
     def _check_action_size(self, spec: EnvSpec) -> None:
         """The mapping gives one value per entry of scales: the env must take as many."""
@@ -236,6 +244,19 @@ class TeleopExpertNode(Node):
             self.destroy_timer(timer)
         self._report(advice, request)
         return fill_response(response, advice, self.expert.name)
+
+    def _on_learner_request(self, msg: AdviceRequestMsg) -> None:
+        if msg.outcome == AdviceRequestMsg.PENDING:
+            return
+        with self._lock:
+            pending = self.expert.pending
+            if pending is None or (pending.request.episode, pending.request.step) != (msg.episode, msg.step):
+                return
+            self.ended_by_learner += 1
+            reason = (
+                'the episode ended first' if msg.detail == 'episode_ended' else f'the learner closed it ({msg.detail})'
+            )
+            self._settle(self.expert.withdraw(reason))
 
     def _expire(self, future: Future, window: float) -> None:
         with self._lock:

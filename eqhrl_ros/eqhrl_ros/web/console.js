@@ -95,8 +95,12 @@ function showRequest() {
   } else {
     box.className = '';
     const took = r.human ? ` after ${r.response_time_s.toFixed(1)} s` : '';
-    const detail = r.detail ? `: ${r.detail}` : '';
-    box.textContent = `last request (episode ${r.episode}, step ${r.step}): ${r.outcome}${took}${detail}`;
+    // What was sent, as the env takes it: the person sees the value their input gave.
+    const given = r.given_action && r.given_action.length
+      ? ` [${r.given_action.map((v) => (v >= 0 ? '+' : '') + v.toFixed(2)).join(', ')}]` : '';
+    const detail = r.detail === 'episode_ended' ? ': the episode ended before an answer (not counted as yours)'
+      : (r.detail ? `: ${r.detail}` : '');
+    box.textContent = `last request (episode ${r.episode}, step ${r.step}): ${r.outcome}${given}${took}${detail}`;
     box.dataset.outcome = r.outcome;
   }
 }

@@ -164,3 +164,16 @@ def test_the_learner_counts_a_persons_time_and_a_window_let_pass_as_a_timeout():
     restored = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(mode='qasac', hidden=(8,), seed=0))
     restored.load_state_dict(learner.state_dict())
     assert restored.advice_total.human_time_s == pytest.approx(5.25)
+
+
+def test_the_deadman_pressed_alone_does_not_answer_with_the_command_held_before():
+    """Hold Shift first, then steer: before, the press alone answered with the old command
+    (+0.00 or +2.00 where the person steered to -2, 3 times of 5)."""
+    clock = FakeClock()
+    expert = TeleopExpert(name='person', clock=clock, answer_change=0.05)
+    expert.update(command(0.0, enabled=False))
+    expert.open(request())
+    assert expert.update(command(0.0, enabled=True)) is None  # the deadman alone
+    clock.now += 0.4
+    advice = expert.update(command(-0.6, enabled=True))  # then the steer
+    assert advice.advised and advice.action.tolist() == pytest.approx([-0.6])

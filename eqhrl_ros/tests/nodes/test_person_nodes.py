@@ -141,3 +141,42 @@ def test_the_expert_node_plays_a_person_with_the_simulated_human_backend(harness
     # The person's time was waited out for real: each answer came after its reaction time.
     assert min(learner.advice_latencies) > 0.05
     assert totals.human_time_s == pytest.approx(sum(learner.advice_latencies), abs=0.05 * totals.asked)
+
+
+def test_a_request_the_episode_ends_is_ended_at_once_everywhere_and_not_counted_as_a_timeout(
+    harness, ros_context, tmp_path
+):
+    """Real time, episodes of 6 steps at 30 Hz (0.2 s), a person who never answers within them:
+    before, each such request was counted as the person's timeout with 0 s, while teleop_expert
+    held it open (a later key press landed on it). Now it is counted as episode_ended, said at
+    once on learner/advice_request, and teleop_expert ends it too."""
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(source='array', axes=[0], scales=[2.0], offsets=[0.0], answer_window_s=2.5),
+        )
+    )
+    seen = []
+    watcher = harness.add(rclpy.create_node('watcher', context=ros_context))
+    watcher.create_subscription(AdviceRequestMsg, 'learner/advice_request', seen.append, 50)
+    harness.add(
+        GymEnvNode(context=ros_context, parameter_overrides=params(realtime=True, rate_hz=30.0, max_episode_steps=6))
+    )
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=small_learner_params(
+                tmp_path, mode='qasac', queue_length=1, advising_budget=100, max_episodes=6, advice_timeout_s=3.0
+            ),
+        )
+    )
+    assert harness.spin_until(lambda: learner.done, timeout=90)
+    totals = learner.learner.advice_total
+    assert totals.failed['episode_ended'] >= 1 and totals.failed['timeout'] == 0
+    assert teleop.ended_by_learner >= 1 and teleop.answers['timed_out'] == 0
+
+    def ended():
+        return [m for m in seen if m.outcome == AdviceRequestMsg.FAILED and m.detail == 'episode_ended']
+
+    assert harness.spin_until(lambda: len(ended()) == totals.failed['episode_ended'], timeout=5), len(ended())
+    assert totals.human_time_s == 0.0  # the person was not given the time: none is counted as theirs
