@@ -123,6 +123,13 @@ class ExpertNode(Node):
         window = human.limits.answer_window_s
         if request.timeout_s > 0:
             window = max(0.0, min(window, request.timeout_s - ANSWER_MARGIN_S))
+        if window < human.limits.reaction_median_s:
+            self.get_logger().warn(
+                f'the learner waits {request.timeout_s:.2f} s for an answer, and the simulated person reacts in '
+                f'{human.limits.reaction_median_s:.2f} s (median): most requests will time out. Give the learner '
+                'a longer advice_timeout_s (e.g. params/teleop_pendulum.yaml, 5 s)',
+                throttle_duration_sec=30.0,
+            )
         plan = human.plan(request_from_msg(request))
         await pause(self, min(plan.delay_s, window), self._steady)
         return fill_response(response, human.outcome(plan, window), name)
