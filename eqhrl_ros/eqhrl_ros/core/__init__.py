@@ -32,7 +32,7 @@ _HOME = {
     'export_policy': 'checkpoint',
     'load_checkpoint': 'checkpoint',
     'save_checkpoint': 'checkpoint',
-    'ActionScaler': 'envs',
+    'ActionScaler': 'env_spec',
     'make_env': 'envs',
     'success_criterion': 'envs',
     'EnvSpec': 'env_spec',

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Iterable
 
 from . import equations as eq
-from .config import MODES, THRESHOLD_KINDS, check_value  # noqa: F401  (MODES: re-exported)
+from .config import asks_for_advice, check_value
 
 
 class FifoQueue:
@@ -131,7 +131,7 @@ class AdvisingGates:
 
     def needs_evaluation(self, episode: int) -> bool:
         """Whether D(s), E(s) or the random draw are needed this step (skipped when they cannot matter)."""
-        return self.mode != 'sac' and eq.early_advising(episode, self.advising_budget)
+        return asks_for_advice(self.mode) and eq.early_advising(episode, self.advising_budget)
 
     def decide(
         self,
@@ -144,7 +144,7 @@ class AdvisingGates:
         """``discrepancy`` D(s) where uses_discrepancy, ``entropy`` E(s) where uses_entropy,
         ``draw`` (uniform in [0, 1)) where uses_draw; each needed only inside the budget.
         ``step``: the step's index in its episode (random_ask_schedule spreads over it)."""
-        if self.mode == 'sac' or not eq.early_advising(episode, self.advising_budget):
+        if not asks_for_advice(self.mode) or not eq.early_advising(episode, self.advising_budget):
             return GateDecision(False, within_budget=False)
         if (
             (self.uses_discrepancy and discrepancy is None)

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .envs import ActionScaler
+from .env_spec import ActionScaler
 from .errors import CheckpointError, CheckpointWriteError
 from .experts import Advice, AdviceRequest
 from .networks import SquashedGaussianActor

@@ -32,6 +32,7 @@ from torch.func import functional_call, grad_and_value
 from torch.optim.adam import adam as functional_adam
 
 from . import equations as eq
+from .config import asks_for_advice
 from .learner import policy_loss, soft_bellman_targets, twin_critic_loss  # learner.py imports this module late
 
 LOG = logging.getLogger('eqhrl_ros.compile')
@@ -248,7 +249,7 @@ class CompiledUpdate:
     def _advice_variants(self) -> list:
         """Whether an update has an advice batch, for every kind of update this learner makes."""
         cfg = self.learner.config
-        if self.learner.mode == 'sac' or not cfg.dual_replay:
+        if not asks_for_advice(self.learner.mode) or not cfg.dual_replay:
             return [False]
         return [False, True]
 

@@ -19,6 +19,14 @@ from typing import Any, Optional
 # episode), inside the same budget; 'ask_random', the ask gate and a random draw below
 # random_ask_rate (the ask gate thinned by chance instead of by E(s)).
 PAPER_MODES = ('sac', 'qasac', 'eqsac')
+
+
+def asks_for_advice(mode: str) -> bool:
+    """Every mode but plain SAC asks the expert inside the budget and keeps what it is given in
+    D_advising (for the second critic update); SAC never asks and has no D_advising."""
+    return mode != 'sac'
+
+
 MODES = (*PAPER_MODES, 'respond', 'random', 'ask_random')
 ADVICE_BATCHES = ('full', 'proportional')
 THRESHOLD_KINDS = ('dynamic', 'fixed')

@@ -193,3 +193,29 @@ def spec_from_parameters(
             f'{"is" if len(missing) == 1 else "are"} missing'
         )
     return EnvSpec(name, int(observation_size), action_low, action_high, source=source)
+
+
+class ActionScaler:
+    """Affine map between the policy's box [-1, 1]^m and the env's [low, high]."""
+
+    def __init__(self, low, high):
+        self.low = np.asarray(low, dtype=np.float32).reshape(-1)
+        self.high = np.asarray(high, dtype=np.float32).reshape(-1)
+        if self.low.shape != self.high.shape:
+            raise ValueError('action low and high differ in size')
+        if not (np.isfinite(self.low).all() and np.isfinite(self.high).all()):
+            raise ValueError('EQ-HRL needs finite action bounds')
+        if (self.high <= self.low).any():
+            raise ValueError('action high must exceed low in every dimension')
+        self.scale = (self.high - self.low) / 2.0
+        self.center = (self.high + self.low) / 2.0
+
+    @property
+    def dim(self) -> int:
+        return self.low.shape[0]
+
+    def to_env(self, normalized: np.ndarray) -> np.ndarray:
+        return (self.center + self.scale * np.asarray(normalized, dtype=np.float32)).astype(np.float32)
+
+    def to_normalized(self, action: np.ndarray) -> np.ndarray:
+        return ((np.asarray(action, dtype=np.float32) - self.center) / self.scale).astype(np.float32)

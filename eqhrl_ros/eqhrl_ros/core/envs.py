@@ -1,4 +1,5 @@
-"""gymnasium envs: construction, their EnvSpec, action scaling and their built-in success rules."""
+"""gymnasium envs: construction, their EnvSpec and their built-in success rules (the action
+scaling lives in env_spec.py, without gymnasium)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,12 @@ import gymnasium as gym
 import numpy as np
 
 from . import env_spec
-from .env_spec import EnvSpec, SuccessCriterion, builtin_success
+from .env_spec import (
+    ActionScaler,  # noqa: F401  (re-exported: its home is env_spec)
+    EnvSpec,
+    SuccessCriterion,
+    builtin_success,
+)
 
 # Table 2 and Table 3 of the paper.
 PAPER_MAX_EPISODE_STEPS = {'Pendulum-v1': 100, 'LunarLanderContinuous-v3': 600}
@@ -50,32 +56,6 @@ def gym_spec(env_id: str, max_episode_steps: int | None = None, env: gym.Env | N
     finally:
         if made:
             env.close()
-
-
-class ActionScaler:
-    """Affine map between the policy's box [-1, 1]^m and the env's [low, high]."""
-
-    def __init__(self, low, high):
-        self.low = np.asarray(low, dtype=np.float32).reshape(-1)
-        self.high = np.asarray(high, dtype=np.float32).reshape(-1)
-        if self.low.shape != self.high.shape:
-            raise ValueError('action low and high differ in size')
-        if not (np.isfinite(self.low).all() and np.isfinite(self.high).all()):
-            raise ValueError('EQ-HRL needs finite action bounds')
-        if (self.high <= self.low).any():
-            raise ValueError('action high must exceed low in every dimension')
-        self.scale = (self.high - self.low) / 2.0
-        self.center = (self.high + self.low) / 2.0
-
-    @property
-    def dim(self) -> int:
-        return self.low.shape[0]
-
-    def to_env(self, normalized: np.ndarray) -> np.ndarray:
-        return (self.center + self.scale * np.asarray(normalized, dtype=np.float32)).astype(np.float32)
-
-    def to_normalized(self, action: np.ndarray) -> np.ndarray:
-        return ((np.asarray(action, dtype=np.float32) - self.center) / self.scale).astype(np.float32)
 
 
 def success_criterion(env_id: str) -> SuccessCriterion:

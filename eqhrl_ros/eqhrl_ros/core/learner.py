@@ -27,9 +27,8 @@ import torch
 
 from . import equations as eq
 from .advising import AdvisingGates, GateDecision
-from .config import LearnerConfig, check_value
-from .env_spec import SuccessCriterion
-from .envs import ActionScaler
+from .config import LearnerConfig, asks_for_advice, check_value
+from .env_spec import ActionScaler, SuccessCriterion
 from .experts import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
 from .networks import SquashedGaussianActor, TwinCritic
 from .replay import Batch, ReplayBuffer, checked_transition
@@ -391,7 +390,7 @@ class EQSACLearner:
         """(s_t, a_t, r_t, s_{t+1}) into D, and into D_advising when advised (QASAC, EQSAC).
         ``normalized_action`` in [-1, 1] (normalize()). A bad transition raises ValueError."""
         self.replay.add(obs, normalized_action, reward, next_obs, terminated)
-        if advised and self.mode != 'sac' and self.config.dual_replay:
+        if advised and asks_for_advice(self.mode) and self.config.dual_replay:
             self.advice_replay.add(obs, normalized_action, reward, next_obs, terminated)
 
     def record(
@@ -473,7 +472,7 @@ class EQSACLearner:
         # EQSAC and QASAC also learn from D_advising (Section 3.3). Skipped while it is
         # empty; sampled with replacement while it holds fewer than the batch asks for.
         advice_batch = None
-        if self.mode != 'sac' and len(self.advice_replay) > 0:
+        if asks_for_advice(self.mode) and len(self.advice_replay) > 0:
             size = cfg.batch_size
             if cfg.advice_batch == 'proportional':  # an ablation: D_advising's share of all transitions
                 size = max(1, round(cfg.batch_size * len(self.advice_replay) / len(self.replay)))

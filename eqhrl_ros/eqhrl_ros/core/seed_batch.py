@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from . import equations as eq
+from .config import asks_for_advice
 from .learner import EQSACLearner, adam, policy_loss, soft_bellman_targets, twin_critic_loss
 from .replay import Batch
 
@@ -149,7 +150,7 @@ class SeedBatch:
         for k, learner in enumerate(self.learners):
             batch = learner.replay.sample(size, learner.rng['replay'])
             advice_batch = None
-            if learner.mode != 'sac' and len(learner.advice_replay) > 0:
+            if asks_for_advice(learner.mode) and len(learner.advice_replay) > 0:
                 advice_batch = learner.advice_replay.sample(
                     size, learner.rng['replay'], replacement=len(learner.advice_replay) < size
                 )

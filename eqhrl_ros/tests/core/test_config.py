@@ -65,3 +65,15 @@ def test_the_on_set_callback_refuses_a_parameter_without_a_name():
     assert not validate([Parameter(' ', value=5)]).successful
     assert validate([Parameter('advising_budget', value=5)]).successful
     assert not validate([Parameter('mode', value='nope')]).successful
+
+
+def test_the_learner_trainer_and_checkpoints_load_without_gymnasium():
+    """ActionScaler lives in env_spec.py: a learner, a trainer or a policy expert needs no gym."""
+    import subprocess
+    import sys
+
+    probe = 'import sys, eqhrl_ros.core.learner, eqhrl_ros.core.trainer, eqhrl_ros.core.checkpoint\n'
+    probe += "print(sorted(m for m in sys.modules if m.split('.')[0] in ('gymnasium', 'rclpy')))"
+    done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == '[]'
