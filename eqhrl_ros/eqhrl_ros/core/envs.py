@@ -14,6 +14,12 @@ from .env_spec import (
     builtin_success,
 )
 
+# What each action value does, for a person steering (gymnasium's own documentation of the envs).
+ACTION_LABELS = {
+    'Pendulum-v1': ('torque (+ increases the angle θ)',),
+    'LunarLanderContinuous-v3': ('main engine (fires above 0)', 'side engines (left below -0.5, right above +0.5)'),
+}
+
 # Table 2 and Table 3 of the paper.
 PAPER_MAX_EPISODE_STEPS = {'Pendulum-v1': 100, 'LunarLanderContinuous-v3': 600}
 
@@ -47,6 +53,7 @@ def gym_spec(env_id: str, max_episode_steps: int | None = None, env: gym.Env | N
             int(np.prod(env.observation_space.shape)),
             env.action_space.low,
             env.action_space.high,
+            action_labels=ACTION_LABELS.get(env_id, ()),
             max_episode_steps=int(max_episode_steps or limit or 0),
             success_rule=rule,
             success_threshold=threshold,

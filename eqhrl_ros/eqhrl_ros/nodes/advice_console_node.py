@@ -52,10 +52,13 @@ from .connection_guard import ConnectionGuard, GuardedProtocol
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .params import CONSOLE_PARAMS, declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
+from .teleop_expert_node import ANSWER_MARGIN_S
 
 OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
 # The learner parameters the page shows and may set.
 LEARNER_CONTROLS = ('advice_enabled', 'advising_budget')
+# teleop_expert's: how long the person has per request and how a command becomes an action.
+TELEOP_SETTINGS = ('answer_window_s', 'axes', 'scales', 'offsets')
 # A page's input older than this is not the person's any more (the tab was closed or hidden).
 INPUT_STALE_S = 1.0
 MAX_PAGE_MESSAGE = 4096  # bytes; the page sends small JSON only
@@ -164,6 +167,8 @@ class AdviceConsole(Node):
         self.create_subscription(Image, p['image_topic'], self._on_frame, 2)
         self.env_info = EnvInfoWatcher(self, configured_spec(p), self._on_env)
         self.learner_client = AsyncParameterClient(self, p['learner_node'])
+        self.teleop_client = AsyncParameterClient(self, p['teleop_node'])
+        self.teleop: dict = {}
         steady = steady_clock()
         self.create_timer(1.0 / p['rate_hz'], self._publish_held, clock=steady)
         self.create_timer(1.0, self._refresh_learner_params, clock=steady)
@@ -253,10 +258,32 @@ class AdviceConsole(Node):
         self.published += 1
 
     def _refresh_learner_params(self) -> None:
+        if self.teleop_client.services_are_ready():
+            self.teleop_client.get_parameters(list(TELEOP_SETTINGS)).add_done_callback(self._on_teleop_settings)
         if not self.learner_client.services_are_ready():
             return
         future = self.learner_client.get_parameters(list(LEARNER_CONTROLS))
         future.add_done_callback(self._on_learner_params)
+
+    def _on_teleop_settings(self, future) -> None:
+        try:
+            values = future.result().values
+        except Exception:  # teleop_expert went away meanwhile
+            return
+        read = {}
+        for name, value in zip(TELEOP_SETTINGS, values):
+            if value.type == ParameterType.PARAMETER_DOUBLE:
+                read[name] = value.double_value
+            elif value.type == ParameterType.PARAMETER_INTEGER_ARRAY:
+                read[name] = [int(v) for v in value.integer_array_value]
+            elif value.type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+                read[name] = [float(v) for v in value.double_array_value]
+        if set(read) != set(TELEOP_SETTINGS):
+            return
+        with self._lock:
+            if read != self.teleop:
+                self.teleop = read
+                self._bump()
 
     def _on_learner_params(self, future) -> None:
         try:
@@ -344,6 +371,8 @@ class AdviceConsole(Node):
             'learner': self.learner_params,
             'require_deadman': self.params['require_deadman'],
             'stopped': self.stopped,
+            # The page counts down this window and draws each action as teleop_expert maps it.
+            'teleop': dict(self.teleop, answer_margin_s=ANSWER_MARGIN_S) if self.teleop else None,
             'command': list(self.input.command),
         }
 

@@ -571,5 +571,10 @@ CONSOLE_PARAMS = (
     Param('jpeg_quality', 75, 'JPEG quality of the frames sent to the page', (10, 95)),
     Param('rate_hz', 20.0, 'Publishing rate of teleop_command while a page is open', (1.0, 100.0)),
     Param('learner_node', 'learner', "Node whose advice_enabled and advising_budget the page's controls set"),
+    Param(
+        'teleop_node',
+        'teleop_expert',
+        "Node whose answer window and mapping (axes, scales, offsets) the page's countdown and bars follow",
+    ),
     Param('require_deadman', True, 'Commands count only while the deadman (Shift, gamepad LB) is held'),
 )

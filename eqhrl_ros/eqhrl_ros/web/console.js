@@ -61,6 +61,14 @@ function onState(message) {
     input.command = state.env.action_low.map(() => 0);
   }
   $('env').textContent = state.env ? `env: ${state.env.name}` : 'env: waiting for env_info';
+  // The keys' legend names the action each key pair moves (command value k drives action i where axes[i] = k).
+  [0, 1].forEach((k) => {
+    const el = $(`key${k}`);
+    if (!el || !state.env) return;
+    const axes = state.teleop ? state.teleop.axes : state.env.action_low.map((_, i) => i);
+    const i = axes.indexOf(k);
+    el.textContent = i < 0 ? '(not mapped)' : (state.env.action_labels[i] || `action[${i}]`);
+  });
   showRequest();
   drawBars();
   drawPlots();
@@ -84,7 +92,12 @@ function showRequest() {
   if (!r) { box.className = ''; box.textContent = 'no request yet'; return; }
   const key = `${r.episode}/${r.step}`;
   if (r.outcome === 'pending') {
-    const left = Math.max(0, r.timeout_s - r.waited_s);
+    // The person's window is teleop_expert's: its answer_window_s, cut to the learner's wait
+    // less the margin that lets the answer arrive in time (not the learner's whole wait).
+    const t = state.teleop;
+    const margin = t ? t.answer_margin_s : 0.2;
+    const window = Math.min(t ? t.answer_window_s : Infinity, r.timeout_s - margin);
+    const left = Math.max(0, window - r.waited_s);
     const d = r.discrepancy === null ? 'n/a' : r.discrepancy.toFixed(3);
     const e = r.entropy === null ? 'n/a (QASAC)' : r.entropy.toFixed(3);
     box.innerHTML = `THE LEARNER ASKS FOR ADVICE<br>episode ${r.episode}, step ${r.step}` +
@@ -125,12 +138,21 @@ function drawBars() {
   const low = state.env.action_low, high = state.env.action_high;
   const proposed = state.request && state.request.outcome === 'pending' ? state.request.proposed_action : null;
   const at = (i, value) => 100 * (value - low[i]) / ((high[i] - low[i]) || 1);
-  // The command is in [-1, 1]; teleop_expert maps it with its scales and clips to the bounds.
-  const yours = (i) => at(i, low[i] + (input.command[i] + 1) / 2 * (high[i] - low[i]));
+  // The command is in [-1, 1]; teleop_expert maps value axes[i] of it to action i with its
+  // scales and offsets and clips to the bounds: the bar shows what would be sent.
+  const t = state.teleop;
+  const sent = (i) => {
+    if (!t) return low[i] + (input.command[i] + 1) / 2 * (high[i] - low[i]);
+    const v = (input.command[t.axes[i]] || 0) * t.scales[i] + t.offsets[i];
+    return Math.max(low[i], Math.min(high[i], v));
+  };
+  const yours = (i) => at(i, sent(i));
   bars.innerHTML = low.map((_, i) => {
     const label = (state.env.action_labels[i] || `action[${i}]`);
     const p = proposed ? `<div class="mark proposed" style="left:${at(i, proposed[i])}%"></div>` : '';
-    return `<div>${label} [${low[i]}, ${high[i]}]</div><div class="bar">` +
+    const value = sent(i);
+    return `<div>${label} [${low[i]}, ${high[i]}]: <b data-action="${i}">${value >= 0 ? '+' : ''}${value.toFixed(2)}</b></div>` +
+      `<div class="bar">` +
       `<div class="mark zero" style="left:${at(i, 0)}%"></div>${p}` +
       `<div class="mark yours" style="left:${yours(i)}%"></div></div>`;
   }).join('');

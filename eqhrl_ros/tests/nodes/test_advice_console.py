@@ -309,3 +309,49 @@ def test_stop_on_the_page_holds_the_env_at_once_and_resume_lets_it_go(browser, r
         wait_for(lambda: browser.find_element('id', 'stop').text == 'STOP', what='the button back')
     finally:
         graph.close()
+
+
+def test_the_page_counts_down_the_persons_window_and_draws_the_mapped_action(browser, ros_context):
+    """LunarLander, teleop_lunar_lander.yaml's mapping (w/s drive action[0], the main engine):
+    before, the bars and legend assumed a/d drove action[0], and the countdown ran to the
+    learner's 5.0 s though the person's window was 4.5 s."""
+    import rclpy
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    from eqhrl_interfaces.msg import AdviceRequest
+    from eqhrl_ros.nodes import messages
+
+    teleop = TeleopExpertNode(
+        context=ros_context,
+        parameter_overrides=params(
+            env_id='LunarLanderContinuous-v3',
+            source='array',
+            axes=[1, 0],
+            scales=[1.0, 1.0],
+            offsets=[0.0, 0.0],
+            answer_window_s=4.5,
+        ),
+    )
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='LunarLanderContinuous-v3'))
+    learner = rclpy.create_node('learner_stand_in', context=ros_context)
+    requests = learner.create_publisher(AdviceRequest, 'learner/advice_request', messages.LATCHED_QOS)
+    graph = Graph(ros_context, [teleop, console, learner])
+    try:
+        wait_for(lambda: console.teleop.get('axes') == [1, 0], what="teleop_expert's mapping read")
+        browser.get(console.url)
+        wait_for(
+            lambda: browser.execute_script("return document.getElementById('key1').textContent").startswith('main')
+        )
+        assert browser.execute_script("return document.getElementById('key0').textContent").startswith('side')
+        ActionChains(browser).send_keys('www').perform()  # command[1] = 0.3: the main engine
+        shown = 'return document.querySelector(\'[data-action="0"]\').textContent'
+        wait_for(lambda: browser.execute_script(shown) == '+0.30', what='action[0] at +0.30')
+        assert browser.execute_script('return document.querySelector(\'[data-action="1"]\').textContent') == '+0.00'
+        requests.publish(
+            AdviceRequest(outcome=AdviceRequest.PENDING, episode=0, step=3, timeout_s=5.0, proposed_action=[0.0, 0.0])
+        )
+        wait_for(lambda: browser.execute_script("return document.getElementById('countdown') !== null"))
+        first = float(browser.execute_script("return document.getElementById('countdown').textContent").split()[0])
+        assert first <= 4.5  # the person's window, not the learner's 5.0 s
+    finally:
+        graph.close()
