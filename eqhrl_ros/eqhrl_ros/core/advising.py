@@ -54,7 +54,7 @@ class GateDecision:
     def reason(self) -> str:
         """Why the gates fired or not, in words (made only when someone reads it)."""
         if not self.within_budget:
-            return 'outside the advising budget (Eq. 7), or mode sac'
+            return "outside the advising budget (Eq. 7) or the person's seconds, or mode sac"
         if not self.queues_ready:
             return 'queues filling'
         has_d, has_e = not math.isnan(self.discrepancy), not math.isnan(self.entropy)

@@ -93,6 +93,14 @@ class LearnerConfig:
     advising_budget: int = hyper(
         30, 'Early-advising budget: advice only in episodes below it (Eq. 7)', range=(0, INT_MAX), dynamic=True
     )
+    advising_budget_s: float = hyper(
+        0.0,
+        "A budget in the person's seconds: no more requests once the person has spent this long "
+        'answering (reaction times, skips, windows let pass) over the run; 0: none. With advising_budget, '
+        'the first one used up ends advice (not in the paper)',
+        range=(0.0, 1e9),
+        dynamic=True,
+    )
     queue_length: int = hyper(15, 'Length of the D and E FIFO queues (Table 1)', range=(1, 100_000))
     threshold_kind: str = hyper('dynamic', 'Dynamic queue thresholds (Eq. 10) or fixed ones', choices=THRESHOLD_KINDS)
     fixed_d_threshold: float = hyper(1.0, 'Ask when D(s) exceeds this (threshold_kind fixed)', range=(0.0, 1e9))

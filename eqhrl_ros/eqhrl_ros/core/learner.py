@@ -205,6 +205,13 @@ def policy_loss(actor, critic, obs, noise, alpha) -> tuple[torch.Tensor, torch.T
     return eq.actor_loss(log_prob, q1, q2, alpha), log_prob
 
 
+def resumed_settings(saved_config: dict) -> list:
+    """The run-time (dynamic) LearnerConfig fields a checkpoint's config holds."""
+    from .config import FIELDS
+
+    return [name for name, f in FIELDS.items() if f.metadata['dynamic'] and name in saved_config]
+
+
 class EQSACLearner:
     """Soft Actor-Critic with EQ-HRL advising gates and dual replay (SAC / QASAC / EQSAC)."""
 
@@ -314,7 +321,9 @@ class EQSACLearner:
         else:
             action = eq.squashed_gaussian_action(mean, log_std, self.noise(mean.shape, 'act'))
 
-        if self.gates.needs_evaluation(self.episode):
+        if self.person_budget_left_s <= 0.0:  # the person's seconds are spent: as outside Eq. 7's budget
+            decision = GateDecision(False, within_budget=False)
+        elif self.gates.needs_evaluation(self.episode):
             discrepancy = entropy = draw = None
             if self.gates.uses_discrepancy:
                 q1, q2 = self.critic(obs_t, action)
@@ -379,6 +388,21 @@ class EQSACLearner:
     def set_advising_budget(self, episodes: int) -> None:
         """Change the early-advising budget (Eq. 7) while learning, e.g. from a person's console."""
         self.gates.advising_budget = self.config.advising_budget = check_value('advising_budget', episodes)
+
+    def set_advising_budget_s(self, seconds: float) -> None:
+        """Change the budget in the person's seconds (0: none) while learning."""
+        self.config.advising_budget_s = check_value('advising_budget_s', seconds)
+
+    @property
+    def human_time_total_s(self) -> float:
+        """The person's seconds on requests over the run so far, this episode's included."""
+        return self.advice_total.human_time_s + self._episode_advice.human_time_s
+
+    @property
+    def person_budget_left_s(self) -> float:
+        """Seconds of the person's budget left (inf when advising_budget_s is 0)."""
+        budget = self.config.advising_budget_s
+        return max(0.0, budget - self.human_time_total_s) if budget > 0 else float('inf')
 
     # ------------------------------------------------------------------ storing and learning
 
@@ -703,4 +727,9 @@ class EQSACLearner:
         self.total_steps = int(counters['total_steps'])
         self.updates = int(counters['updates'])
         self.advice_total = advice_total
+        # The settings a person may change while the run goes on (the budgets) come back as they
+        # were at the save: a resumed run keeps the budget set on the page or with ros2 param set.
+        for name in resumed_settings(state['config']):
+            setattr(self.config, name, check_value(name, state['config'][name]))
+        self.gates.advising_budget = self.config.advising_budget
         self._reset_episode()

@@ -167,6 +167,11 @@ class ActingNode(Node):
                         self.learner.set_advising_budget(int(change.value))
                     else:
                         self.config.advising_budget = int(change.value)
+                elif change.name == 'advising_budget_s':
+                    if self.learner is not None:
+                        self.learner.set_advising_budget_s(float(change.value))
+                    else:
+                        self.config.advising_budget_s = float(change.value)
                 elif change.name in self.params:
                     self.params[change.name] = change.value
 

@@ -56,7 +56,7 @@ from .teleop_expert_node import ANSWER_MARGIN_S
 
 OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
 # The learner parameters the page shows and may set.
-LEARNER_CONTROLS = ('advice_enabled', 'advising_budget')
+LEARNER_CONTROLS = ('advice_enabled', 'advising_budget', 'advising_budget_s')
 # teleop_expert's: how long the person has per request and how a command becomes an action.
 TELEOP_SETTINGS = ('answer_window_s', 'axes', 'scales', 'offsets')
 # A page's input older than this is not the person's any more (the tab was closed or hidden).
@@ -296,6 +296,8 @@ class AdviceConsole(Node):
                 read[name] = value.bool_value
             elif value.type == ParameterType.PARAMETER_INTEGER:
                 read[name] = value.integer_value
+            elif value.type == ParameterType.PARAMETER_DOUBLE:
+                read[name] = value.double_value
         with self._lock:
             if read != self.learner_params:
                 self.learner_params = read
@@ -388,6 +390,13 @@ class AdviceConsole(Node):
             try:
                 check_value('advising_budget', value)  # the learner's own range, before any ROS call
             except ValueError as error:
+                return False, str(error)
+        if name == 'advising_budget_s':
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                return False, 'advising_budget_s must be a number of seconds'
+            try:
+                value = check_value('advising_budget_s', float(value))
+            except (ValueError, OverflowError) as error:
                 return False, str(error)
         if not self.learner_client.services_are_ready():
             return False, f'no learner parameter service at {self.params["learner_node"]}'

@@ -9,7 +9,7 @@ and trainer_node.py.
 from __future__ import annotations
 
 from ..core.checkpoint import load_checkpoint
-from ..core.learner import EpisodeSummary, EQSACLearner
+from ..core.learner import EpisodeSummary, EQSACLearner, resumed_settings
 from ..core.records import EpisodeRecord
 from .acting import OBSERVATION_QOS, ActingNode
 from .params import LEARNER_NODE_PARAMS
@@ -32,12 +32,30 @@ class LearnerNode(RunFiles, ActingNode):
             # from scratch would overwrite the run the person asked to continue.
             load_checkpoint(learner, self.checkpoint_path, self.replay_path)
             self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')
+            self._show_resumed_settings(learner)
         with self._lock:
             self.record = EpisodeRecord(
                 self.csv_path,
                 EpisodeSummary.CSV_FIELDS,
                 keep_before=learner.episode if self.params['resume'] else None,
             )
+
+    def _show_resumed_settings(self, learner: EQSACLearner) -> None:
+        """The budgets the run had at its save, as this node's parameters (what ros2 param get says)."""
+        from rclpy.parameter import Parameter
+
+        from ..core.config import FIELDS, ros_name
+
+        changed = []
+        for name in resumed_settings(learner.config.to_dict()):
+            param = ros_name(FIELDS[name])
+            value = getattr(learner.config, name)
+            if self.has_parameter(param) and self.get_parameter(param).value != value:
+                changed.append(Parameter(param, value=value))
+        if changed:
+            self.set_parameters(changed)
+            shown = ', '.join(f'{p.name} {p.value}' for p in changed)
+            self.get_logger().info(f'the run goes on with {shown}, as at its last save (ros2 param set changes them)')
 
     def _describe(self) -> str:
         return f', output {self.output_dir}'

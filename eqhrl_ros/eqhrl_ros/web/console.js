@@ -82,8 +82,10 @@ function onState(message) {
     $('budget').value = learner.advising_budget;
   }
   const last = state.episodes[state.episodes.length - 1];
-  $('person').textContent = `your time: ${last ? last.human_time_total_s.toFixed(1) : '0.0'} s over ` +
-    `${state.episodes.length} episodes`;
+  const spent = last ? last.human_time_total_s : 0;
+  const budgetS = learner.advising_budget_s;
+  $('person').textContent = `your time: ${spent.toFixed(1)} s over ${state.episodes.length} episodes` +
+    (budgetS > 0 ? `; your budget ${budgetS.toFixed(0)} s: ${Math.max(0, budgetS - spent).toFixed(1)} s left` : '');
 }
 
 function showRequest() {

@@ -177,3 +177,28 @@ def test_the_deadman_pressed_alone_does_not_answer_with_the_command_held_before(
     clock.now += 0.4
     advice = expert.update(command(-0.6, enabled=True))  # then the steer
     assert advice.advised and advice.action.tolist() == pytest.approx([-0.6])
+
+
+def test_a_budget_in_the_persons_seconds_ends_the_requests_when_spent():
+    from eqhrl_ros.core import EQSACLearner, LearnerConfig
+    from eqhrl_ros.core.experts import Advice
+
+    learner = EQSACLearner(
+        3,
+        [-2.0],
+        [2.0],
+        LearnerConfig(mode='random', random_ask_rate=1.0, advising_budget=100, advising_budget_s=2.5, hidden=(8, 8)),
+    )
+    obs = np.zeros(3, np.float32)
+    asked = 0
+    for _ in range(10):
+        proposal = learner.propose(obs)
+        if proposal.decision.fire:
+            asked += 1
+            learner.resolve_advice(proposal, Advice(np.zeros(1), human=True, response_time_s=1.0))
+    assert asked == 3  # 1 s each: 0, 1 and 2 s spent before each ask; at 3 s the budget is spent
+    assert learner.person_budget_left_s == 0.0 and 'seconds' in learner.propose(obs).decision.reason
+    learner.set_advising_budget_s(10.0)  # as ros2 param set does
+    assert learner.propose(obs).decision.fire
+    learner.set_advising_budget_s(0.0)  # 0: no budget in seconds
+    assert learner.person_budget_left_s == float('inf')

@@ -180,3 +180,44 @@ def test_a_request_the_episode_ends_is_ended_at_once_everywhere_and_not_counted_
 
     assert harness.spin_until(lambda: len(ended()) == totals.failed['episode_ended'], timeout=5), len(ended())
     assert totals.human_time_s == 0.0  # the person was not given the time: none is counted as theirs
+
+
+def test_the_persons_budget_in_seconds_is_set_at_run_time_and_kept_by_checkpoints(harness, ros_context, tmp_path):
+    from rclpy.parameter import Parameter
+
+    from eqhrl_ros.core.checkpoint import load_checkpoint, save_checkpoint
+
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    assert harness.spin_until(lambda: learner.learner is not None)
+    assert learner.set_parameters([Parameter('advising_budget_s', value=45.0)])[0].successful
+    assert learner.learner.config.advising_budget_s == 45.0
+    assert not learner.set_parameters([Parameter('advising_budget_s', value=-1.0)])[0].successful
+    save_checkpoint(learner.learner, tmp_path / 'ckpt.pt')
+    from eqhrl_ros.core import EQSACLearner, LearnerConfig
+
+    fresh = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(hidden=(16, 16)))
+    load_checkpoint(fresh, tmp_path / 'ckpt.pt')
+    assert fresh.config.advising_budget_s == 45.0
+
+
+def test_a_resumed_run_keeps_the_budgets_set_while_it_ran(harness, ros_context, tmp_path):
+    """Before: --resume went back to the params file's budget (20), losing the 35 set on the page."""
+    from rclpy.parameter import Parameter
+
+    first = LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, advising_budget=20))
+    harness.add(first)
+    assert harness.spin_until(lambda: first.learner is not None)
+    first.set_parameters([Parameter('advising_budget', value=35), Parameter('advising_budget_s', value=90.0)])
+    first.save()
+    harness.nodes.remove(first)
+    harness.executor.remove_node(first)
+    first.close()
+    first.destroy_node()
+    again = LearnerNode(
+        context=ros_context, parameter_overrides=small_learner_params(tmp_path, advising_budget=20, resume=True)
+    )
+    harness.add(again)
+    assert harness.spin_until(lambda: again.learner is not None)
+    assert again.learner.config.advising_budget == 35 and again.learner.gates.advising_budget == 35
+    assert again.get_parameter('advising_budget').value == 35
+    assert again.get_parameter('advising_budget_s').value == 90.0
