@@ -25,6 +25,9 @@ class Command:
     disabled_reason: str = ''
     answer: bool = False  # the answer button is held: "use my command for this request"
     skip: bool = False  # the skip button is held: "no advice for this request"
+    # The (episode, step) of the request the person's screen showed when they acted (the
+    # console says it; a stick or keyboard_teleop may not): None, any open request.
+    request: Optional[tuple] = None
 
 
 def unit_values(values: Sequence[float], what: str) -> np.ndarray:
@@ -92,6 +95,8 @@ def twist_command(
 # advice_console publish it: labelled fields, 'command' first. A plain unlabelled array is
 # all command, always enabled, with no buttons.
 COMMAND_FIELDS = ('command', 'enabled', 'answer', 'skip')
+# A command may also name the request it was meant for: 'request' = [episode, step].
+REQUEST_FIELD = 'request'
 
 
 def array_command(fields: dict, indices: Sequence[int], scales: Sequence[float], offsets: Sequence[float]) -> Command:
@@ -107,12 +112,14 @@ def array_command(fields: dict, indices: Sequence[int], scales: Sequence[float],
         return default if not values else bool(values[0])
 
     enabled = held('enabled', True)
+    shown = fields.get(REQUEST_FIELD)
     return Command(
         affine(unit_values([data[i] for i in indices], 'command'), scales, offsets),
         enabled,
         '' if enabled else 'the deadman is not held',
         held('answer', False),
         held('skip', False),
+        (int(shown[0]), int(shown[1])) if shown is not None and len(shown) == 2 else None,
     )
 
 
@@ -209,6 +216,8 @@ class TeleopExpert:
             return getattr(command, button) and not (previous is not None and getattr(previous, button))
 
         reaction = self._stamp - pending.opened
+        if command.request is not None and command.request != (pending.request.episode, pending.request.step):
+            return None  # meant for the request the person saw, not this newer one they have not seen
         if pressed('skip'):
             self.pending = None
             return Advice.decline(SKIPPED, self.name, True, reaction)

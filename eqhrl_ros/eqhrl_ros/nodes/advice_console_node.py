@@ -118,6 +118,7 @@ class PageInput:
     def __init__(self):
         self.command: list[float] = []
         self.deadman = False
+        self.request = None  # (episode, step) of the request the page showed at that input
         self.received = 0.0  # time.monotonic() of the page's latest input
 
 
@@ -254,7 +255,9 @@ class AdviceConsole(Node):
     def _publish(self, answer: bool, skip: bool) -> None:
         """(with the lock held) The page's command and buttons, as keyboard_teleop sends them."""
         enabled = self.input.deadman or not self.params['require_deadman']
-        self.publisher.publish(messages.command_msg(self.input.command, enabled, answer, skip, self.seal))
+        self.publisher.publish(
+            messages.command_msg(self.input.command, enabled, answer, skip, self.seal, self.input.request)
+        )
         self.published += 1
 
     def _refresh_learner_params(self) -> None:
@@ -341,6 +344,9 @@ class AdviceConsole(Node):
                     return 'command must be finite'
                 self.input.command = [min(1.0, max(-1.0, v)) for v in values]
                 self.input.deadman = data.get('deadman') is True
+                seen = data.get('request')  # [episode, step] of the request on the person's screen
+                ok = isinstance(seen, list) and len(seen) == 2 and all(type(v) is int and 0 <= v < 2**31 for v in seen)
+                self.input.request = tuple(seen) if ok else None
                 self.input.received = time.monotonic()
                 answer, skip = data.get('answer') is True, data.get('skip') is True
                 if answer or skip:

@@ -77,7 +77,12 @@ class KeyboardTeleop(Node):
 
     def _publish(self, answer: bool = False, skip: bool = False) -> None:
         if self.sending and len(self.command):
-            self.publisher.publish(messages.command_msg(self.command, True, answer, skip, self.seal))
+            # The request on the screen (drawn when it came), so a key meant for it never lands on a newer one.
+            shown = self.request
+            request = (
+                (shown.episode, shown.step) if shown is not None and shown.outcome == AdviceRequest.PENDING else None
+            )
+            self.publisher.publish(messages.command_msg(self.command, True, answer, skip, self.seal, request))
 
     def _read_keys(self) -> None:
         while select.select([self.fd], [], [], 0)[0]:

@@ -38,7 +38,7 @@ from std_msgs.msg import Float32MultiArray, MultiArrayDimension, MultiArrayLayou
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 
 from ..core.summary import EpisodeSummary
-from ..core.teleop import COMMAND_FIELDS
+from ..core.teleop import COMMAND_FIELDS, REQUEST_FIELD
 
 OBS_TAIL = ('reward', 'terminated', 'truncated', 'episode', 'step')
 OBS_SUCCESS = 'success'  # the optional last field of an observation
@@ -305,11 +305,16 @@ def stats_msg(summary: EpisodeSummary) -> EpisodeStats:
     return EpisodeStats(**dataclasses.asdict(summary))
 
 
-def command_msg(command: Sequence[float], enabled: bool, answer: bool, skip: bool, seal=None) -> Float32MultiArray:
-    """teleop_command as keyboard_teleop and advice_console publish it (COMMAND_FIELDS), and with
-    a core.signing.CommandSeal its 'counter' and 'signature' fields after them."""
+def command_msg(
+    command: Sequence[float], enabled: bool, answer: bool, skip: bool, seal=None, request=None
+) -> Float32MultiArray:
+    """teleop_command as keyboard_teleop and advice_console publish it (COMMAND_FIELDS), then the
+    (episode, step) of the request the person's screen shows (``request``, if any), and with a
+    core.signing.CommandSeal its 'counter' and 'signature' fields after them."""
     values = ([float(v) for v in command], [float(enabled)], [float(answer)], [float(skip)])
     fields = list(zip(COMMAND_FIELDS, values))
+    if request is not None:
+        fields.append((REQUEST_FIELD, [float(request[0]), float(request[1])]))
     if seal is not None:
         counter, signature = seal.seal(command_values(dict(fields)))
         fields += [('counter', counter), ('signature', signature)]
@@ -317,10 +322,10 @@ def command_msg(command: Sequence[float], enabled: bool, answer: bool, skip: boo
 
 
 def command_values(fields: dict) -> list:
-    """The values a command's signature covers: its COMMAND_FIELDS, in order, as float32."""
+    """The values a command's signature covers: its COMMAND_FIELDS and request, in order, as float32."""
     import numpy as np
 
-    flat = [v for name in COMMAND_FIELDS for v in fields.get(name, ())]
+    flat = [v for name in (*COMMAND_FIELDS, REQUEST_FIELD) for v in fields.get(name, ())]
     return np.asarray(flat, dtype=np.float32).tolist()
 
 

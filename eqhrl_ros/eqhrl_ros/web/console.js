@@ -215,7 +215,10 @@ function plot(canvas, title, values, budget, color, bars, second) {
 function sendInput(extra) {
   input.deadman = input.keyDeadman || input.padDeadman;
   $('deadman').className = input.deadman ? 'held' : '';
-  send(Object.assign({ type: 'input', command: input.command, deadman: input.deadman }, extra || {}));
+  // The request on the screen, so that a press meant for it never lands on a newer one.
+  const r = state.request;
+  const shown = r && r.outcome === 'pending' ? [r.episode, r.step] : null;
+  send(Object.assign({ type: 'input', command: input.command, deadman: input.deadman, request: shown }, extra || {}));
   drawBars();
 }
 

@@ -202,3 +202,19 @@ def test_a_budget_in_the_persons_seconds_ends_the_requests_when_spent():
     assert learner.propose(obs).decision.fire
     learner.set_advising_budget_s(0.0)  # 0: no budget in seconds
     assert learner.person_budget_left_s == float('inf')
+
+
+def test_a_press_meant_for_the_request_on_screen_never_lands_on_a_newer_one():
+    """A skip meant for episode 5, step 195 used to be counted on episode 6, step 2, shown 0.3 s before."""
+    from eqhrl_ros.core.teleop import Command
+
+    clock = FakeClock()
+    expert = TeleopExpert(name='person', clock=clock)
+    old, new = request(0), request(1)
+    expert.update(Command(np.zeros(1, np.float32), True))
+    expert.open(new)  # the newer request, not yet on the person's screen
+    seen = (old.episode, old.step)
+    assert expert.update(Command(np.zeros(1, np.float32), True, skip=True, request=seen)) is None
+    assert expert.pending is not None
+    answered = expert.update(Command(np.array([0.7], np.float32), True, request=(new.episode, new.step)))
+    assert answered.advised and answered.action.tolist() == pytest.approx([0.7])
