@@ -255,8 +255,17 @@ def main(argv=None) -> int:
     )
     parser.add_argument('folders', nargs='+', help='eqhrl-experiment output folders')
     parser.add_argument('--output', required=True, help='folder for table.md and the PNGs')
+    parser.add_argument(
+        '--overwrite', action='store_true', help='replace a table.md already in --output (e.g. committed results)'
+    )
     parser.add_argument('--threshold', type=float, help='return threshold (default: per env)')
     args = parser.parse_args(argv)
+    output = Path(args.output)
+    if (output / 'table.md').exists() and not args.overwrite:
+        print(
+            f'eqhrl-report: {output} holds a report already (table.md); give --overwrite to replace it', file=sys.stderr
+        )
+        return 2
     try:
         runs = read_runs(args.folders)
     except FileNotFoundError as error:
@@ -267,7 +276,6 @@ def main(argv=None) -> int:
         return 1
     env_id = env_of(args.folders)
     threshold = args.threshold if args.threshold is not None else THRESHOLDS.get(env_id, 0.0)
-    output = Path(args.output)
     output.mkdir(parents=True, exist_ok=True)
     text = format_table(summarize(runs, threshold), threshold)
     (output / 'table.md').write_text(text + '\n')

@@ -249,6 +249,15 @@ def matched_rate(run: Path, budget: int) -> tuple[float, int, int]:
     return (asked / steps if steps else 0.0), asked, steps
 
 
+def run_minutes(run: Path):
+    """How long a finished run took: from its STARTED mark (written when it was handed to a
+    worker; a resumed run's last start) to its DONE mark; None if either is missing."""
+    try:
+        return max(0.0, ((run / 'DONE').stat().st_mtime - (run / 'STARTED').stat().st_mtime) / 60)
+    except OSError:
+        return None
+
+
 def run_list(plan: Plan) -> list:
     """(arm, seed) in the order they run: group by group, seed by seed, arm by arm."""
     order = []
@@ -340,9 +349,18 @@ def main(argv=None) -> int:
     done = [(a, s) for a, s in runs if (experiment.run_dir(output, a.name, s) / 'DONE').exists()]
     todo = [(a, s) for a, s in runs if (a, s) not in done]
     steps = len(todo) * plan.episodes * (plan.max_steps or settings[plan.arms[0].name].max_episode_steps)
+    durations = [d for d in (run_minutes(experiment.run_dir(output, a.name, s)) for a, s in done) if d is not None]
+    if not todo:
+        estimate = ''
+    elif durations:
+        per_run = sum(durations) / len(durations)
+        left = per_run * len(todo) / max(1, min(args.jobs, len(todo)))
+        estimate = f'; about {left:.0f} min ({per_run:.1f} min a run so far)'
+    else:
+        estimate = '; no time estimate until a run has finished here'
     print(
         f'study {plan.name} ({plan.path}): {len(runs)} runs, {len(done)} finished, {len(todo)} to do '
-        f'(at most {steps:,} env steps), {args.jobs} in parallel',
+        f'(at most {steps:,} env steps), {args.jobs} in parallel{estimate}',
         flush=True,
     )
     if args.list:
@@ -364,7 +382,12 @@ def main(argv=None) -> int:
                         finished += 1
                         arm, seed = key
                         elapsed = (time.monotonic() - start) / 60
-                        print(f'[{finished}/{len(todo)} runs, {elapsed:.1f} min] {arm} seed {seed} done', flush=True)
+                        left = elapsed / finished * (len(todo) - finished)  # at this process's pace so far
+                        print(
+                            f'[{finished}/{len(todo)} runs, {elapsed:.1f} min, about {left:.0f} min left] '
+                            f'{arm} seed {seed} done',
+                            flush=True,
+                        )
                         gather(output, plan)  # a study read half-way (or killed) has its runs gathered
                 for arm, seed in list(pending):
                     if len(running) >= args.jobs:
@@ -373,6 +396,9 @@ def main(argv=None) -> int:
                     if ready is None:
                         continue  # its matched run is not finished yet
                     pending.remove((arm, seed))
+                    started = experiment.run_dir(output, arm.name, seed)
+                    started.mkdir(parents=True, exist_ok=True)
+                    (started / 'STARTED').touch()
                     running[(arm.name, seed)] = pool.apply_async(
                         experiment._worker,
                         (ready, arm.mode, seed, experiment.run_dir(output, arm.name, seed), False, progress, 0),

@@ -477,9 +477,18 @@ def main(argv=None) -> int:
     )
     parser.add_argument('folder', help='the output folder of eqhrl-study')
     parser.add_argument('--output', required=True, help='where the tables and figures go')
+    parser.add_argument(
+        '--overwrite', action='store_true', help='replace a table.md already in --output (e.g. committed results)'
+    )
     parser.add_argument('--threshold', type=float, help="return threshold (default: the env's, report.THRESHOLDS)")
     args = parser.parse_args(argv)
     folder, output = Path(args.folder), Path(args.output)
+    if (output / 'table.md').exists() and not args.overwrite:
+        print(
+            f'eqhrl-study-report: {output} holds a report already (table.md); give --overwrite to replace it',
+            file=sys.stderr,
+        )
+        return 2
     for name in ('arms.csv', 'episodes.csv', 'eval.csv', 'plan.yaml'):
         if not (folder / name).exists():
             print(f'eqhrl-study-report: {folder / name} is missing (run eqhrl-study first)', file=sys.stderr)

@@ -216,3 +216,28 @@ def test_timing_matched_and_thinned_arms_and_the_pre_stated_tests(tmp_path):
     timing = table.split('## When the arms asked')[1]
     line = {row.split('|')[1].strip(): row for row in timing.splitlines() if row.startswith('| ')}
     assert line['qasac'].split('|')[4:6] == line['timed'].split('|')[4:6]  # before and after: the same counts
+
+
+def test_the_reports_never_replace_a_report_unless_told(tmp_path, capsys):
+    from eqhrl_ros.cli import report
+
+    output = tmp_path / 'committed'
+    output.mkdir()
+    (output / 'table.md').write_text('the committed table\n')
+    assert study_report.main([str(tmp_path), '--output', str(output)]) == 2
+    assert report.main([str(tmp_path), '--output', str(output)]) == 2
+    assert 'give --overwrite' in capsys.readouterr().err
+    assert (output / 'table.md').read_text() == 'the committed table\n'
+
+
+def test_a_finished_runs_time_gives_the_lists_estimate(tmp_path):
+    import os
+    import time
+
+    run = tmp_path / 'arm' / 'seed0'
+    run.mkdir(parents=True)
+    (run / 'STARTED').touch()
+    os.utime(run / 'STARTED', (time.time() - 120, time.time() - 120))
+    (run / 'DONE').touch()
+    assert study.run_minutes(run) == pytest.approx(2.0, abs=0.05)
+    assert study.run_minutes(tmp_path / 'missing') is None
