@@ -29,11 +29,13 @@ from std_msgs.msg import Float32MultiArray
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 from eqhrl_interfaces.srv import Advise
 
+from ..core.config import asks_for_advice
 from ..core.env_spec import EnvSpec
 from ..core.experts import Advice
 from ..core.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
 from . import advise_msgs, messages
 from .env_info import EnvInfoWatcher, configured_spec, shown
+from .health import OK, WARN, Check, Health
 from .params import LEARNER_CONFIG_PARAMS, choices_validator, declare, reject_unknown_overrides
 from .spinning import steady_clock
 
@@ -126,6 +128,64 @@ class ActingNode(Node):
         self.env_info = EnvInfoWatcher(
             self, configured_spec(p), self._configure, working=lambda: bool(self.learner and self.learner.total_steps)
         )
+        self.health = Health(self, self.health_checks)
+
+    def health_checks(self) -> list:
+        """The expert, the env and the budget, for /diagnostics (nodes/health.py)."""
+        learner = self.learner
+        if learner is None:
+            return [Check('env', WARN, f'waiting for env_info on {self.env_info.topic}')]
+        with self._lock:
+            done, current = learner.advice_total, learner.episode_advice
+            asked, given = done.asked + current.asked, done.given + current.given
+            timeouts = done.failed['timeout'] + current.failed['timeout']
+            declined = done.declined + current.declined
+            latencies = sorted(self.advice_latencies)[-1000:] if self.advice_latencies else []
+            stalled = self._stalled_since
+        cfg = self.config
+        episodes_left = max(0, cfg.advising_budget - learner.episode)
+        advising = asks_for_advice(cfg.mode) and episodes_left > 0 and learner.person_budget_left_s > 0
+        servers = self.count_services(self.advice_client.srv_name)
+        p = (
+            (lambda q: f'{1000 * latencies[min(len(latencies) - 1, int(q * len(latencies)))]:.0f}')
+            if latencies
+            else None
+        )
+        values = {
+            'advise servers': servers,
+            'asked': asked,
+            'given': given,
+            'declined': declined,
+            'timeouts': timeouts,
+            'answer latency p50 ms': p(0.5) if p else '-',
+            'answer latency p99 ms': p(0.99) if p else '-',
+        }
+        if not advising:
+            expert = Check('expert', OK, 'not asking (mode sac, or the budget is used up)', values)
+        elif not self.params['advice_enabled']:
+            expert = Check('expert', OK, 'advice paused (advice_enabled false)', values)
+        elif servers == 0:
+            expert = Check('expert', WARN, "no node serves 'advise': the learner acts alone", values)
+        elif asked >= 10 and timeouts > asked / 2:
+            expert = Check('expert', WARN, f'{timeouts} of {asked} requests timed out', values)
+        else:
+            expert = Check('expert', OK, f'{servers} expert(s) reachable', values)
+        if stalled is not None:
+            env = Check(
+                'env', WARN, f'no observation for {time.monotonic() - stalled:.1f} s (paused, stopped or starved)'
+            )
+        else:
+            env = Check('env', OK, 'observations arrive')
+        env.values = {'steps': learner.total_steps, 'episode': learner.episode, 'stalls': self.stalls}
+        seconds = learner.person_budget_left_s
+        budget = Check(
+            'budget',
+            OK,
+            f'{episodes_left} episodes of advice left'
+            + (f", {seconds:.0f} s of the person's" if seconds < float('inf') else ''),
+            {'episodes left': episodes_left, 'person seconds spent': f'{learner.human_time_total_s:.1f}'},
+        )
+        return [expert, env, budget]
 
     def _before_start(self) -> None:
         """The subclass's own set-up, before the learner can exist (its output folder)."""

@@ -33,6 +33,7 @@ from ..core.transitions import Outbox
 from ..core.weights import TrainerPin, WeightsError, apply_weights
 from . import trainer_msgs
 from .acting import ActingNode
+from .health import OK, WARN, Check
 from .params import ACTOR_NODE_PARAMS
 from .spinning import run_node
 
@@ -217,6 +218,24 @@ class ActorNode(ActingNode):
         self.learner.episode = max(self.learner.episode, int(msg.episodes))
         self._steps_on_weights = 0
         self._act_on_deferred()
+
+    def health_checks(self) -> list:
+        checks = super().health_checks()
+        outbox = self.outbox
+        values = {
+            'weights version': self.weights_version if self.weights_version is not None else '-',
+            'weights applied': self.weights_applied,
+            'weights refused': self.weights_refused,
+            'transitions waiting': outbox.waiting if outbox else 0,
+            'transitions dropped': outbox.dropped_transitions if outbox else 0,
+        }
+        if self.transitions_pub.get_subscription_count() == 0:
+            checks.append(Check('trainer', WARN, 'no trainer listens: acting with the weights it has', values))
+        elif self.weights_version is None:
+            checks.append(Check('trainer', WARN, 'a trainer listens, no weights yet', values))
+        else:
+            checks.append(Check('trainer', OK, f"following trainer '{self.trainer_id}'", values))
+        return checks
 
     def _follow_named_trainer(self, changes) -> None:
         for change in changes:

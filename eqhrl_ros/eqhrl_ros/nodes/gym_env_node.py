@@ -27,6 +27,7 @@ from eqhrl_interfaces.msg import EnvInfo
 from ..core.env_spec import spec_from_parameters
 from ..core.envs import gym_spec, make_env
 from . import env_info, messages
+from .health import OK, WARN, Check, Health
 from .params import GYM_ENV_PARAMS, choices_validator, declare, reject_unknown_overrides
 from .spinning import run_node, seconds_since_process_start, steady_clock
 
@@ -86,6 +87,7 @@ class GymEnvNode(Node):
         self._action_reader = messages.SerializedReader(messages.action_layouts(self.action_dim), 'action')
         self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS, raw=True)
         self.create_subscription(Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS)
+        self.health = Health(self, self.health_checks)
         # Latched: nodes that start later still learn the spaces from it.
         self.env_info_pub = self.create_publisher(EnvInfo, env_info.TOPIC, env_info.ENV_INFO_QOS)
         self.env_info_pub.publish(env_info.env_info_msg(self.spec))
@@ -115,6 +117,12 @@ class GymEnvNode(Node):
         self.step_index = 0
         self._last_msg = self._observation_out.fill(obs, 0.0, False, False, self.episode, 0)
         self._publish()
+
+    def health_checks(self) -> list:
+        values = {'steps': self.steps_taken, 'episode': self.episode, 'rejected actions': self.rejected_actions}
+        if self.stopped:
+            return [Check('stop', WARN, 'STOPPED by the person: no step until released', values)]
+        return [Check('stop', OK, 'running', values)]
 
     def _on_stop(self, msg: Bool) -> None:
         if bool(msg.data) != self.stopped:

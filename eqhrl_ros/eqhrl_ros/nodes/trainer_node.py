@@ -39,6 +39,7 @@ from . import messages, trainer_msgs
 from .acting import printable_name
 from .env_info import configured_spec
 from .graph_trust import GRAPH_CACHE_S, full_name
+from .health import OK, WARN, Check, Health
 from .params import LEARNER_CONFIG_PARAMS, TRAINER_PARAMS, choices_validator, declare, reject_unknown_overrides
 from .run_files import RunFiles, save_and_close
 from .spinning import run_node, steady_clock, stop_with_error
@@ -90,6 +91,7 @@ class TrainerNode(RunFiles, Node):
         self._learning = threading.Thread(target=self._learn, name='trainer-updates', daemon=True)
         self._learning.start()
 
+        self.health = Health(self, self.health_checks)
         spec = configured_spec(p)
         if spec is not None:
             self._build(spec.observation_size, spec.action_low, spec.action_high)
@@ -295,6 +297,35 @@ class TrainerNode(RunFiles, Node):
         self.weights_pub.publish(trainer_msgs.sign_weights(msg, self.signer))
         self.trainer.weights_sent()
         self.weights_published += 1
+
+    def health_checks(self) -> list:
+        """The actors and the learning, for /diagnostics (nodes/health.py)."""
+        trainer = self.trainer
+        if trainer is None:
+            return [Check('actors', WARN, 'waiting for the first batch (or env_id) to know the spaces')]
+        now, limit = time.monotonic(), self.params['actor_silence_s']
+        sequences = dict(trainer.sequences.actors)
+        silent = sorted(printable_name(a) for a, s in sequences.items() if now - s.last_heard > limit)
+        values = {
+            'actors': len(sequences),
+            'silent': len(silent),
+            'batches lost': trainer.sequences.lost,
+            'batches refused': self.refused_batches,
+            'batches dropped (inbox full)': self.dropped_batches,
+        }
+        if not sequences:
+            actors = Check('actors', WARN, 'no actor has sent transitions yet', values)
+        elif silent:
+            actors = Check('actors', WARN, f'silent for over {limit:g} s: {", ".join(silent[:5])}', values)
+        else:
+            actors = Check('actors', OK, f'{len(sequences)} actor(s) sending', values)
+        learning = Check(
+            'learning',
+            WARN if trainer.restored else OK,
+            f'networks restored {trainer.restored} times after non-finite updates' if trainer.restored else 'learning',
+            {'updates': self.learner.updates, 'weights sent': self.weights_published, 'owed': trainer.owed()},
+        )
+        return [actors, learning]
 
     def _report(self) -> None:
         # Without the lock: counters only (ints, read whole); the learning thread keeps going.
