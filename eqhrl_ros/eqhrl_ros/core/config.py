@@ -131,6 +131,17 @@ class LearnerConfig:
         'Mode random with random_ask_schedule: the steps of an episode its requests are spread over',
         range=(1, INT_MAX),
     )
+    takeover_threshold: float = hyper(
+        0.0,
+        "Mixed initiative: with the deadman held, the person's command replaces the learner's action "
+        'once it departs from it by more than this, in [-1, 1] units (any dimension), and for as long as '
+        'the deadman stays held; the take-over button (T on the page) does it at once. 0: only the button '
+        '(an answer given by steering would otherwise go on as a takeover)',
+        range=(0.0, 2.0),
+    )
+    takeover_to_advice_memory: bool = hyper(
+        True, 'Steps the person took over go to D_advising too, as advice (false: D only)'
+    )
     actor_on_advice: bool = hyper(False, 'Also train the actor on the advice batch (an ablation; off in the paper)')
     dual_replay: bool = hyper(
         True, 'Advised transitions also go to D_advising for a second critic update (Section 3.3); false: D only'

@@ -67,6 +67,10 @@ class AdviceCounts:
     failed: dict = field(default_factory=lambda: {kind: 0 for kind in FAILURE_KINDS})
     # Seconds a person spent on requests: answering, skipping, or a whole answer window let pass.
     human_time_s: float = 0.0
+    # Steps the person took over unasked (mixed initiative): stretches of them, steps, seconds.
+    takeovers: int = 0
+    takeover_steps: int = 0
+    takeover_s: float = 0.0
 
     @property
     def failed_total(self) -> int:
@@ -78,6 +82,9 @@ class AdviceCounts:
         self.human += other.human
         self.declined += other.declined
         self.human_time_s += other.human_time_s
+        self.takeovers += other.takeovers
+        self.takeover_steps += other.takeover_steps
+        self.takeover_s += other.takeover_s
         for kind, n in other.failed.items():
             self.failed[kind] += n
 
@@ -89,6 +96,9 @@ class AdviceCounts:
             'declined': self.declined,
             'failed': dict(self.failed),
             'human_time_s': self.human_time_s,
+            'takeovers': self.takeovers,
+            'takeover_steps': self.takeover_steps,
+            'takeover_s': self.takeover_s,
         }
 
     @staticmethod
@@ -102,6 +112,9 @@ class AdviceCounts:
             int(d['declined']),
             failed,
             float(d.get('human_time_s', 0.0)),  # checkpoints before people were timed have none
+            int(d.get('takeovers', 0)),  # nor before takeovers were counted
+            int(d.get('takeover_steps', 0)),
+            float(d.get('takeover_s', 0.0)),
         )
 
 
@@ -385,6 +398,20 @@ class EQSACLearner:
         counts.human += int(advice.human)
         return Resolution(action, True, 'given')
 
+    def take_over(self, proposal: Proposal, action, seconds: float, starts: bool) -> Resolution:
+        """The person took this step over unasked (mixed initiative): their action replaces the
+        learner's, counted apart from answered requests (``starts``: a new stretch of takeover;
+        ``seconds``: the person's time on this step). The step goes to D_advising too when
+        takeover_to_advice_memory is set (as advice). An action outside the bounds is refused."""
+        action, failure = check_advised_action(action, self.scaler.low, self.scaler.high)
+        if failure:
+            return Resolution(proposal.action, False, 'failed', failure)
+        counts = self._episode_advice
+        counts.takeovers += int(starts)
+        counts.takeover_steps += 1
+        counts.takeover_s += max(0.0, float(seconds))
+        return Resolution(action, self.config.takeover_to_advice_memory, 'taken over')
+
     def set_advising_budget(self, episodes: int) -> None:
         """Change the early-advising budget (Eq. 7) while learning, e.g. from a person's console."""
         self.gates.advising_budget = self.config.advising_budget = check_value('advising_budget', episodes)
@@ -634,6 +661,9 @@ class EQSACLearner:
             interrupted=self.episode_interrupted,
             human_time_s=counts.human_time_s,
             human_time_total_s=self.advice_total.human_time_s + counts.human_time_s,
+            takeovers=counts.takeovers,
+            takeover_steps=counts.takeover_steps,
+            takeover_s=counts.takeover_s,
         )
         self.advice_total.add(counts)
         self.episode += 1

@@ -30,6 +30,10 @@ class EpisodeSummary:
     # answers and skips, whole answer windows let pass), and over the whole run so far.
     human_time_s: float = 0.0
     human_time_total_s: float = 0.0
+    # The person took over unasked: stretches of steps, steps and seconds (not requests).
+    takeovers: int = 0
+    takeover_steps: int = 0
+    takeover_s: float = 0.0
 
     CSV_FIELDS = (
         'episode',
@@ -46,6 +50,9 @@ class EpisodeSummary:
         'interrupted',
         'human_time_s',
         'human_time_total_s',
+        'takeovers',
+        'takeover_steps',
+        'takeover_s',
     )
 
     def csv_row(self) -> list:
@@ -64,4 +71,7 @@ class EpisodeSummary:
             int(self.interrupted),
             f'{self.human_time_s:.3f}',
             f'{self.human_time_total_s:.3f}',
+            self.takeovers,
+            self.takeover_steps,
+            f'{self.takeover_s:.3f}',
         ]

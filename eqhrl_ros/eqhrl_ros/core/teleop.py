@@ -28,6 +28,7 @@ class Command:
     # The (episode, step) of the request the person's screen showed when they acted (the
     # console says it; a stick or keyboard_teleop may not): None, any open request.
     request: Optional[tuple] = None
+    take_over: bool = False  # the take-over button is held: "my command, now, unasked"
 
 
 def unit_values(values: Sequence[float], what: str) -> np.ndarray:
@@ -120,6 +121,7 @@ def array_command(fields: dict, indices: Sequence[int], scales: Sequence[float],
         held('answer', False),
         held('skip', False),
         (int(shown[0]), int(shown[1])) if shown is not None and len(shown) == 2 else None,
+        held('take_over', False),
     )
 
 

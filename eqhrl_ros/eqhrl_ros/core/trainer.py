@@ -154,6 +154,9 @@ class Trainer:
             human=summary.advice_human,
             declined=summary.advice_declined,
             human_time_s=summary.human_time_s,
+            takeovers=summary.takeovers,
+            takeover_steps=summary.takeover_steps,
+            takeover_s=summary.takeover_s,
         )
         row = dataclasses.replace(
             summary,
@@ -210,15 +213,29 @@ class Trainer:
 def _check_episode(summary: EpisodeSummary) -> None:
     """Episode statistics an actor can have counted, or ValueError."""
     s = summary
-    counts = (s.length, s.advice_asked, s.advice_given, s.advice_human, s.advice_declined, s.advice_failed)
+    counts = (
+        s.length,
+        s.advice_asked,
+        s.advice_given,
+        s.advice_human,
+        s.advice_declined,
+        s.advice_failed,
+        s.takeovers,
+        s.takeover_steps,
+    )
     if any(not 0 <= c <= INT32_MAX for c in counts):
         raise ValueError(f'episode statistics out of range: {counts}')
-    if s.advice_asked > s.length:
-        raise ValueError(f'an episode of {s.length} steps with {s.advice_asked} requests')
+    if s.advice_asked > s.length or s.takeover_steps > s.length or s.takeovers > s.takeover_steps:
+        raise ValueError(
+            f'an episode of {s.length} steps with {s.advice_asked} requests and {s.takeover_steps} steps taken over '
+            f'in {s.takeovers} stretches'
+        )
     if s.advice_given + s.advice_declined + s.advice_failed > s.advice_asked or s.advice_human > s.advice_given:
         raise ValueError(
             f'advice given {s.advice_given} (by a person {s.advice_human}), declined {s.advice_declined} and '
             f'failed {s.advice_failed} of {s.advice_asked} asked'
         )
-    if not (math.isfinite(s.episode_return) and math.isfinite(s.human_time_s) and s.human_time_s >= 0):
+    if not (
+        math.isfinite(s.episode_return) and all(math.isfinite(t) and t >= 0 for t in (s.human_time_s, s.takeover_s))
+    ):
         raise ValueError(f"return {s.episode_return} or a person's time {s.human_time_s} s that cannot be")

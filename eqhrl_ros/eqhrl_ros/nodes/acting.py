@@ -69,6 +69,10 @@ def printable_name(name: str) -> str:
     return text or '(unnamed)'
 
 
+# A person's command older than this is not taken over with (the page closed, the link cut).
+TAKEOVER_STALE_S = 0.5
+
+
 class ActingNode(Node):
     """The acting half, shared by the learner and actor nodes. A subclass gives its node name
     and parameter table, and says what a transition and an episode's end become."""
@@ -99,6 +103,10 @@ class ActingNode(Node):
         self.request_pub = self.create_publisher(AdviceRequest, '~/advice_request', messages.LATCHED_QOS)
         # Observations arrive serialized (raw): see messages.SerializedReader.
         self.create_subscription(Float32MultiArray, 'observation', self._on_observation, OBSERVATION_QOS, raw=True)
+        # The person's command (teleop_expert passes it on): a takeover when it departs from ours.
+        self.create_subscription(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, self._on_person_command, 10)
+        self._person: Optional[tuple] = None  # (action, deadman, take_over, time.monotonic())
+        self._taking_over_since: Optional[float] = None  # time.monotonic() of the last step taken over
         self.early_observations = 0  # observations before the spaces were known (ignored)
         self.advice_client = self.create_client(Advise, 'advise')
 
@@ -370,11 +378,58 @@ class ActingNode(Node):
 
     # ------------------------------------------------------------------ acting and advice
 
+    def _on_person_command(self, msg: Float32MultiArray) -> None:
+        try:
+            fields = messages.read_fields(msg)
+            action = np.asarray(fields['action'], dtype=np.float32)
+            if not np.isfinite(action).all():
+                raise ValueError('a non-finite action')
+        except (KeyError, ValueError) as error:
+            self.get_logger().error(f"'{messages.PERSON_COMMAND_TOPIC}' refused: {error}", throttle_duration_sec=5.0)
+            return
+        deadman = bool(fields.get('deadman', [0.0])[0])
+        take_over = bool(fields.get('take_over', [0.0])[0])
+        with self._lock:
+            self._person = (action, deadman, take_over, time.monotonic())
+
+    def _takeover(self, proposal: Proposal):
+        """The person's action when they take this step over, else None. With the deadman held
+        and a fresh command: the take-over button, or a command that departs from the learner's
+        action by more than takeover_threshold ([-1, 1] units); then for as long as the deadman
+        stays held. Released, control is the learner's again at the next step."""
+        person, learner = self._person, self.learner
+        if person is None or len(person[0]) != learner.action_dim:
+            return None
+        action, deadman, take_over, at = person
+        if not deadman or time.monotonic() - at > TAKEOVER_STALE_S:
+            return None
+        if self._taking_over_since is not None or take_over:
+            return action
+        threshold = self.config.takeover_threshold
+        apart = np.abs(learner.normalize(action) - learner.normalize(proposal.action)).max()
+        return action if threshold > 0 and apart > threshold else None
+
     def _act(self, obs: np.ndarray, key: tuple) -> None:
         self._state, self._key = obs, key
         proposal = self.learner.propose(obs)
         if self.params['publish_gate_debug']:
             self.gate_pub.publish(messages.gate_msg(self.learner.episode, self.learner.episode_step, proposal.decision))
+        person = self._takeover(proposal)
+        if person is not None:  # the person is in charge: no request this step, their action goes
+            now = time.monotonic()
+            starts = self._taking_over_since is None
+            seconds = 0.0 if starts else min(now - self._taking_over_since, TAKEOVER_STALE_S)
+            resolution = self.learner.take_over(proposal, person, seconds, starts)
+            self._taking_over_since = now if resolution.outcome == 'taken over' else None
+            if starts and self._taking_over_since is not None:
+                self.get_logger().info(
+                    f'the person takes over at episode {self.learner.episode}, step {self.learner.episode_step}'
+                )
+            self._finish_step(*resolution.take())
+            return
+        if self._taking_over_since is not None:
+            self._taking_over_since = None
+            self.get_logger().info('the person hands control back to the learner')
         if not (proposal.decision.fire and self.params['advice_enabled']):
             self._finish_step(proposal.action, advised=False)
             return
@@ -515,6 +570,11 @@ class ActingNode(Node):
             if summary.human_time_total_s
             else ''
         )
+        taken = (
+            f'  taken over {summary.takeover_steps} steps in {summary.takeovers} stretches ({summary.takeover_s:.1f} s)'
+            if summary.takeover_steps
+            else ''
+        )
         self.experts_heard.clear()
         self.get_logger().info(
             f'episode {summary.episode:4d}  return {summary.episode_return:9.2f}  len {summary.length:4d}  '
@@ -525,6 +585,7 @@ class ActingNode(Node):
             f'  success {int(summary.success)}  steps {summary.total_steps}  alpha {summary.alpha:.3f}'
             f'{"  INTERRUPTED (not seen whole)" if summary.interrupted else ""}'
             f'{person}'
+            f'{taken}'
             f'{"  answered by: " + experts if experts else ""}'
         )
         self._after_episode(summary)

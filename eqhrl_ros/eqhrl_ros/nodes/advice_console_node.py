@@ -119,6 +119,7 @@ class PageInput:
         self.command: list[float] = []
         self.deadman = False
         self.request = None  # (episode, step) of the request the page showed at that input
+        self.take_over = False  # T held: take over unasked
         self.received = 0.0  # time.monotonic() of the page's latest input
 
 
@@ -256,7 +257,9 @@ class AdviceConsole(Node):
         """(with the lock held) The page's command and buttons, as keyboard_teleop sends them."""
         enabled = self.input.deadman or not self.params['require_deadman']
         self.publisher.publish(
-            messages.command_msg(self.input.command, enabled, answer, skip, self.seal, self.input.request)
+            messages.command_msg(
+                self.input.command, enabled, answer, skip, self.seal, self.input.request, self.input.take_over
+            )
         )
         self.published += 1
 
@@ -344,6 +347,7 @@ class AdviceConsole(Node):
                     return 'command must be finite'
                 self.input.command = [min(1.0, max(-1.0, v)) for v in values]
                 self.input.deadman = data.get('deadman') is True
+                self.input.take_over = data.get('take_over') is True
                 seen = data.get('request')  # [episode, step] of the request on the person's screen
                 ok = isinstance(seen, list) and len(seen) == 2 and all(type(v) is int and 0 <= v < 2**31 for v in seen)
                 self.input.request = tuple(seen) if ok else None

@@ -52,8 +52,12 @@ class ConnectionGuard:
 
     def admit(self, connection: 'GuardedProtocol', client: str) -> bool:
         """Whether a new connection from ``client`` may stay, making room when it can."""
-        from_client = [c for c, a in self.open.items() if a == client]
-        for crowd, limit in ((from_client, self.max_per_client), (list(self.open), self.max_connections)):
+        crowds = (
+            (lambda: [c for c, a in self.open.items() if a == client], self.max_per_client),
+            (lambda: list(self.open), self.max_connections),
+        )
+        for members, limit in crowds:
+            crowd = members()  # as it is now: the limit before may have made room already
             if len(crowd) >= limit:
                 idle = next((c for c in crowd if not c.header_seen), None)
                 if idle is None:
@@ -63,8 +67,9 @@ class ConnectionGuard:
                 self.evicted += 1
                 self._say(f'a connection from {self.open.get(idle)} without a request closed to make room')
                 idle.close()
-                if idle in from_client:
-                    from_client.remove(idle)
+                # Its connection_lost comes on a later turn of the loop: it no longer counts from now,
+                # or a burst of new connections would be let in beyond the limit meanwhile.
+                self.open.pop(idle, None)
         self.open[connection] = client
         return True
 

@@ -305,8 +305,19 @@ def stats_msg(summary: EpisodeSummary) -> EpisodeStats:
     return EpisodeStats(**dataclasses.asdict(summary))
 
 
+# The person's command as teleop_expert passes it on to the learner for a takeover: 'action'
+# (env units, mapped and clipped), 'deadman' and 'take_over' (1.0 while held).
+PERSON_COMMAND_TOPIC = 'person_command'
+
+
+def person_command_msg(action, deadman: bool, take_over: bool) -> Float32MultiArray:
+    return build(
+        [('action', [float(v) for v in action]), ('deadman', [float(deadman)]), ('take_over', [float(take_over)])]
+    )
+
+
 def command_msg(
-    command: Sequence[float], enabled: bool, answer: bool, skip: bool, seal=None, request=None
+    command: Sequence[float], enabled: bool, answer: bool, skip: bool, seal=None, request=None, take_over=False
 ) -> Float32MultiArray:
     """teleop_command as keyboard_teleop and advice_console publish it (COMMAND_FIELDS), then the
     (episode, step) of the request the person's screen shows (``request``, if any), and with a
@@ -315,6 +326,8 @@ def command_msg(
     fields = list(zip(COMMAND_FIELDS, values))
     if request is not None:
         fields.append((REQUEST_FIELD, [float(request[0]), float(request[1])]))
+    if take_over:
+        fields.append(('take_over', [1.0]))
     if seal is not None:
         counter, signature = seal.seal(command_values(dict(fields)))
         fields += [('counter', counter), ('signature', signature)]
@@ -325,7 +338,7 @@ def command_values(fields: dict) -> list:
     """The values a command's signature covers: its COMMAND_FIELDS and request, in order, as float32."""
     import numpy as np
 
-    flat = [v for name in (*COMMAND_FIELDS, REQUEST_FIELD) for v in fields.get(name, ())]
+    flat = [v for name in (*COMMAND_FIELDS, REQUEST_FIELD, 'take_over') for v in fields.get(name, ())]
     return np.asarray(flat, dtype=np.float32).tolist()
 
 

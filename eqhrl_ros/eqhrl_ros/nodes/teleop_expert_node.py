@@ -16,6 +16,7 @@ from __future__ import annotations
 import threading
 from functools import reduce
 
+import numpy as np
 from geometry_msgs.msg import Twist
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -98,6 +99,7 @@ class TeleopExpertNode(Node):
         # episode ended, its timeout passed) is ended here too, so that no later key press lands
         # on it and nothing is logged as answered that the learner never used.
         self.ended_by_learner = 0
+        self.person_pub = self.create_publisher(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, 10)
         self.create_subscription(
             AdviceRequestMsg, 'learner/advice_request', self._on_learner_request, messages.LATCHED_QOS
         )
@@ -206,6 +208,11 @@ class TeleopExpertNode(Node):
     def _take(self, command: Command) -> None:
         with self._lock:
             self._settle(self.expert.update(command))
+        # On to the learner, which decides a takeover against its own action (mixed initiative).
+        spec = self.env_info.spec
+        if spec is not None and len(command.values) == spec.action_size:
+            action = np.clip(command.values, spec.action_low, spec.action_high)
+            self.person_pub.publish(messages.person_command_msg(action, command.enabled, command.take_over))
 
     # ------------------------------------------------------------------ requests
 

@@ -10,7 +10,7 @@ const GAMEPAD_SKIP = 1;     // B
 
 const $ = (id) => document.getElementById(id);
 const state = { env: null, request: null, episodes: [], learner: {}, require_deadman: true, stopped: false };
-const input = { command: [], deadman: false, keyDeadman: false, padDeadman: false };
+const input = { command: [], deadman: false, keyDeadman: false, padDeadman: false, takeOver: false };
 let socket = null;
 let lastRequestKey = null;
 let padButtons = [];
@@ -218,7 +218,9 @@ function sendInput(extra) {
   // The request on the screen, so that a press meant for it never lands on a newer one.
   const r = state.request;
   const shown = r && r.outcome === 'pending' ? [r.episode, r.step] : null;
-  send(Object.assign({ type: 'input', command: input.command, deadman: input.deadman, request: shown }, extra || {}));
+  send(Object.assign(
+    { type: 'input', command: input.command, deadman: input.deadman, take_over: input.takeOver, request: shown },
+    extra || {}));
   drawBars();
 }
 
@@ -235,6 +237,8 @@ const KEYS = {
 document.addEventListener('keydown', (event) => {
   if (event.target.tagName === 'INPUT') return;
   if (event.key === 'Shift') { input.keyDeadman = true; sendInput(); return; }
+  // T, held with the deadman: take over now, unasked; released, the learner drives again.
+  if (event.code === 'KeyT') { if (!input.takeOver) { input.takeOver = true; sendInput(); } return; }
   if (KEYS[event.code]) { nudge(...KEYS[event.code]); sendInput(); event.preventDefault(); return; }
   if (event.code === 'Digit0' || event.code === 'Numpad0') { input.command.fill(0); sendInput(); return; }
   if (event.repeat) return;
@@ -243,8 +247,9 @@ document.addEventListener('keydown', (event) => {
 });
 document.addEventListener('keyup', (event) => {
   if (event.key === 'Shift') { input.keyDeadman = false; sendInput(); }
+  if (event.code === 'KeyT') { input.takeOver = false; sendInput(); }
 });
-window.addEventListener('blur', () => { input.keyDeadman = false; sendInput(); });
+window.addEventListener('blur', () => { input.keyDeadman = false; input.takeOver = false; sendInput(); });
 
 // The browser's Gamepad API: any pad the browser knows, no driver on the robot's machine.
 function pollGamepad() {

@@ -218,3 +218,24 @@ def test_a_press_meant_for_the_request_on_screen_never_lands_on_a_newer_one():
     assert expert.pending is not None
     answered = expert.update(Command(np.array([0.7], np.float32), True, request=(new.episode, new.step)))
     assert answered.advised and answered.action.tolist() == pytest.approx([0.7])
+
+
+def test_a_takeover_replaces_the_action_and_is_counted_apart_from_requests():
+    from eqhrl_ros.core import EQSACLearner, LearnerConfig
+
+    learner = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(mode='sac', hidden=(8, 8)))
+    obs = np.zeros(3, np.float32)
+    for i, starts in enumerate((True, False, False, True)):
+        proposal = learner.propose(obs)
+        action, advised = learner.take_over(proposal, np.array([1.5], np.float32), 0.05 * i, starts).take()
+        assert action.tolist() == [1.5] and advised  # as advice, into D_advising by default
+        learner.step(obs, action, -1.0, obs, False, False, advised=advised)
+    refused = learner.take_over(learner.propose(obs), np.array([9.0], np.float32), 0.0, True)
+    assert refused.outcome == 'failed' and refused.detail == 'out_of_bounds'
+    summary = learner.end_episode()
+    assert (summary.takeovers, summary.takeover_steps) == (2, 4) and summary.takeover_s == pytest.approx(0.3)
+    assert summary.advice_asked == 0  # not requests
+    row = dict(zip(summary.CSV_FIELDS, summary.csv_row()))
+    assert (row['takeovers'], row['takeover_steps'], row['takeover_s']) == (2, 4, '0.300')
+    learner.config.takeover_to_advice_memory = False
+    assert not learner.take_over(learner.propose(obs), np.array([0.5], np.float32), 0.0, True).advised

@@ -125,3 +125,23 @@ def test_connections_from_one_client_are_limited_when_all_are_in_use(ros_context
 def test_hostile_budget_values_from_the_page_are_refused_with_a_reason(console, value):
     ok, reason = console.set_learner_parameter('advising_budget', value)
     assert not ok and 'advising_budget' in reason
+
+
+def test_the_guard_never_holds_more_than_its_limit_even_before_evicted_ones_are_gone():
+    """Unit test of the count: evicted connections stop counting at once (their connection_lost
+    comes later). Under load, a burst of 1,100 held 82 of a limit of 64 before."""
+    from eqhrl_ros.nodes.connection_guard import ConnectionGuard
+
+    class Idle:
+        header_seen = False
+        closed = 0
+
+        def close(self):
+            self.closed += 1  # the transport's abort: connection_lost would come later
+
+    guard = ConnectionGuard(max_connections=8, max_per_client=8, header_timeout_s=10.0, log=lambda text: None)
+    held = [Idle() for _ in range(100)]
+    for connection in held:
+        assert guard.admit(connection, '127.0.0.1')
+        assert len(guard.open) <= 8
+    assert guard.evicted == 92 and sum(c.closed for c in held) == 92

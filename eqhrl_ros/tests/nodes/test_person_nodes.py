@@ -221,3 +221,45 @@ def test_a_resumed_run_keeps_the_budgets_set_while_it_ran(harness, ros_context, 
     assert again.learner.config.advising_budget == 35 and again.learner.gates.advising_budget == 35
     assert again.get_parameter('advising_budget').value == 35
     assert again.get_parameter('advising_budget_s').value == 90.0
+
+
+def test_the_person_takes_over_unasked_and_hands_back_by_releasing_the_deadman(harness, ros_context, tmp_path):
+    """A lock-step env, a learner that never asks (budget 0), and a person's command on
+    person_command as teleop_expert passes it on: with the deadman held and far from the
+    learner's action, the env gets the person's action every step, counted as takeover; released,
+    the learner acts again at the next step."""
+    env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=10**6)))
+    learner = harness.add(  # no updates: the first one (the compiler's import) would stall a second
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=small_learner_params(
+                tmp_path, advising_budget=0, learning_starts=10**6, takeover_threshold=0.25
+            ),
+        )
+    )
+    person = harness.add(rclpy.create_node('teleop_stand_in', context=ros_context))
+    pub = person.create_publisher(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, 10)
+    applied = []
+    original = env._step
+
+    def recording(action):
+        original(action)
+        applied.append(float(env._previous_action[0]))
+
+    env._step = recording
+    assert harness.spin_until(lambda: learner.learner is not None and env.steps_taken > 5, timeout=20)
+    hold = person.create_timer(0.02, lambda: pub.publish(messages.person_command_msg([-2.0], True, False)))
+    assert harness.spin_until(lambda: learner.learner.episode_advice.takeover_steps >= 20, timeout=20)
+    taken = learner.learner.episode_advice
+    assert taken.takeovers == 1 and taken.asked == 0
+    start = len(applied)
+    harness.spin_until(lambda: len(applied) > start + 10, timeout=10)
+    assert applied[-10:] == [-2.0] * 10  # the person's action, step after step
+    person.destroy_timer(hold)
+    release = person.create_timer(0.02, lambda: pub.publish(messages.person_command_msg([-2.0], False, False)))
+    assert harness.spin_until(lambda: learner._person is not None and not learner._person[1], timeout=10)
+    steps, start = taken.takeover_steps, len(applied)  # the release has arrived
+    assert harness.spin_until(lambda: len(applied) > start + 40, timeout=10)
+    assert learner.learner.episode_advice.takeover_steps <= steps + 1  # the learner's again within one step
+    assert -2.0 not in applied[-30:]
+    person.destroy_timer(release)

@@ -457,3 +457,22 @@ def test_a_key_file_with_a_source_that_signs_nothing_is_refused(ros_context, tmp
     key = str(new_key_file(tmp_path / 'deployment.key'))
     with pytest.raises(ValueError, match='sign nothing'):
         TeleopExpertNode(context=ros_context, parameter_overrides=params(source='joy', key_file=key))
+
+
+def test_teleop_expert_passes_the_persons_command_on_for_a_takeover(harness, ros_context):
+    harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(env_id='Pendulum-v1', source='array', axes=[0], scales=[3.0], offsets=[0.0]),
+        )
+    )
+    driver = harness.add(rclpy.create_node('advice_console', context=ros_context))
+    pub = driver.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    passed = []
+    driver.create_subscription(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, passed.append, 10)
+    assert harness.spin_until(lambda: pub.get_subscription_count() > 0)
+    pub.publish(messages.command_msg([0.9], True, False, False, take_over=True))
+    assert harness.spin_until(lambda: passed, timeout=5)
+    fields = messages.read_fields(passed[-1])
+    assert fields['action'] == pytest.approx([2.0])  # 0.9 x 3 = 2.7, clipped to the env's bound
+    assert fields['deadman'] == [1.0] and fields['take_over'] == [1.0]
