@@ -450,20 +450,37 @@ def gate_rates(folder: Path, updates_from: dict, queue_length: dict) -> str:
         return ''
     counts = defaultdict(lambda: np.zeros(4))
     seen = defaultdict(int)
+    has_respond = set()  # arms with a respond gate (E(s) evaluated)
+    per_run = defaultdict(lambda: np.zeros(4))  # (arm, when, seed) -> the same counts
     for r in read_csv(gates):
         run = (r['arm'], int(r['seed']))
         seen[run] += 1
         if seen[run] <= queue_length.get(r['arm'], 0):
             continue  # the queues hold fewer than queue_length earlier values: gates closed
         key = (r['arm'], 'before updates' if int(r['episode']) < updates_from.get(run, 0) else 'after updates')
-        counts[key] += (1, r['ask'] == '1', r['respond'] == '1', r['fire'] == '1')
+        if r['entropy'] not in ('nan', ''):
+            has_respond.add(r['arm'])
+        step = (1, r['ask'] == '1', r['respond'] == '1', r['fire'] == '1')
+        counts[key] += step
+        per_run[(*key, run[1])] += step
     lines = [
-        '| arm | steps with full queues | ask gate open | respond gate open | both (requests) |',
-        '|---|---|---|---|---|',
+        '| arm | steps with full queues | ask gate open | respond gate open | both (requests) | product of the two '
+        '| lift per seed (both / product: min–max) |',
+        '|---|---|---|---|---|---|---|',
     ]
     for (arm, when), (n, ask, respond, fire) in sorted(counts.items()):
+        if arm not in has_respond:
+            lines.append(f'| {arm}, {when} | {int(n)} | {100 * ask / n:.1f} % | — | {100 * fire / n:.2f} % | | |')
+            continue
+        lifts = [
+            (f / m) / ((a / m) * (r / m))
+            for (a_, w_, _), (m, a, r, f) in per_run.items()
+            if (a_, w_) == (arm, when) and a and r
+        ]
+        lift = f'{min(lifts):.2f}–{max(lifts):.2f} ({len(lifts)} seeds)' if lifts else '—'
         lines.append(
-            f'| {arm}, {when} | {int(n)} | {100 * ask / n:.1f} % | {100 * respond / n:.1f} % | {100 * fire / n:.2f} % |'
+            f'| {arm}, {when} | {int(n)} | {100 * ask / n:.1f} % | {100 * respond / n:.1f} % | {100 * fire / n:.2f} % '
+            f'| {100 * (ask / n) * (respond / n):.2f} % | {lift} |'
         )
     return '\n'.join(lines)
 
