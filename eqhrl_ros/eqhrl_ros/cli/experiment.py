@@ -447,7 +447,7 @@ def domain_ids(count: int) -> list:
     return [1 + (os.getpid() + index) % 100 for index in range(count)]
 
 
-def _worker(settings, algorithm, seed, directory, through_ros, progress, domain_id) -> tuple:
+def run_worker(settings, algorithm, seed, directory, through_ros, progress, domain_id) -> tuple:
     directory.mkdir(parents=True, exist_ok=True)
     (directory / 'DONE').unlink(missing_ok=True)
     start = time.monotonic()
@@ -462,6 +462,9 @@ def _worker(settings, algorithm, seed, directory, through_ros, progress, domain_
 
         remove_files(directory)  # after DONE: a run killed in between is not redone
     return algorithm, seed, elapsed
+
+
+_worker = run_worker  # TEMPORARY: the study running in this session imports it by its old name
 
 
 def _group_worker(settings, algorithm, seeds, output, progress) -> tuple:
@@ -689,7 +692,7 @@ def main(argv=None) -> int:
                     (
                         1,
                         pool.apply_async(
-                            _worker, (settings, a, s, run_dir(output, a, s), args.through_ros, progress, d)
+                            run_worker, (settings, a, s, run_dir(output, a, s), args.through_ros, progress, d)
                         ),
                     )
                     for (a, s), d in zip(todo, domain_ids(len(todo)))

@@ -27,13 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.config import MODES
+from ..core.config import MODE_COLORS, MODE_LABELS, MODES
 from ..plots import smooth
 from ..yaml_files import load_mapping
 
 ORDER = MODES  # the algorithms in the order tables and figures show them
-LABELS = {'sac': 'SAC', 'qasac': 'QASAC', 'eqsac': 'EQSAC'}
-COLORS = {'sac': 'tab:gray', 'qasac': 'tab:blue', 'eqsac': 'tab:red'}
+LABELS, COLORS = MODE_LABELS, MODE_COLORS
 # Return thresholds for "episodes to reach": LunarLander's solved line; for Pendulum
 # (100-step episodes) a return at which the pendulum is swung up and held.
 THRESHOLDS = {'LunarLanderContinuous-v3': 200.0, 'Pendulum-v1': -200.0}

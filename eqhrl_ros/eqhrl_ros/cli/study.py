@@ -400,7 +400,7 @@ def main(argv=None) -> int:
                     started.mkdir(parents=True, exist_ok=True)
                     (started / 'STARTED').touch()
                     running[(arm.name, seed)] = pool.apply_async(
-                        experiment._worker,
+                        experiment.run_worker,
                         (ready, arm.mode, seed, experiment.run_dir(output, arm.name, seed), False, progress, 0),
                     )
                 while True:  # progress is only for the Manager's sake here: drain it

@@ -21,6 +21,25 @@ from typing import Any, Optional
 PAPER_MODES = ('sac', 'qasac', 'eqsac')
 
 
+# How tables and figures name and colour each mode (a test holds one entry per mode).
+MODE_LABELS = {
+    'sac': 'SAC',
+    'qasac': 'QASAC',
+    'eqsac': 'EQSAC',
+    'respond': 'respond gate only',
+    'random': 'random requests',
+    'ask_random': 'ask gate and chance',
+}
+MODE_COLORS = {
+    'sac': 'tab:gray',
+    'qasac': 'tab:blue',
+    'eqsac': 'tab:red',
+    'respond': 'tab:purple',
+    'random': 'tab:green',
+    'ask_random': 'tab:orange',
+}
+
+
 def asks_for_advice(mode: str) -> bool:
     """Every mode but plain SAC asks the expert inside the budget and keeps what it is given in
     D_advising (for the second critic update); SAC never asks and has no D_advising."""

@@ -77,3 +77,10 @@ def test_the_learner_trainer_and_checkpoints_load_without_gymnasium():
     done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == '[]'
+
+
+def test_every_mode_has_a_label_and_a_colour():
+    from eqhrl_ros.core.config import MODE_COLORS, MODE_LABELS, MODES
+
+    assert set(MODE_LABELS) == set(MODES) == set(MODE_COLORS)
+    assert len(set(MODE_COLORS.values())) == len(MODES)
