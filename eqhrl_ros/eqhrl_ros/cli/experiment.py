@@ -52,7 +52,7 @@ import yaml
 
 from ..core.config import MODES as ALGORITHMS
 from ..core.config import PAPER_MODES
-from ..core.experts import EXPERT_BACKENDS
+from ..core.expert_factory import EXPERT_BACKENDS
 from ..paths import params_file
 from ..yaml_files import load_mapping
 
@@ -140,7 +140,7 @@ def learner_config(settings: Settings, algorithm: str, seed: int):
 
 def make_expert(settings: Settings, seed: int = 0):
     """The run's expert: the backend of the settings, made imperfect by expert_options."""
-    from ..core.experts import make_expert as expert_for
+    from ..core.expert_factory import make_expert as expert_for
     from ..core.imperfect_experts import DelayedExpert, WeakExpert
     from ..core.simulated_human import HumanLimits
 

@@ -1,14 +1,24 @@
 """The EQ-HRL learning core. Imports no ROS module: nodes, scripts and tests all drive it.
 
+- config.py      every hyperparameter once (default, range, description); the modes
 - equations.py   every equation of the paper (Eqs. 4-10), named as the paper names it
 - networks.py    the squashed-Gaussian actor and the twin critics
+- losses.py      the losses of one update (Eqs. 4-6), shared by the eager and compiled updates
 - replay.py      replay memories D and D_advising
 - advising.py    FIFO queues, dynamic/fixed thresholds and the early-advising budget
 - learner.py     EQSACLearner: SAC, QASAC and EQSAC (Algorithm 1)
+- compiled_update.py the whole update compiled as one program (compile_update)
 - experts.py     the expert interface and built-in controllers
+- imperfect_experts.py delayed and weak experts (studies)
+- simulated_human.py a simulated person (reaction times, noise, skips)
+- teleop.py      a person's commands and answer window
+- expert_factory.py the expert a backend name stands for (above the experts it builds)
 - checkpoint.py  safe checkpoints and exported policies
-- env_spec.py    EnvSpec: an env's spaces, pace and success rule, whoever announces it
-- envs.py        gymnasium envs: construction, their EnvSpec, action scaling
+- signing.py     a deployment's shared key: signed weights, batches and commands (HMAC)
+- env_spec.py    EnvSpec: an env's spaces, pace and success rule, whoever announces it; ActionScaler
+- envs.py        gymnasium envs: construction, their EnvSpec, action labels
+- evaluation.py  the advice-free evaluation of a policy
+- errors.py      the errors the core raises
 - training.py    the in-process training loop (one seed, or seeds together)
 - seed_batch.py  SeedBatch: many seeds' updates as one (one batched product per layer)
 - trainer.py     Trainer: learning fed by actor nodes (acting and learning apart)
@@ -40,6 +50,7 @@ _HOME = {
     'Advice': 'experts',
     'AdviceRequest': 'experts',
     'heuristic_expert': 'experts',
+    'make_expert': 'expert_factory',
     'EQSACLearner': 'learner',
     'LearnerConfig': 'learner',
     'Proposal': 'learner',

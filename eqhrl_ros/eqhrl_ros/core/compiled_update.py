@@ -33,7 +33,7 @@ from torch.optim.adam import adam as functional_adam
 
 from . import equations as eq
 from .config import asks_for_advice
-from .learner import policy_loss, soft_bellman_targets, twin_critic_loss  # learner.py imports this module late
+from .losses import policy_loss, soft_bellman_targets, twin_critic_loss
 
 LOG = logging.getLogger('eqhrl_ros.compile')
 

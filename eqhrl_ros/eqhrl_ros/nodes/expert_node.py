@@ -19,7 +19,8 @@ from rclpy.node import Node
 from eqhrl_interfaces.srv import Advise
 
 from ..core.env_spec import EnvSpec
-from ..core.experts import Advice, expert_disagreements, make_expert
+from ..core.expert_factory import make_expert
+from ..core.experts import Advice, expert_disagreements
 from ..core.simulated_human import HumanLimits, SimulatedHuman
 from .advise_msgs import answer, fill_response, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec, shown

@@ -16,7 +16,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ..core.config import INT_MAX, LearnerConfig, ros_name
-from ..core.experts import EXPERT_BACKENDS
+from ..core.expert_factory import EXPERT_BACKENDS
 from ..core.simulated_human import HumanLimits
 from ..core.teleop import ANSWER_MODES
 

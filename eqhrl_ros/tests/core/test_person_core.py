@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from eqhrl_ros.core.experts import SKIPPED, Advice, AdviceRequest, make_expert
+from eqhrl_ros.core.expert_factory import make_expert
+from eqhrl_ros.core.experts import SKIPPED, Advice, AdviceRequest
 from eqhrl_ros.core.learner import EQSACLearner, LearnerConfig
 from eqhrl_ros.core.simulated_human import HumanLimits, SimulatedHuman
 from eqhrl_ros.core.teleop import Command, TeleopExpert

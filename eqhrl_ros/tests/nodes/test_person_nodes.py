@@ -8,7 +8,8 @@ import rclpy
 from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
-from eqhrl_ros.core.experts import AdviceRequest, make_expert
+from eqhrl_ros.core.expert_factory import make_expert
+from eqhrl_ros.core.experts import AdviceRequest
 from eqhrl_ros.core.simulated_human import HumanLimits, SimulatedHuman
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.expert_node import ExpertNode
