@@ -26,11 +26,13 @@ def publishers(node: Node, topic: str) -> set:
 
 
 class OnePublisher:
-    """Messages on ``topic`` are trusted while exactly one node publishes it, and it is
-    ``expected`` when that is set (a full node name such as /advice_console)."""
+    """Messages on ``topic`` are trusted while exactly one node publishes it, and it is one of
+    ``expected`` when that is given (full node names such as /advice_console)."""
 
-    def __init__(self, node: Node, topic: str, expected: str = ''):
-        self.node, self.topic, self.expected = node, topic, expected
+    def __init__(self, node: Node, topic: str, expected=()):
+        self.node, self.topic = node, topic
+        self.expected = (expected,) if isinstance(expected, str) else tuple(expected)
+        self.expected = tuple(e for e in self.expected if e)
         self._checked_at, self._verdict = float('-inf'), ''
 
     def refusal(self) -> str:
@@ -42,8 +44,8 @@ class OnePublisher:
 
     def _judge(self) -> str:
         names = publishers(self.node, self.topic)
-        if self.expected and names and self.expected not in names:
-            return f"'{self.topic}' is published by {sorted(names)}, not by '{self.expected}'"
+        if self.expected and names and not names <= set(self.expected):
+            return f"'{self.topic}' is published by {sorted(names)}, not by {' or '.join(self.expected)}"
         if len(names) > 1:
             return (
                 f"'{self.topic}' has {len(names)} publishers ({', '.join(sorted(names))}): a message cannot be "

@@ -233,6 +233,13 @@ TRAINER_PARAMS = (
     ),
     KEY_FILE,
     Param(
+        'actors',
+        None,
+        'The actor names whose transitions are taken (their node full names, or actor_name); unset: any actor '
+        'that sends well-formed batches. Others are refused and counted',
+        kind='string_array',
+    ),
+    Param(
         'inbox_limit_mb',
         256.0,
         'Batches received and not stored yet are held up to this size; past it a batch is dropped and counted',
@@ -479,8 +486,9 @@ TELEOP_EXPERT_PARAMS = (
     Param(
         'command_publisher',
         '',
-        "The node the person's commands come from (full name, e.g. /advice_console); empty: any one node. "
-        'While another node publishes on the command topic too, every command is refused',
+        "The node the person's commands come from (full name, e.g. /my_driver); empty: for source array, "
+        'advice_console or keyboard_teleop (in this namespace), for joy and twist any one node. While another '
+        'node publishes on the command topic too, every command is refused',
     ),
     Param(
         'axes',

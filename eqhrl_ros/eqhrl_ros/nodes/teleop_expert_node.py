@@ -41,6 +41,9 @@ from .spinning import run_node, steady_clock
 
 # The answer must reach the learner before its advice_timeout_s ends.
 ANSWER_MARGIN_S = 0.2
+# The nodes that publish teleop_command in this package: taken from by default (command_publisher
+# names another driver).
+SHIPPED_DRIVERS = ('advice_console', 'keyboard_teleop')
 
 
 class TeleopExpertNode(Node):
@@ -87,8 +90,13 @@ class TeleopExpertNode(Node):
             callback_group=ReentrantCallbackGroup(),
         )
         topic = {'joy': 'joy', 'twist': 'cmd_vel', 'array': 'teleop_command'}[source]
-        # Commands are the person's only while one node (command_publisher, if set) publishes them.
-        self.source_guard = OnePublisher(self, self.resolve_topic_name(topic), self.params['command_publisher'])
+        # Commands are the person's only while one node publishes them: command_publisher if set;
+        # for teleop_command, else the drivers that ship (in this node's namespace).
+        expected = self.params['command_publisher']
+        if not expected and source == 'array':
+            ns = self.get_namespace().rstrip('/')
+            expected = tuple(f'{ns}/{driver}' for driver in SHIPPED_DRIVERS)
+        self.source_guard = OnePublisher(self, self.resolve_topic_name(topic), expected)
         self.get_logger().info(
             f"advising from '{topic}' ({source}); scales {self.params['scales']}; answer mode "
             f'{self.params["answer_mode"]}'

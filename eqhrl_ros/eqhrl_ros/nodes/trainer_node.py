@@ -175,6 +175,9 @@ class TrainerNode(RunFiles, Node):
             self._on_episode(row, who)
 
     def _check_one_sender(self, actor: str) -> None:
+        allowed = self.params['actors']
+        if allowed and actor not in allowed:
+            raise ValueError(f'actor {printable_name(actor)} is not one of actors ({", ".join(allowed[:5])})')
         """Two nodes of one full name publishing transitions (two machines launched alike, or a
         stranger posing as an actor): neither's batches can be told apart, so both are refused."""
         now = time.monotonic()

@@ -383,3 +383,12 @@ def test_with_a_shared_key_only_signed_batches_and_weights_are_taken(harness, ro
     )
     assert '/a0/actor' in trainer.trainer.sequences.actors and trainer.trainer.sequences.lost == 0
     assert actor.weights_version < 10**6
+
+
+def test_a_trainer_told_its_actors_refuses_any_other(harness, ros_context, tmp_path):
+    add_actor(harness, ros_context, '/a0')
+    add_actor(harness, ros_context, '/stranger')
+    trainer = add_trainer(harness, ros_context, tmp_path, actors=['/a0/actor'])
+    assert harness.spin_until(lambda: len(trainer.summaries) >= 2 and trainer.refused_batches > 0, timeout=90)
+    assert {actor for _, actor in trainer.summaries} == {'/a0/actor'}
+    assert '/stranger/actor' not in trainer.trainer.sequences.actors

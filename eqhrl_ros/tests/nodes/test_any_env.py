@@ -158,7 +158,7 @@ def test_a_person_advises_on_the_example_env_through_teleop_expert(harness, ros_
             ),
         )
     )
-    person = harness.add(rclpy.create_node('person', context=ros_context))
+    person = harness.add(rclpy.create_node('keyboard_teleop', context=ros_context))
     command_pub = person.create_publisher(Float32MultiArray, 'teleop_command', 10)
     controller = DoubleIntegratorExpert()
 

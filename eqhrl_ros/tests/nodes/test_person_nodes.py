@@ -30,7 +30,7 @@ class PersonAtAConsole:
     A missed request gets nothing."""
 
     def __init__(self, harness, human: SimulatedHuman, scale: float):
-        self.node = harness.add(rclpy.create_node('simulated_person', context=harness.context))
+        self.node = harness.add(rclpy.create_node('keyboard_teleop', context=harness.context))  # the UI it stands for
         self.human, self.scale = human, scale
         self.plans = []  # one per request, in order
         self.seen = set()

@@ -211,7 +211,7 @@ def test_advice_from_a_person_is_marked_in_stats_and_csv(harness, ros_context, t
             ),
         )
     )
-    probe = harness.add(rclpy.create_node('person', context=ros_context))
+    probe = harness.add(rclpy.create_node('keyboard_teleop', context=ros_context))  # a driver as a person uses it
     command_pub = probe.create_publisher(Float32MultiArray, 'teleop_command', 10)
     requests = []
     from eqhrl_ros.nodes.messages import LATCHED_QOS as LATCHED
@@ -476,3 +476,21 @@ def test_teleop_expert_passes_the_persons_command_on_for_a_takeover(harness, ros
     fields = messages.read_fields(passed[-1])
     assert fields['action'] == pytest.approx([2.0])  # 0.9 x 3 = 2.7, clipped to the env's bound
     assert fields['deadman'] == [1.0] and fields['take_over'] == [1.0]
+
+
+def test_a_stranger_alone_on_teleop_command_answers_nothing_by_default(harness, ros_context):
+    """Before: with the console not running, any node publishing teleop_command answered as the person."""
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(source='array', axes=[0], scales=[2.0], offsets=[0.0], answer_mode='instant'),
+        )
+    )
+    stranger = harness.add(rclpy.create_node('stranger', context=ros_context))
+    pub = stranger.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    client = stranger.create_client(Advise, 'advise')
+    assert harness.spin_until(lambda: pub.get_subscription_count() > 0)
+    harness.spin_until(lambda: False, timeout=0.6)  # the graph has seen it
+    pub.publish(messages.command_msg([-1.0], True, False, False))
+    assert harness.spin_until(lambda: teleop.rejected_commands >= 1, timeout=5)
+    assert 'no teleop command' in call_advise(harness, client).reason
