@@ -252,7 +252,14 @@ def test_ctrl_c_while_the_node_still_imports_ends_it_quietly(executable, tmp_pat
         text=True,
         cwd=tmp_path,
     )
-    time.sleep(0.4)  # inside the imports (torch alone takes over a second here)
+
+    def importing_torch():  # the node's own imports have begun (not the interpreter's start)
+        try:
+            return 'libtorch' in open(f'/proc/{process.pid}/maps').read()
+        except OSError:
+            return False
+
+    assert wait_for(importing_torch, 60)
     process.send_signal(signal.SIGINT)
     out, _ = process.communicate(timeout=30)
     assert process.returncode == 0, out[-2000:]
