@@ -259,9 +259,14 @@ def test_ctrl_c_while_the_node_still_imports_ends_it_quietly(executable, tmp_pat
         except OSError:
             return False
 
-    assert wait_for(importing_torch, 60)
-    process.send_signal(signal.SIGINT)
-    out, _ = process.communicate(timeout=30)
+    try:
+        assert wait_for(importing_torch, 60)
+        process.send_signal(signal.SIGINT)
+        out, _ = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:  # a failed test leaves no node behind
+            process.kill()
+            process.communicate()
     assert process.returncode == 0, out[-2000:]
     assert clean(out), out[-2000:]
 
