@@ -57,6 +57,8 @@ from .teleop_expert_node import ANSWER_MARGIN_S
 OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
 # The learner parameters the page shows and may set.
 LEARNER_CONTROLS = ('advice_enabled', 'advising_budget', 'advising_budget_s')
+# Read, not set: what the page says about the run's end.
+LEARNER_SHOWN = (*LEARNER_CONTROLS, 'max_episodes')
 # teleop_expert's: how long the person has per request and how a command becomes an action.
 TELEOP_SETTINGS = ('answer_window_s', 'axes', 'scales', 'offsets')
 # A page's input older than this is not the person's any more (the tab was closed or hidden).
@@ -268,7 +270,7 @@ class AdviceConsole(Node):
             self.teleop_client.get_parameters(list(TELEOP_SETTINGS)).add_done_callback(self._on_teleop_settings)
         if not self.learner_client.services_are_ready():
             return
-        future = self.learner_client.get_parameters(list(LEARNER_CONTROLS))
+        future = self.learner_client.get_parameters(list(LEARNER_SHOWN))
         future.add_done_callback(self._on_learner_params)
 
     def _on_teleop_settings(self, future) -> None:
@@ -297,7 +299,7 @@ class AdviceConsole(Node):
         except Exception:  # the learner went away meanwhile: shown as unknown
             return
         read = {}
-        for name, value in zip(LEARNER_CONTROLS, values):
+        for name, value in zip(LEARNER_SHOWN, values):
             if value.type == ParameterType.PARAMETER_BOOL:
                 read[name] = value.bool_value
             elif value.type == ParameterType.PARAMETER_INTEGER:

@@ -91,7 +91,17 @@ function onState(message) {
 function showRequest() {
   const box = $('request');
   const r = state.request;
-  if (!r) { box.className = ''; box.textContent = 'no request yet'; return; }
+  // The run's state, once advice cannot come any more: the budgets used up, or the run over.
+  const learner = state.learner || {};
+  const last = state.episodes[state.episodes.length - 1];
+  const done = last ? last.episode + 1 : 0;  // episodes finished (the page keeps only the last 500)
+  const over = learner.max_episodes > 0 && done >= learner.max_episodes;
+  const spent = done >= (learner.advising_budget ?? Infinity) ||
+    (learner.advising_budget_s > 0 && last && last.human_time_total_s >= learner.advising_budget_s);
+  const ended = over ? `the run has finished (${done} episodes): nothing more will be asked`
+    : (spent ? 'advice is over: the advising budget is used up; the learner goes on alone' : '');
+  $('run-state').textContent = ended;
+  if (!r) { box.className = ''; box.textContent = ended || 'no request yet'; return; }
   const key = `${r.episode}/${r.step}`;
   if (r.outcome === 'pending') {
     // The person's window is teleop_expert's: its answer_window_s, cut to the learner's wait

@@ -355,3 +355,20 @@ def test_the_page_counts_down_the_persons_window_and_draws_the_mapped_action(bro
         assert first <= 4.5  # the person's window, not the learner's 5.0 s
     finally:
         graph.close()
+
+
+def test_the_page_says_when_advice_is_over_and_when_the_run_has_finished(browser, ros_context, tmp_path):
+    env = GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=10))
+    learner = LearnerNode(
+        context=ros_context,
+        parameter_overrides=small_learner_params(tmp_path, mode='qasac', advising_budget=1, max_episodes=3),
+    )
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0))
+    graph = Graph(ros_context, [env, learner, console])
+    try:
+        browser.get(console.url)
+        state = "return document.getElementById('run-state').textContent"
+        wait_for(lambda: 'the advising budget is used up' in browser.execute_script(state), what='advice over')
+        wait_for(lambda: 'the run has finished (3 episodes)' in browser.execute_script(state), what='run finished')
+    finally:
+        graph.close()
