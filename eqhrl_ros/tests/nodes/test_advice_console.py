@@ -357,18 +357,36 @@ def test_the_page_counts_down_the_persons_window_and_draws_the_mapped_action(bro
         graph.close()
 
 
-def test_the_page_says_when_advice_is_over_and_when_the_run_has_finished(browser, ros_context, tmp_path):
-    env = GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=10))
-    learner = LearnerNode(
-        context=ros_context,
-        parameter_overrides=small_learner_params(tmp_path, mode='qasac', advising_budget=1, max_episodes=3),
-    )
-    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0))
-    graph = Graph(ros_context, [env, learner, console])
+def test_the_page_says_when_advice_is_over_and_when_the_run_has_finished(browser, ros_context):
+    """A stand-in learner (its parameters and its episode statistics, published by the test): the
+    page's state follows each episode."""
+    import rclpy
+
+    from eqhrl_interfaces.msg import EpisodeStats
+
+    learner = rclpy.create_node('learner', context=ros_context)
+    for name, value in (
+        ('advice_enabled', True),
+        ('advising_budget', 1),
+        ('advising_budget_s', 0.0),
+        ('max_episodes', 3),
+    ):
+        learner.declare_parameter(name, value)
+    stats = learner.create_publisher(EpisodeStats, 'learner/episode_stats', 100)
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    graph = Graph(ros_context, [learner, console])
     try:
+        wait_for(lambda: console.learner_params.get('max_episodes') == 3, what="the learner's parameters read")
         browser.get(console.url)
         state = "return document.getElementById('run-state').textContent"
+        wait_for(
+            lambda: browser.execute_script("return document.getElementById('connection').textContent") == 'connected'
+        )
+        assert browser.execute_script(state) == ''
+        stats.publish(EpisodeStats(episode=0, length=10))
         wait_for(lambda: 'the advising budget is used up' in browser.execute_script(state), what='advice over')
+        stats.publish(EpisodeStats(episode=1, length=10))
+        stats.publish(EpisodeStats(episode=2, length=10))
         wait_for(lambda: 'the run has finished (3 episodes)' in browser.execute_script(state), what='run finished')
     finally:
         graph.close()
