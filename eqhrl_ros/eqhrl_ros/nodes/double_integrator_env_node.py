@@ -100,7 +100,7 @@ class DoubleIntegratorEnv(Node):
         self.rejected_actions = 0
         self.max_action_change = values['max_action_change']
         self.previous_u = 0.0
-        # The person's stop (std_msgs/Bool on `stop`, latched): a robot must honour it whatever
+        # The person's stop (std_msgs/Bool on `/stop`, latched): a robot must honour it whatever
         # the learner sends. Here, while stopped, the system is not stepped at all (it holds).
         self.stopped = False
 
@@ -111,7 +111,7 @@ class DoubleIntegratorEnv(Node):
         self.info_pub = self.create_publisher(EnvInfo, 'env_info', latched)
         self.observation_pub = self.create_publisher(Float32MultiArray, 'observation', qos)
         self.create_subscription(Float32MultiArray, 'action', self._on_action, qos)
-        self.create_subscription(Bool, 'stop', self._on_stop, latched)
+        self.create_subscription(Bool, '/stop', self._on_stop, latched)  # every env hears one STOP
         self.info_pub.publish(
             EnvInfo(
                 name=NAME,

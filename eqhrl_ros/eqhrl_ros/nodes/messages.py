@@ -66,9 +66,10 @@ def _layout(dims: tuple[tuple[str, int], ...]) -> MultiArrayLayout:
     return MultiArrayLayout(dim=[MultiArrayDimension(label=label, size=size, stride=size) for label, size in dims])
 
 
-# The person's stop (std_msgs/Bool on ``stop``): latched, so that an env node that starts or
-# restarts while the robot is stopped stays stopped.
-STOP_TOPIC = 'stop'
+# The person's stop (std_msgs/Bool on ``/stop``): latched, so that an env node that starts or
+# restarts while the robot is stopped stays stopped; absolute, so that one STOP reaches every
+# env in the domain, actors' namespaced ones too (remap it to stop one team alone).
+STOP_TOPIC = '/stop'
 STOP_QOS = LATCHED_QOS
 
 

@@ -104,3 +104,10 @@ def test_the_double_integrator_holds_while_stopped(harness, ros_context):
     assert (env.episode, env.step_index, env.system.x, env.system.v) == held
     stop.publish(Bool(data=False))
     assert harness.spin_until(lambda: (env.episode, env.step_index) != held[:2], timeout=10)
+
+
+def test_one_stop_reaches_an_env_in_an_actors_namespace(harness, ros_context):
+    env = harness.add(GymEnvNode(context=ros_context, namespace='/actor3', parameter_overrides=params()))
+    stop = stopper(harness)  # in the root namespace, as the console is
+    stop.publish(Bool(data=True))
+    assert harness.spin_until(lambda: env.stopped, timeout=10)
