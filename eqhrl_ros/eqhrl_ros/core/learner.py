@@ -158,6 +158,18 @@ def _tensors(value):
             yield from _tensors(item)
 
 
+# The parts of a learner's state an update changes: the networks, the temperature and their optimisers.
+NETWORK_STATE = (
+    'actor',
+    'critic',
+    'critic_target',
+    'log_alpha',
+    'actor_optimizer',
+    'critic_optimizer',
+    'alpha_optimizer',
+)
+
+
 def _check_state(state) -> None:
     """Refuse a saved state whose structure or values no run of this learner can produce."""
     if not isinstance(state, dict):
@@ -177,15 +189,7 @@ def _check_state(state) -> None:
         )
     if not isinstance(counters.get('advice_total'), dict):
         raise ValueError('counters.advice_total must be a dict')
-    for key in (
-        'actor',
-        'critic',
-        'critic_target',
-        'log_alpha',
-        'actor_optimizer',
-        'critic_optimizer',
-        'alpha_optimizer',
-    ):
+    for key in NETWORK_STATE:
         if any(t.is_floating_point() and not torch.isfinite(t).all() for t in _tensors(state.get(key))):
             raise ValueError(f"'{key}' holds non-finite values (NaN or inf)")
     for key in ('d_queue', 'e_queue'):

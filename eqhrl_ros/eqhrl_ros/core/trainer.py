@@ -17,7 +17,7 @@ import math
 import numpy as np
 import torch
 
-from .learner import AdviceCounts, EQSACLearner
+from .learner import NETWORK_STATE, AdviceCounts, EQSACLearner
 from .summary import EpisodeSummary
 from .transitions import SequenceTracker, TransitionBatch
 
@@ -32,16 +32,6 @@ INT32_MAX = 2**31 - 1
 # A batch numbered this far past the last one of its actor is not a gap but a forgery (an actor
 # that really lost that many batches of 50 transitions would have lost a day at 1 kHz).
 MAX_SEQUENCE_JUMP = 1_000_000
-# The parts of a learner's state an update changes (what restore_finite puts back).
-NETWORK_STATE = (
-    'actor',
-    'critic',
-    'critic_target',
-    'log_alpha',
-    'actor_optimizer',
-    'critic_optimizer',
-    'alpha_optimizer',
-)
 
 
 @dataclasses.dataclass(frozen=True)

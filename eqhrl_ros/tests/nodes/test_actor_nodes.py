@@ -49,6 +49,23 @@ def add_trainer(harness, ros_context, tmp_path, **extra):
     return harness.add(TrainerNode(context=ros_context, parameter_overrides=params(**values)))
 
 
+def batch_message(actor: str, sequence: int = 0, n: int = 5, advised: bool = False) -> TransitionBatch:
+    """A well-formed TransitionBatch of n zero transitions on Pendulum's spaces."""
+    return TransitionBatch(
+        actor=actor,
+        sequence=sequence,
+        observation_size=3,
+        action_low=[-2.0],
+        action_high=[2.0],
+        observations=[0.0] * 3 * n,
+        next_observations=[0.0] * 3 * n,
+        actions=[0.0] * n,
+        rewards=[0.0] * n,
+        terminated=[False] * n,
+        advised=[advised] * n,
+    )
+
+
 def test_two_actors_feed_one_trainer_and_act_with_its_weights(harness, ros_context, tmp_path):
     actors = [add_actor(harness, ros_context, f'/a{i}') for i in range(2)]
     trainer = add_trainer(harness, ros_context, tmp_path)
@@ -247,23 +264,10 @@ def test_weights_wait_steps_keeps_a_lock_step_actor_within_reach_of_the_trainer(
 
 
 def test_the_trainers_inbox_is_bounded_in_bytes_and_counts_what_it_drops(harness, ros_context, tmp_path):
-    from eqhrl_interfaces.msg import TransitionBatch as BatchMsg
-
     trainer = add_trainer(harness, ros_context, tmp_path, inbox_limit_mb=1.0)
     trainer.stop_learning()  # nothing is stored: the inbox only fills, as under a flood faster than updates
-    n = 9_000  # 9,000 transitions of 3 + 3 + 1 + 1 floats and 2 flags: about 0.31 MB a batch
-    msg = BatchMsg(
-        actor='/flood',
-        observation_size=3,
-        action_low=[-2.0],
-        action_high=[2.0],
-        observations=[0.0] * 3 * n,
-        next_observations=[0.0] * 3 * n,
-        actions=[0.0] * n,
-        rewards=[0.0] * n,
-        terminated=[False] * n,
-        advised=[False] * n,
-    )
+    # 9,000 transitions of 3 + 3 + 1 + 1 floats and 2 flags: about 0.31 MB a batch
+    msg = batch_message('/flood', n=9_000)
     for sequence in range(10):
         msg.sequence = sequence
         trainer._on_batch(msg)
@@ -322,24 +326,8 @@ def test_two_nodes_under_one_actor_name_are_refused_by_the_trainer(harness, ros_
         lambda: len(trainer.get_publishers_info_by_topic(trainer_msgs.TRANSITIONS_TOPIC)) == 2, timeout=10
     )
 
-    def batch(sequence):
-        n = 5
-        return TransitionBatch(
-            actor='/actor0/actor',
-            sequence=sequence,
-            observation_size=3,
-            action_low=[-2.0],
-            action_high=[2.0],
-            observations=[0.0] * 3 * n,
-            next_observations=[0.0] * 3 * n,
-            actions=[0.0] * n,
-            rewards=[0.0] * n,
-            terminated=[False] * n,
-            advised=[False] * n,
-        )
-
-    pubs[0].publish(batch(0))
-    pubs[1].publish(batch(0))
+    pubs[0].publish(batch_message('/actor0/actor'))
+    pubs[1].publish(batch_message('/actor0/actor'))
     assert harness.spin_until(lambda: trainer.refused_batches >= 2, timeout=10)
     assert trainer.learner.total_steps == 0 and trainer.trainer.sequences.actors == {}
 
@@ -356,20 +344,7 @@ def test_with_a_shared_key_only_signed_batches_and_weights_are_taken(harness, ro
     stranger = harness.add(rclpy.create_node('stranger', context=ros_context))
     batches = stranger.create_publisher(TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, trainer_msgs.TRANSITIONS_QOS)
     weights = stranger.create_publisher(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, trainer_msgs.WEIGHTS_QOS)
-    n = 5
-    forged = TransitionBatch(
-        actor='/a0/actor',
-        sequence=10**5,
-        observation_size=3,
-        action_low=[-2.0],
-        action_high=[2.0],
-        observations=[0.0] * 3 * n,
-        next_observations=[0.0] * 3 * n,
-        actions=[0.0] * n,
-        rewards=[0.0] * n,
-        terminated=[False] * n,
-        advised=[True] * n,
-    )
+    forged = batch_message('/a0/actor', sequence=10**5, advised=True)
     unsigned = trainer.refused_batches
     batches.publish(forged)
     trainer_msgs.sign_batch(forged, Signer(b'another key, not ours!!'))
