@@ -83,8 +83,9 @@ class LearnerConfig:
 
     mode: str = hyper(
         'eqsac',
-        'Learning mode: plain SAC, QASAC (ask gate only) or EQSAC (ask and respond gates); ablations: '
-        'respond (respond gate only), random (ask at random steps, chance random_ask_rate)',
+        'Learning mode: plain SAC, QASAC (ask gate only) or EQSAC (ask and respond gates); baselines: '
+        'respond (respond gate only), random (ask at random steps: random_ask_rate, or random_ask_schedule), '
+        'ask_random (the ask gate and a random draw below random_ask_rate)',
         choices=MODES,
     )
     hidden: tuple[int, ...] = hyper(
