@@ -14,6 +14,7 @@ shutdown, under a single-threaded executor or a multi-threaded one. (A synchrono
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 from collections import Counter, deque
@@ -148,25 +149,21 @@ class ActingNode(Node):
             asked, given = done.asked + current.asked, done.given + current.given
             timeouts = done.failed['timeout'] + current.failed['timeout']
             declined = done.declined + current.declined
-            latencies = sorted(self.advice_latencies)[-1000:] if self.advice_latencies else []
+            recent = list(itertools.islice(reversed(self.advice_latencies), 1000))  # the last 1,000 answers
             stalled = self._stalled_since
         cfg = self.config
         episodes_left = max(0, cfg.advising_budget - learner.episode)
         advising = asks_for_advice(cfg.mode) and episodes_left > 0 and learner.person_budget_left_s > 0
         servers = self.count_services(self.advice_client.srv_name)
-        p = (
-            (lambda q: f'{1000 * latencies[min(len(latencies) - 1, int(q * len(latencies)))]:.0f}')
-            if latencies
-            else None
-        )
+        p50, p99 = (f'{v:.0f}' for v in np.percentile(np.asarray(recent) * 1000, (50, 99))) if recent else ('-', '-')
         values = {
             'advise servers': servers,
             'asked': asked,
             'given': given,
             'declined': declined,
             'timeouts': timeouts,
-            'answer latency p50 ms': p(0.5) if p else '-',
-            'answer latency p99 ms': p(0.99) if p else '-',
+            'answer latency p50 ms (last 1,000)': p50,
+            'answer latency p99 ms (last 1,000)': p99,
         }
         if not advising:
             expert = Check('expert', OK, 'not asking (mode sac, or the budget is used up)', values)
