@@ -82,6 +82,7 @@ class TrainerNode(RunFiles, Node):
         self.create_timer(p['report_period_s'], self._report, clock=steady_clock())
         self._inbox: deque = deque()  # batches received, not stored yet (the learning thread's)
         self._inbox_bytes = 0
+        self._inbox_bytes_lock = threading.Lock()  # the executor adds, the learning thread subtracts
         self._namesakes: dict = {}  # actor name -> (time looked up, nodes of that name publishing transitions)
         self.transitions_topic = self.resolve_topic_name(trainer_msgs.TRANSITIONS_TOPIC)
         self.dropped_batches = 0  # refused because the inbox was full (counted as lost by their actor too)
@@ -125,7 +126,11 @@ class TrainerNode(RunFiles, Node):
         holds at most inbox_limit_mb; past it a batch is dropped and counted (a flood, or updates
         far slower than the actors), and its actor's next batch shows the gap."""
         size = trainer_msgs.batch_bytes(msg)
-        if self._inbox_bytes + size > self.params['inbox_limit_mb'] * 1e6:
+        with self._inbox_bytes_lock:
+            full = self._inbox_bytes + size > self.params['inbox_limit_mb'] * 1e6
+            if not full:
+                self._inbox_bytes += size
+        if full:
             self.dropped_batches += 1
             self.get_logger().warn(
                 f'inbox full ({self._inbox_bytes / 1e6:.0f} MB waiting to be stored): batch {msg.sequence} of '
@@ -133,7 +138,6 @@ class TrainerNode(RunFiles, Node):
                 throttle_duration_sec=5.0,
             )
             return
-        self._inbox_bytes += size
         self._inbox.append(msg)
         self._work.set()
 
@@ -175,11 +179,12 @@ class TrainerNode(RunFiles, Node):
             self._on_episode(row, who)
 
     def _check_one_sender(self, actor: str) -> None:
+        """An actor named in ``actors`` (when set), and one node only under its name: two nodes of
+        one full name publishing transitions (two machines launched alike, or a stranger posing as
+        an actor) cannot be told apart, so the batches of both are refused."""
         allowed = self.params['actors']
         if allowed and actor not in allowed:
             raise ValueError(f'actor {printable_name(actor)} is not one of actors ({", ".join(allowed[:5])})')
-        """Two nodes of one full name publishing transitions (two machines launched alike, or a
-        stranger posing as an actor): neither's batches can be told apart, so both are refused."""
         now = time.monotonic()
         looked, count = self._namesakes.get(actor, (float('-inf'), 0))
         if now - looked >= GRAPH_CACHE_S:
@@ -249,7 +254,8 @@ class TrainerNode(RunFiles, Node):
                 stored = bool(self._inbox)
                 while self._inbox and not self._stopping.is_set():
                     msg = self._inbox.popleft()
-                    self._inbox_bytes -= trainer_msgs.batch_bytes(msg)
+                    with self._inbox_bytes_lock:
+                        self._inbox_bytes -= trainer_msgs.batch_bytes(msg)
                     self._store(msg)
                 busy = self.trainer is not None and not self.done and self.trainer.owed() > 0
                 if busy:
