@@ -464,9 +464,6 @@ def run_worker(settings, algorithm, seed, directory, through_ros, progress, doma
     return algorithm, seed, elapsed
 
 
-_worker = run_worker  # TEMPORARY: the study running in this session imports it by its old name
-
-
 def _group_worker(settings, algorithm, seeds, output, progress) -> tuple:
     """Seeds of one algorithm together in this process (run_together)."""
     for seed in seeds:

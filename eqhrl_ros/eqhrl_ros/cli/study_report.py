@@ -153,6 +153,10 @@ def timing_table(folder: Path, arms: list, updates_from: dict, budget: dict) -> 
     return '\n'.join(lines)
 
 
+def _p(p: float) -> str:
+    return '<0.001' if p < 0.001 else f'{p:.3f}'
+
+
 def stated_tests(tests: dict, arms: list, scores: dict) -> str:
     """The plan's pre-stated comparisons: primary ones Holm-corrected together, secondary ones not."""
     labels = {a.name: a.label for a in arms}
@@ -177,10 +181,10 @@ def stated_tests(tests: dict, arms: list, scores: dict) -> str:
             adjusted = holm([r.p for _, r in kept])
             kept = [(p, dataclasses.replace(r, holm=h)) for (p, r), h in zip(kept, adjusted)]
         for (a, b), r in kept:
-            holm_text = f'{r.holm:.3f}' if not math.isnan(r.holm) else '—'
+            holm_text = _p(r.holm) if not math.isnan(r.holm) else '—'
             lines.append(
                 f'| {family} | {labels[a]} − {labels[b]} | {r.n} | {r.mean:+.1f} [{r.low:+.1f}, {r.high:+.1f}] '
-                f'| {r.p:.3f} | {holm_text} | {r.tost_p:.3f} | {r.verdict()} |'
+                f'| {_p(r.p)} | {holm_text} | {_p(r.tost_p)} | {r.verdict()} |'
             )
     return '\n'.join(lines)
 
