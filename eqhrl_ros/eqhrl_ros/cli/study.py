@@ -357,7 +357,7 @@ def main(argv=None) -> int:
         left = per_run * len(todo) / max(1, min(args.jobs, len(todo)))
         estimate = f'; about {left:.0f} min ({per_run:.1f} min a run so far)'
     else:
-        estimate = '; no time estimate until a run has finished here'
+        estimate = '; no time estimate yet (no finished run here has its STARTED mark)'
     print(
         f'study {plan.name} ({plan.path}): {len(runs)} runs, {len(done)} finished, {len(todo)} to do '
         f'(at most {steps:,} env steps), {args.jobs} in parallel{estimate}',
