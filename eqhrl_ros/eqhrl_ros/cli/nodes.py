@@ -9,10 +9,13 @@ refused.
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 from dataclasses import dataclass
 
 from ..yaml_files import load_mapping
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @dataclass(frozen=True)
@@ -130,13 +133,21 @@ def run(name: str, argv=None) -> int:
             except ValueError as error:
                 print(f'{name}: {error}', file=sys.stderr)
                 return 2
+    # A Ctrl-C or SIGTERM while torch and rclpy import: nothing has started that needs stopping,
+    # so the program ends quietly once the imports are done. (A KeyboardInterrupt raised inside
+    # torch's import is swallowed there, and the node then started as if never stopped.)
+    early = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: early.append(signum)) for sig in STOP_SIGNALS}
     try:
-        # Until the node's own handlers are in (spinning.init), Python's default one turns a
-        # Ctrl-C into KeyboardInterrupt: while torch and rclpy still import, nothing has started
-        # that needs stopping, so it ends the program quietly.
         module = importlib.import_module(f'eqhrl_ros.nodes.{NODES[name].module}')
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if early:
+        return 0
+    try:
         module.main()
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # in the instant between the imports and the node's own handlers
         return 0
     return 0
 
