@@ -18,7 +18,9 @@ arms, the same-seed differences (the runner pairs seeds) with a 95 % bootstrap i
 how many seeds the first arm won. Each advising arm is compared with plain SAC of the same
 settings (the first SAC arm whose learner settings are the same, leaving out those SAC never
 reads, such as the budget), and with the random-request arm matched to it, where there is
-one. Writes table.md, eval_<group>.png, profile.png, effort.png and gates.png into --output,
+one. Where the plan has random arms at fixed rates (at least two), every other advising arm is
+placed on their effort frontier: its gain over SAC minus chance's at the same request count.
+Writes table.md, eval_<group>.png, profile.png, effort.png, frontier.png and gates.png into --output,
 and copies the gathered CSVs beside them.
 """
 
@@ -33,11 +35,22 @@ import sys
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import yaml
 
-from ..stats import holm, iqm, iqm_estimate, paired_difference, paired_test, performance_profile
+from ..core.simulated_human import expected_seconds_per_request
+from ..stats import (
+    holm,
+    iqm,
+    iqm_estimate,
+    paired_difference,
+    paired_test,
+    performance_profile,
+    sign_flip_p,
+    t_interval,
+)
 from ..yaml_files import load_mapping
 from .report import THRESHOLDS
 
@@ -489,6 +502,132 @@ def gate_rates(folder: Path, updates_from: dict, queue_length: dict) -> str:
     return '\n'.join(lines)
 
 
+def frontier_arms(arms: list) -> list:
+    """The effort frontier of chance: random arms asking at a fixed rate per budget step (no
+    schedule matched to another arm), each with a SAC reference."""
+    return [
+        a
+        for a in arms
+        if a.mode == 'random' and not a.match and a.learner.get('random_ask_rate') and sac_reference(a, arms)
+    ]
+
+
+def gains_over_sac(scores: dict, arm: ArmInfo, arms: list) -> dict:
+    """{seed: eval AUC minus the SAC reference's of the same seed}."""
+    base = per_seed(scores, sac_reference(arm, arms), 'auc')
+    return {seed: auc - base[seed] for seed, auc in per_seed(scores, arm.name, 'auc').items() if seed in base}
+
+
+@dataclass
+class FrontierPoint:
+    arm: ArmInfo
+    requests: float  # mean over seeds
+    gain: float  # mean AUC gain over SAC
+    low: float  # its 95 % t interval
+    high: float
+    above: Optional[tuple] = None  # (n, mean, low, high, p) of the gain minus the frontier's, same seeds
+
+
+def frontier(arms: list, scores: dict) -> tuple[list, list]:
+    """(the frontier's points by requests, every advising arm placed against it). An arm is
+    placed by seed: its gain minus the frontier's gain at the arm's mean request count, the
+    frontier drawn through that seed's random arms (linear in log requests); arms asking
+    fewer or more than every frontier arm are left unplaced."""
+
+    def point(arm: ArmInfo) -> Optional[FrontierPoint]:
+        gains = gains_over_sac(scores, arm, arms)
+        if len(gains) < 2:
+            return None
+        requests = float(np.mean([scores[(arm.name, seed)].asked for seed in gains]))
+        values = np.array(list(gains.values()))
+        low, high = t_interval(values)
+        return FrontierPoint(arm, requests, float(values.mean()), low, high)
+
+    line = sorted((p for p in map(point, frontier_arms(arms)) if p), key=lambda p: p.requests)
+    placed = []
+    for arm in arms:
+        if arm.mode == 'sac' or arm in [p.arm for p in line] or not sac_reference(arm, arms):
+            continue
+        placed_point = point(arm)
+        if placed_point is None:
+            continue
+        if len(line) >= 2 and line[0].requests <= placed_point.requests <= line[-1].requests:
+            x = math.log(max(placed_point.requests, 1e-9))
+            xs = [math.log(max(p.requests, 1e-9)) for p in line]
+            per_arm = [gains_over_sac(scores, p.arm, arms) for p in line]
+            own = gains_over_sac(scores, arm, arms)
+            seeds = sorted(set(own).intersection(*per_arm))
+            diffs = np.array([own[s] - np.interp(x, xs, [g[s] for g in per_arm]) for s in seeds])
+            if len(diffs) >= 2:
+                low, high = t_interval(diffs)
+                placed_point.above = (len(diffs), float(diffs.mean()), low, high, sign_flip_p(diffs, seed=7))
+        placed.append(placed_point)
+    return line, placed
+
+
+def frontier_table(arms: list, scores: dict) -> str:
+    line, placed = frontier(arms, scores)
+    if len(line) < 2:
+        return ''
+    seconds = expected_seconds_per_request()
+    lines = [
+        f"A simulated person's seconds: requests × {seconds:.2f} s, the mean time the simulated person "
+        '(simulated_human.HumanLimits defaults) spends on a request, misses included. Above the frontier: the '
+        "arm's AUC gain over SAC minus the gain of random requests at the same count (interpolated in log requests "
+        "through the same seed's frontier arms), with its 95 % t interval and sign-flip p.",
+        '',
+        "| arm | seeds | requests (mean) | person's seconds | Δ AUC over SAC (mean [95 % t]) | above the frontier "
+        '(Δ [95 % t]) | p |',
+        '|---|---|---|---|---|---|---|',
+    ]
+    for p in line + placed:
+        above = (
+            (f'{p.above[1]:+.1f} [{p.above[2]:+.1f}, {p.above[3]:+.1f}] ({p.above[0]} seeds)', _p(p.above[4]))
+            if p.above
+            else (('(the frontier)', '') if p in line else ('outside its range', ''))
+        )
+        seeds = len(gains_over_sac(scores, p.arm, arms))
+        lines.append(
+            f'| {p.arm.label} | {seeds} | {p.requests:.0f} | {p.requests * seconds:.0f} '
+            f'| {p.gain:+.1f} [{p.low:+.1f}, {p.high:+.1f}] | {above[0]} | {above[1]} |'
+        )
+    return '\n'.join(lines)
+
+
+def plot_frontier(arms: list, scores: dict, path: Path) -> bool:
+    """AUC gain over SAC against requests (and a simulated person's seconds): the random arms at
+    fixed rates drawn as a line, every other advising arm placed on it with its 95 % t interval."""
+    line, placed = frontier(arms, scores)
+    if len(line) < 2:
+        return False
+    plt = _pyplot()
+    from ..core.config import MODE_COLORS
+
+    seconds = expected_seconds_per_request()
+    fig, ax = plt.subplots(figsize=(8, 5))
+    xs = [p.requests for p in line]
+    ax.plot(xs, [p.gain for p in line], color='tab:green', marker='o', label='random requests at fixed rates')
+    ax.fill_between(xs, [p.low for p in line], [p.high for p in line], color='tab:green', alpha=0.15)
+    markers = 'sD^vP*Xh<>'
+    for i, p in enumerate(placed):
+        ax.errorbar(
+            [p.requests], [p.gain], yerr=[[p.gain - p.low], [p.high - p.gain]], fmt=markers[i % len(markers)],
+            color=MODE_COLORS.get(p.arm.mode, 'black'), capsize=3, label=p.arm.label,
+        )  # fmt: skip
+    ax.axhline(0.0, color='black', linewidth=0.6)
+    ax.set_xscale('log')
+    ax.set_xlabel('requests to the expert per run (mean over seeds)')
+    ax.set_ylabel('eval AUC minus SAC of the same seed (mean, 95 % t)')
+    top = ax.secondary_xaxis('top', functions=(lambda r: r * seconds, lambda t: t / seconds))
+    top.set_xlabel(f"a simulated person's seconds ({seconds:.2f} s per request)")
+    ax.set_title('the effort frontier: above the line is better than chance per request', fontsize=10)
+    ax.legend(fontsize=7, loc='best')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog='eqhrl-study-report',
@@ -565,6 +704,9 @@ def main(argv=None) -> int:
         '',
         timing_table(folder, arms, updates_from, budget),
     ]
+    placed = frontier_table(arms, scores)
+    if placed:
+        sections += ['', '## The effort frontier: each gate against random requests at the same count', '', placed]
     rates = gate_rates(folder, updates_from, {name: c.queue_length for name, c in configs.items()})
     if rates:
         sections += ['', '## How often the gates opened inside the budget', '', rates]
@@ -575,6 +717,7 @@ def main(argv=None) -> int:
             plot_curves(arms, scores, group, output / f'eval_{group}.png', threshold)
     plot_profile(arms, scores, groups[0], output / 'profile.png')
     plot_effort(arms, scores, output / 'effort.png')
+    plot_frontier(arms, scores, output / 'frontier.png')
     traced = [a.name for a in arms if a.mode == 'eqsac']
     if traced:  # the first seed of the first EQSAC arm that asked at all
         asked = sorted(seed for (arm, seed), s in scores.items() if arm == traced[0] and s.asked)

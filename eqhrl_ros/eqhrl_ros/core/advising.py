@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
+import statistics
 from collections import deque
 from dataclasses import dataclass
 from typing import Iterable
 
 from . import equations as eq
-from .config import asks_for_advice, check_value
+from .config import EXTENSION_MODES, asks_for_advice, check_value
 
 
 class FifoQueue:
@@ -49,6 +50,9 @@ class GateDecision:
     entropy: float = float('nan')  # E(s), Eq. 9; NaN when not evaluated
     d_threshold: float = float('nan')  # max(D_queue) before the push, or the fixed threshold
     e_threshold: float = float('nan')  # min(E_queue) before the push, or the fixed threshold
+    # mode joint_rank: the rank product of D(s) and E(s) and the threshold it was held against
+    joint_rank: float = float('nan')
+    joint_threshold: float = float('nan')
 
     @property
     def reason(self) -> str:
@@ -58,6 +62,9 @@ class GateDecision:
         if not self.queues_ready:
             return 'queues filling'
         has_d, has_e = not math.isnan(self.discrepancy), not math.isnan(self.entropy)
+        if not math.isnan(self.joint_rank):  # mode joint_rank
+            relation = '>=' if self.fire else '<'
+            return f'rank product {self.joint_rank:.3f} {relation} threshold {self.joint_threshold:.3f}'
         if not (has_d or has_e):  # mode random
             return 'a random draw chose this step' if self.fire else 'the random draw said no'
         if has_d and self.ask and not has_e and not self.fire:  # mode ask_random
@@ -83,6 +90,13 @@ class AdvisingGates:
       another run episode by episode, so that it asks when that run asked, at other states.
     - ``ask_random`` (baseline): asks when D(s) > max(D_queue) and a uniform draw is below
       ``random_ask_rate``: the ask gate thinned at random, where EQSAC thins it by E(s).
+    Extensions beyond the paper (labelled so in every table):
+    - ``ask_median``: asks when D(s) > max(D_queue) and E(s) < median(E_queue): the ask gate
+      thinned by a softer respond gate.
+    - ``joint_rank``: asks when rank_D * rank_E >= a threshold, where rank_D is the share of
+      D_queue below D(s) and rank_E the share of E_queue above E(s) (both 1 exactly when EQSAC
+      fires); the threshold starts at 1 (EQSAC's rule, with >= for >) and moves by
+      ``gate_threshold_step`` per step toward asking at ``gate_target_rate`` (Robbins-Monro).
     All only while episode < advising_budget (Eq. 7).
 
     Dynamic thresholds compare the current value with the queue *as it was before
@@ -102,28 +116,35 @@ class AdvisingGates:
         random_ask_rate: float = 0.0,
         random_ask_schedule: tuple = (),
         random_ask_horizon: int = 200,
+        gate_target_rate: float = 0.015,
+        gate_threshold_step: float = 0.01,
     ):
         # The rules of each value live with LearnerConfig's fields (core/config.py).
         self.mode = check_value('mode', mode)
         check_value('threshold_kind', threshold_kind)
         self.advising_budget = check_value('advising_budget', advising_budget)
         self.threshold_kind = threshold_kind
+        if mode in EXTENSION_MODES and threshold_kind != 'dynamic':
+            raise ValueError(f'mode {mode} ranks D(s) and E(s) within their queues: it needs threshold_kind dynamic')
         self.fixed_d_threshold = float(fixed_d_threshold)
         self.fixed_e_threshold = float(fixed_e_threshold)
         self.random_ask_rate = check_value('random_ask_rate', random_ask_rate)
         self.random_ask_schedule = check_value('random_ask_schedule', random_ask_schedule)
         self.random_ask_horizon = check_value('random_ask_horizon', random_ask_horizon)
         self._scheduled_episode, self._scheduled_asked = -1, 0  # requests made so far in that episode
+        self.gate_target_rate = check_value('gate_target_rate', gate_target_rate)
+        self.gate_threshold_step = check_value('gate_threshold_step', gate_threshold_step)
+        self.joint_threshold = 1.0  # mode joint_rank: starts at EQSAC's rule
         self.d_queue = FifoQueue(queue_length)
         self.e_queue = FifoQueue(queue_length)
 
     @property
     def uses_discrepancy(self) -> bool:
-        return self.mode in ('qasac', 'eqsac', 'ask_random')
+        return self.mode in ('qasac', 'eqsac', 'ask_random', 'ask_median', 'joint_rank')
 
     @property
     def uses_entropy(self) -> bool:
-        return self.mode in ('eqsac', 'respond')
+        return self.mode in ('eqsac', 'respond', 'ask_median', 'joint_rank')
 
     @property
     def uses_draw(self) -> bool:
@@ -167,8 +188,15 @@ class AdvisingGates:
             e_values = self.e_queue.values()
             d_threshold = max(d_values) if d_values else float('nan')
             e_threshold = min(e_values) if e_values else float('nan')
+            if self.mode == 'ask_median' and e_values:
+                e_threshold = statistics.median(e_values)
             ask = (not self.uses_discrepancy) or (d_ready and eq.ask_condition(discrepancy, d_values))
-            respond = (not self.uses_entropy) or (e_ready and eq.respond_condition(entropy, e_values))
+            if self.mode == 'ask_median':
+                respond = e_ready and entropy < e_threshold
+            else:
+                respond = (not self.uses_entropy) or (e_ready and eq.respond_condition(entropy, e_values))
+            if self.mode == 'joint_rank' and d_ready and e_ready:
+                return self._joint_rank(discrepancy, entropy, d_values, e_values, ask, respond)
             # Push after comparing: the current value never raises its own threshold.
             if self.uses_discrepancy:
                 self.d_queue.push(discrepancy)
@@ -177,8 +205,9 @@ class AdvisingGates:
 
         if self.mode == 'ask_random':
             respond = draw < self.random_ask_rate  # chance in place of the respond gate
+        fire = ask and respond and self.mode != 'joint_rank'  # joint_rank with a queue filling: no
         return GateDecision(
-            fire=ask and respond,
+            fire=fire,
             within_budget=True,
             queues_ready=d_ready and e_ready,
             ask=ask if self.uses_discrepancy else False,
@@ -187,6 +216,30 @@ class AdvisingGates:
             entropy=float(entropy) if entropy is not None else float('nan'),
             d_threshold=d_threshold if self.uses_discrepancy else float('nan'),
             e_threshold=e_threshold if self.uses_entropy else float('nan'),
+        )
+
+    def _joint_rank(self, discrepancy, entropy, d_values, e_values, ask, respond) -> GateDecision:
+        rank_d = sum(v < discrepancy for v in d_values) / len(d_values)
+        rank_e = sum(v > entropy for v in e_values) / len(e_values)
+        joint, threshold = rank_d * rank_e, self.joint_threshold
+        fire = joint >= threshold
+        # Robbins-Monro: up when it asked, down when it did not, so that it asks at the target rate.
+        step = self.gate_threshold_step * (float(fire) - self.gate_target_rate)
+        self.joint_threshold = min(1.0, max(0.0, threshold + step))
+        self.d_queue.push(discrepancy)
+        self.e_queue.push(entropy)
+        return GateDecision(
+            fire=fire,
+            within_budget=True,
+            queues_ready=True,
+            ask=ask,
+            respond=respond,
+            discrepancy=float(discrepancy),
+            entropy=float(entropy),
+            d_threshold=max(d_values),
+            e_threshold=min(e_values),
+            joint_rank=joint,
+            joint_threshold=threshold,
         )
 
     def _random_request(self, episode: int, step: int, draw: float) -> bool:
@@ -203,9 +256,14 @@ class AdvisingGates:
         return fire
 
     def state_dict(self) -> dict:
-        return {'d_queue': self.d_queue.values(), 'e_queue': self.e_queue.values()}
+        return {
+            'd_queue': self.d_queue.values(),
+            'e_queue': self.e_queue.values(),
+            'joint_threshold': self.joint_threshold,
+        }
 
     def load_state_dict(self, state: dict) -> None:
         length = self.d_queue.length
         self.d_queue = FifoQueue(length, state['d_queue'])
         self.e_queue = FifoQueue(length, state['e_queue'])
+        self.joint_threshold = float(state.get('joint_threshold', 1.0))  # absent before the extension

@@ -17,8 +17,12 @@ from typing import Any, Optional
 # (docs/results.md): 'respond', the respond gate alone (E(s) < min(E_queue)); 'random',
 # requests at random steps (chance random_ask_rate, or random_ask_schedule's count in each
 # episode), inside the same budget; 'ask_random', the ask gate and a random draw below
-# random_ask_rate (the ask gate thinned by chance instead of by E(s)).
+# random_ask_rate (the ask gate thinned by chance instead of by E(s)). Two gates beyond the
+# paper, labelled as extensions wherever they appear: 'ask_median', the ask gate and E(s) below
+# the median of E_queue; 'joint_rank', the product of D(s)'s and E(s)'s ranks in their queues
+# above a threshold tuned online to gate_target_rate.
 PAPER_MODES = ('sac', 'qasac', 'eqsac')
+EXTENSION_MODES = ('ask_median', 'joint_rank')
 
 
 # How tables and figures name and colour each mode (a test holds one entry per mode).
@@ -29,6 +33,8 @@ MODE_LABELS = {
     'respond': 'respond gate only',
     'random': 'random requests',
     'ask_random': 'ask gate and chance',
+    'ask_median': 'ask gate and E(s) below its median (extension)',
+    'joint_rank': 'joint rank of D(s) and E(s) (extension)',
 }
 MODE_COLORS = {
     'sac': 'tab:gray',
@@ -37,6 +43,8 @@ MODE_COLORS = {
     'respond': 'tab:purple',
     'random': 'tab:green',
     'ask_random': 'tab:orange',
+    'ask_median': 'tab:brown',
+    'joint_rank': 'tab:pink',
 }
 
 
@@ -46,7 +54,7 @@ def asks_for_advice(mode: str) -> bool:
     return mode != 'sac'
 
 
-MODES = (*PAPER_MODES, 'respond', 'random', 'ask_random')
+MODES = (*PAPER_MODES, 'respond', 'random', 'ask_random', *EXTENSION_MODES)
 ADVICE_BATCHES = ('full', 'proportional')
 THRESHOLD_KINDS = ('dynamic', 'fixed')
 ENTROPY_ESTIMATORS = ('exact', 'monte_carlo')
@@ -85,7 +93,9 @@ class LearnerConfig:
         'eqsac',
         'Learning mode: plain SAC, QASAC (ask gate only) or EQSAC (ask and respond gates); baselines: '
         'respond (respond gate only), random (ask at random steps: random_ask_rate, or random_ask_schedule), '
-        'ask_random (the ask gate and a random draw below random_ask_rate)',
+        'ask_random (the ask gate and a random draw below random_ask_rate); extensions beyond the paper: '
+        'ask_median (the ask gate and E(s) below the median of E_queue), joint_rank (the product of the '
+        'ranks of D(s) and E(s) in their queues above a threshold tuned to gate_target_rate)',
         choices=MODES,
     )
     hidden: tuple[int, ...] = hyper(
@@ -150,6 +160,16 @@ class LearnerConfig:
         200,
         'Mode random with random_ask_schedule: the steps of an episode its requests are spread over',
         range=(1, INT_MAX),
+    )
+    gate_target_rate: float = hyper(
+        0.015,
+        'Mode joint_rank (an extension): the share of budget steps it asks at; its threshold on the rank '
+        'product moves by gate_threshold_step per step toward this rate (Robbins-Monro). The default is '
+        "EQSAC's rate on Pendulum with Table 1's settings (1.5 % of budget steps, docs/results.md)",
+        range=(0.0, 1.0),
+    )
+    gate_threshold_step: float = hyper(
+        0.01, 'Mode joint_rank: how far its threshold moves per step toward gate_target_rate', range=(1e-6, 1.0)
     )
     takeover_threshold: float = hyper(
         0.0,

@@ -196,6 +196,9 @@ def _check_state(state) -> None:
         values = state['gates'].get(key)
         if not isinstance(values, list) or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
             raise ValueError(f'gates.{key} must be a list of finite numbers')
+    threshold = state['gates'].get('joint_threshold', 1.0)
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0.0 <= threshold <= 1.0:
+        raise ValueError(f'gates.joint_threshold must be a number in [0, 1], found {threshold!r}')
 
 
 # The losses of an update as functions of the networks, so that one learner's networks
@@ -267,6 +270,8 @@ class EQSACLearner:
             cfg.random_ask_rate,
             cfg.random_ask_schedule,
             cfg.random_ask_horizon,
+            cfg.gate_target_rate,
+            cfg.gate_threshold_step,
         )
 
         self.episode = 0  # index of the current episode: Eq. 7's "Iteration"

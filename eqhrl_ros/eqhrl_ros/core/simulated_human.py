@@ -47,6 +47,23 @@ class HumanLimits:
             )
 
 
+def expected_seconds_per_request(limits: Optional[HumanLimits] = None) -> float:
+    """The seconds a simulated person spends on one request, on average: E[min(T, window)] for
+    the log-normal reaction time T (a miss costs the whole window; a skip, its reaction time).
+    A closed form, so that a report can put a person's seconds beside request counts."""
+    limits = limits or HumanLimits()
+    window, median, sigma = limits.answer_window_s, limits.reaction_median_s, limits.reaction_sigma
+    if median <= 0.0:
+        reacted = 0.0
+    elif sigma == 0.0:
+        reacted = min(median, window)
+    else:
+        phi = lambda z: 0.5 * (1.0 + math.erf(z / math.sqrt(2.0)))  # noqa: E731 (the normal CDF)
+        z = (math.log(window) - math.log(median)) / sigma
+        reacted = median * math.exp(sigma**2 / 2) * phi(z - sigma) + window * (1.0 - phi(z))
+    return limits.miss_probability * window + (1.0 - limits.miss_probability) * reacted
+
+
 @dataclass(frozen=True)
 class HumanPlan:
     """What the simulated person will do about one request, and after how many seconds."""

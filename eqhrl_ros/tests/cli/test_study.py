@@ -241,3 +241,36 @@ def test_a_finished_runs_time_gives_the_lists_estimate(tmp_path):
     (run / 'DONE').touch()
     assert study.run_minutes(run) == pytest.approx(2.0, abs=0.05)
     assert study.run_minutes(tmp_path / 'missing') is None
+
+
+def test_the_effort_frontier_places_each_gate_against_chance_at_its_request_count(tmp_path):
+    from eqhrl_ros.cli.study_report import ArmInfo, RunScores, frontier, frontier_table, plot_frontier
+
+    def arm(name, mode, **learner):
+        return ArmInfo(name, name, 'g', mode, '', learner)
+
+    arms = [
+        arm('sac', 'sac'),
+        arm('r1', 'random', random_ask_rate=0.01),
+        arm('r4', 'random', random_ask_rate=0.04),
+        arm('gate', 'eqsac'),
+        arm('greedy', 'qasac'),  # asks more than every frontier arm: left unplaced
+    ]
+    # Per seed: SAC scores s; chance gains +2 at 10 requests and +6 at 40; the gate gains 8 at 20,
+    # where the frontier (linear in log requests) gains 2 + 4 * log(2)/log(4) = 4: above it by 4.
+    scores = {}
+    for seed in range(6):
+        base = 10.0 * seed
+        for name, asked, gain in (('sac', 0, 0), ('r1', 10, 2), ('r4', 40, 6), ('gate', 20, 8), ('greedy', 400, 1)):
+            noise = 0.1 * ((seed * 7 + len(name)) % 3 - 1)  # the differences vary a little by seed
+            scores[(name, seed)] = RunScores(0.0, base + gain + noise * (name != 'sac'), 0.0, asked, asked, 0.0, {})
+    line, placed = frontier(arms, scores)
+    assert [p.arm.name for p in line] == ['r1', 'r4']
+    by_name = {p.arm.name: p for p in placed}
+    n, mean, low, high, p = by_name['gate'].above
+    assert n == 6 and abs(mean - 4.0) < 0.2 and low > 3.0 and p < 0.05
+    assert by_name['greedy'].above is None
+    table = frontier_table(arms, scores)
+    assert 'outside its range' in table and '| gate | 6 | 20 |' in table
+    assert plot_frontier(arms, scores, tmp_path / 'frontier.png') and (tmp_path / 'frontier.png').stat().st_size > 0
+    assert frontier(arms[:2] + arms[3:], scores)[0] == [line[0]] and not frontier_table(arms[:2] + arms[3:], scores)

@@ -144,3 +144,44 @@ def test_ask_random_thins_the_ask_gate_by_chance_and_never_asks_without_it():
 def test_a_bad_random_schedule_is_refused(schedule):
     with pytest.raises(ValueError, match='random_ask_schedule'):
         AdvisingGates('random', 10, random_ask_schedule=schedule)
+
+
+def test_ask_median_asks_when_d_is_above_its_max_and_e_below_its_median():
+    gates = full_gates('ask_median')  # D_queue 1, 2, 3; E_queue 0.5, 0.6, 0.7 (median 0.6)
+    assert gates.uses_discrepancy and gates.uses_entropy and not gates.uses_draw
+    fired = full_gates('ask_median').decide(0, discrepancy=3.5, entropy=0.55)
+    assert fired.fire and fired.e_threshold == 0.6  # EQSAC would not: 0.55 is above min 0.5
+    assert not full_gates('eqsac').decide(0, discrepancy=3.5, entropy=0.55).fire
+    assert not full_gates('ask_median').decide(0, discrepancy=3.5, entropy=0.65).fire  # above the median
+    assert not full_gates('ask_median').decide(0, discrepancy=2.5, entropy=0.1).fire  # the ask gate closed
+
+
+def test_joint_rank_starts_as_eqsac_and_moves_its_threshold_toward_the_target_rate():
+    import random
+
+    # Rank product 1 exactly where EQSAC fires; the threshold starts there.
+    first = full_gates('joint_rank').decide(0, discrepancy=3.5, entropy=0.4)
+    assert first.fire and first.joint_rank == 1.0 and first.joint_threshold == 1.0
+    near = full_gates('joint_rank').decide(0, discrepancy=3.5, entropy=0.55)  # rank_E 2/3
+    assert not near.fire and abs(near.joint_rank - 2 / 3) < 1e-12 and 'rank product' in near.reason
+
+    # On values drawn independently, it asks at the target rate in the long run (EQSAC's own rate
+    # on such values is about 1/(queue+1)^2 = 0.4 %).
+    rng = random.Random(0)
+    for target in (0.05, 0.2):
+        gates = AdvisingGates('joint_rank', 10**6, queue_length=15, gate_target_rate=target, gate_threshold_step=0.01)
+        fires = [gates.decide(0, discrepancy=rng.random(), entropy=rng.random()).fire for _ in range(40_000)]
+        rate = sum(fires[10_000:]) / 30_000
+        assert abs(rate - target) < 0.2 * target, (target, rate)
+
+
+def test_joint_rank_keeps_its_threshold_in_a_checkpoint_and_needs_dynamic_thresholds():
+    gates = AdvisingGates('joint_rank', 100, queue_length=3, gate_target_rate=0.5)
+    for _ in range(20):
+        gates.decide(0, discrepancy=0.0, entropy=1.0)  # never fires: the threshold falls
+    assert gates.joint_threshold < 1.0
+    other = AdvisingGates('joint_rank', 100, queue_length=3)
+    other.load_state_dict(gates.state_dict())
+    assert other.joint_threshold == gates.joint_threshold
+    with pytest.raises(ValueError, match='threshold_kind dynamic'):
+        AdvisingGates('joint_rank', 100, threshold_kind='fixed')

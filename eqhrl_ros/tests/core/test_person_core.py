@@ -240,3 +240,16 @@ def test_a_takeover_replaces_the_action_and_is_counted_apart_from_requests():
     assert (row['takeovers'], row['takeover_steps'], row['takeover_s']) == (2, 4, '0.300')
     learner.config.takeover_to_advice_memory = False
     assert not learner.take_over(learner.propose(obs), np.array([0.5], np.float32), 0.0, True).advised
+
+
+@pytest.mark.parametrize(
+    'limits',
+    [HumanLimits(), HumanLimits(reaction_median_s=2.5, reaction_sigma=0.8, answer_window_s=3.0, miss_probability=0.3)],
+)
+def test_the_expected_seconds_per_request_is_the_simulated_persons_mean_time(limits):
+    from eqhrl_ros.core.simulated_human import expected_seconds_per_request
+
+    person = SimulatedHuman(lambda r: Advice(np.zeros(1, np.float32)), limits, seed=3)
+    times = [person.outcome(person.plan(request())).response_time_s for _ in range(40_000)]
+    mean, standard_error = float(np.mean(times)), float(np.std(times)) / math.sqrt(len(times))
+    assert abs(expected_seconds_per_request(limits) - mean) < 4 * standard_error
