@@ -35,7 +35,6 @@ import contextlib
 import csv
 import dataclasses
 import math
-import multiprocessing as mp
 import os
 import queue
 import shlex
@@ -55,6 +54,7 @@ from ..core.config import PAPER_MODES
 from ..core.expert_factory import EXPERT_BACKENDS
 from ..paths import params_file
 from ..yaml_files import load_mapping
+from .run_pool import ClusterUnavailable, progress_queue, run_pool
 
 COLUMNS = ('algorithm', 'seed', 'episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')
 
@@ -566,6 +566,16 @@ def stopping_like_ctrl_c():
             signal.signal(sig, handler)
 
 
+def add_cluster(parser) -> None:
+    parser.add_argument(
+        '--cluster',
+        default='',
+        metavar='ADDRESS',
+        help='hand the runs to the Dask scheduler at ADDRESS (e.g. tcp://10.0.0.5:8786) instead of --jobs local '
+        'processes; every worker needs this package and the output folder at the same path (README)',
+    )
+
+
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(
         prog='eqhrl-experiment',
@@ -599,6 +609,7 @@ def parse_args(argv=None):
         'fixed start states; written to eval.csv (in-process runs; 0: none)',
     )
     parser.add_argument('--eval-starts', type=int, default=10, help='start states of each evaluation')
+    add_cluster(parser)
     add_save_every(parser)
     batching = parser.add_mutually_exclusive_group()
     batching.add_argument(
@@ -669,11 +680,9 @@ def main(argv=None) -> int:
     )
     count, start = EpisodeCount(len(todo) * settings.episodes), time.monotonic()
     last_print = 0.0
-    manager = mp.Manager()
-    progress = manager.Queue()
-    context = mp.get_context('spawn')
+    progress = progress_queue(args.cluster)
     try:
-        with stopping_like_ctrl_c(), context.Pool(jobs) as pool:
+        with stopping_like_ctrl_c(), run_pool(jobs, args.cluster) as pool:
             if together:
                 # Each algorithm's seeds in `jobs` shares, one process each, a share's seeds together.
                 groups = []
@@ -709,11 +718,17 @@ def main(argv=None) -> int:
                 if now - last_print > 15.0 or newly:
                     last_print = now
                     runs_done = sum((run_dir(output, a, s) / 'DONE').exists() for a, s in todo)
-                    print(count.line(runs_done, len(todo), now - start), flush=True)
+                    if args.cluster:  # no episode reports across hosts: finished runs only
+                        print(f'[{runs_done}/{len(todo)} runs, {(now - start) / 60:.1f} min]', flush=True)
+                    else:
+                        print(count.line(runs_done, len(todo), now - start), flush=True)
     except KeyboardInterrupt:
         print('\ninterrupted: finished runs are kept; run the same command to continue', file=sys.stderr)
         gather(output, args.algorithms, args.seeds)
         return 130
+    except ClusterUnavailable as error:
+        print(f'eqhrl-experiment: {error}', file=sys.stderr)
+        return 2
     path = gather(output, args.algorithms, args.seeds)
     print(f'all runs finished in {(time.monotonic() - start) / 60:.1f} min; episodes in {path}')
     return 0

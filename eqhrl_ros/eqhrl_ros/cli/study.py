@@ -45,7 +45,6 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import multiprocessing as mp
 import os
 import queue
 import sys
@@ -59,6 +58,7 @@ from ..core.config import MODES
 from ..paths import shared_file
 from ..yaml_files import load_mapping
 from . import experiment
+from .run_pool import ClusterUnavailable, progress_queue, run_pool
 
 PLAN_KEYS = {
     'name',
@@ -319,6 +319,7 @@ def parse_args(argv=None):
     parser.add_argument('--groups', nargs='+', help='run only these groups (default: all, in order)')
     parser.add_argument('--max-seeds', type=int, help='run only the first N seeds of each group')
     parser.add_argument('--list', action='store_true', help='print the runs and what is finished; run nothing')
+    experiment.add_cluster(parser)
     experiment.add_save_every(parser)
     return parser.parse_args(argv)
 
@@ -369,11 +370,12 @@ def main(argv=None) -> int:
             print(f'  {mark}  {arm.group:12s} {arm.name:24s} seed {seed}')
         return 0
 
-    context = mp.get_context('spawn')
-    progress = mp.Manager().Queue()
+    progress = progress_queue(args.cluster)
     start, finished, pending, running = time.monotonic(), 0, list(todo), {}
     try:
-        with experiment.stopping_like_ctrl_c(), context.Pool(max(1, min(args.jobs, len(todo) or 1))) as pool:
+        with experiment.stopping_like_ctrl_c(), run_pool(max(1, min(args.jobs, len(todo) or 1)), args.cluster) as pool:
+            if args.cluster:
+                print(f'on the Dask cluster at {args.cluster}: {pool.slots} worker threads', flush=True)
             while pending or running:
                 for key, result in list(running.items()):
                     if result.ready():
@@ -390,7 +392,7 @@ def main(argv=None) -> int:
                         )
                         gather(output, plan)  # a study read half-way (or killed) has its runs gathered
                 for arm, seed in list(pending):
-                    if len(running) >= args.jobs:
+                    if len(running) >= (pool.slots if args.cluster else args.jobs):
                         break
                     ready = _ready(plan, arm, seed, output, settings)
                     if ready is None:
@@ -420,6 +422,9 @@ def main(argv=None) -> int:
         print('\ninterrupted: finished runs are kept; run the same command to continue', file=sys.stderr)
         gather(output, plan)
         return 130
+    except ClusterUnavailable as error:
+        print(f'eqhrl-study: {error}', file=sys.stderr)
+        return 2
     gather(output, plan)
     print(f'{finished} runs finished in {(time.monotonic() - start) / 60:.1f} min; gathered in {output}')
     return 0

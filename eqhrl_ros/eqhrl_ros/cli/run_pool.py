@@ -1,0 +1,122 @@
+"""Where the runs of eqhrl-experiment and eqhrl-study execute: a local process pool (the
+default), or a Dask cluster named by ``--cluster ADDRESS`` when a study outgrows one machine.
+
+Both give the commands one interface: ``apply_async(function, args)`` returns a task with
+``ready()``, ``successful()`` and ``get()`` (multiprocessing's own), and ``slots`` says how many
+runs may go at once. A run writes its results into its run folder and nothing else, so a
+cluster gives the same folders and files as the local pool, provided that every worker sees
+the output folder at the same path (a shared file system) and has this package installed.
+
+Dask rather than Ray: the local pool's model (functions and arguments pickled to processes,
+futures back) is Dask's ``Client.submit`` as it is; a Dask scheduler and workers are one pip
+package and two commands (``dask scheduler``, ``dask worker ADDRESS --nthreads 1``), and SLURM or
+Kubernetes clusters come from dask-jobqueue and dask-kubernetes without changes here.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+
+
+class ClusterUnavailable(RuntimeError):
+    """--cluster names no reachable scheduler, or one without workers."""
+
+
+class NoProgress:
+    """Stands in for the progress queue where runs go to other hosts (a local Manager queue
+    cannot reach them): the commands then count finished runs by their DONE marks."""
+
+    def put(self, item) -> None:
+        pass
+
+    def get_nowait(self):
+        import queue
+
+        raise queue.Empty
+
+    def get(self, timeout=None):
+        import queue
+        import time
+
+        time.sleep(timeout or 0)
+        raise queue.Empty
+
+
+class _DaskTask:
+    def __init__(self, future):
+        self.future = future
+
+    def ready(self) -> bool:
+        return self.future.done()
+
+    def successful(self) -> bool:
+        return self.future.status == 'finished'
+
+    def get(self):
+        return self.future.result()
+
+
+class DaskPool:
+    """Runs submitted to the Dask scheduler at ``address``, one task per run."""
+
+    def __init__(self, address: str, timeout_s: float = 10.0):
+        try:
+            from distributed import Client
+        except ImportError as error:  # pragma: no cover - distributed is in requirements.txt
+            raise ClusterUnavailable('--cluster needs the distributed package (pip install distributed)') from error
+        try:
+            self.client = Client(address, timeout=timeout_s, set_as_default=False)
+        except OSError as error:
+            raise ClusterUnavailable(f'--cluster {address}: no Dask scheduler reachable ({error})') from None
+        threads = sum(self.client.nthreads().values())
+        if threads == 0:
+            self.client.close()
+            raise ClusterUnavailable(f'--cluster {address}: the scheduler has no workers')
+        self.slots = threads
+        self.address = address
+        self._futures = []
+
+    def apply_async(self, function, args) -> _DaskTask:
+        # pure=False: two runs with equal arguments are still two runs (a rerun after a failure).
+        future = self.client.submit(function, *args, pure=False)
+        self._futures.append(future)
+        return _DaskTask(future)
+
+    def close(self) -> None:
+        # Runs not started are cancelled; a run already going on a worker finishes there (Dask
+        # cannot stop a running task), and its folder is resumed or redone by the next command.
+        pending = [f for f in self._futures if not f.done()]
+        if pending:
+            self.client.cancel(pending)
+        self.client.close()
+
+
+class LocalPool:
+    """The default: ``jobs`` spawned processes on this machine."""
+
+    def __init__(self, jobs: int):
+        self.slots = max(1, jobs)
+        self._pool = mp.get_context('spawn').Pool(self.slots)
+
+    def apply_async(self, function, args):
+        return self._pool.apply_async(function, args)
+
+    def close(self) -> None:
+        self._pool.terminate()  # as `with Pool()` does: the workers stop with the command
+        self._pool.join()
+
+
+@contextlib.contextmanager
+def run_pool(jobs: int, cluster: str = ''):
+    """A LocalPool of ``jobs`` processes, or a DaskPool on ``cluster`` (its workers' threads)."""
+    pool = DaskPool(cluster) if cluster else LocalPool(jobs)
+    try:
+        yield pool
+    finally:
+        pool.close()
+
+
+def progress_queue(cluster: str):
+    """A queue the runs report episodes to: a Manager's on this machine, none across hosts."""
+    return NoProgress() if cluster else mp.Manager().Queue()
