@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: system-deps setup lint test test-fast demo bench bench-seeds bench-learner bench-ros bench-flood bench-actors bench-busy bench-variants profile clean lock
+.PHONY: system-deps setup lint test test-fast demo bench bench-seeds bench-learner bench-ros bench-flood bench-actors bench-busy profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -118,9 +118,6 @@ bench-busy: $(VENV)/.stamp-eqhrl_ros
 # non-zero exit if 10 seeds together miss 2x (Pendulum) or 1.5x (LunarLander) seeds apart.
 bench-seeds: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_seeds.py
-
-bench-variants: $(VENV)/.stamp-eqhrl_ros
-	$(VPY) benchmarks/bench_update_variants.py
 
 # Where a training step's time goes (torch.profiler's top operators).
 profile: $(VENV)/.stamp-eqhrl_ros

@@ -3,11 +3,11 @@
 - config.py      every hyperparameter once (default, range, description); the modes
 - equations.py   every equation of the paper (Eqs. 4-10), named as the paper names it
 - networks.py    the squashed-Gaussian actor and the twin critics
-- losses.py      the losses of one update (Eqs. 4-6), shared by the eager and compiled updates
+- update.py      Algorithm 1's update, once: algorithm1_update (eager, compiled and seeds together)
 - replay.py      replay memories D and D_advising
 - advising.py    FIFO queues, dynamic/fixed thresholds and the early-advising budget
 - learner.py     EQSACLearner: SAC, QASAC and EQSAC (Algorithm 1)
-- compiled_update.py the whole update compiled as one program (compile_update)
+- compiled_update.py algorithm1_update compiled as one program (compile_update)
 - experts.py     the expert interface and built-in controllers
 - imperfect_experts.py delayed and weak experts (studies)
 - simulated_human.py a simulated person (reaction times, noise, skips)

@@ -1,21 +1,17 @@
-"""The whole update as one compiled program (LearnerConfig.compile_update; issue 22, item 2).
+"""compile_update: Algorithm 1's update (update.algorithm1_update) as one compiled program.
 
-EQSACLearner.update() runs Algorithm 1's inner loop eagerly: PyTorch dispatches hundreds
-of small operations per update and builds an autograd graph for each loss. Here the same
-update, step by step in the same order with the same loss functions (learner.py) and the
-same equations (equations.py), is one pure function of tensors: gradients come from
-torch.func, Adam is torch's own functional Adam applied in place to the learner's weights
-and to its optimisers' own moments and step counts. torch.compile(fullgraph=True) turns that
-function into one program, with everything around the matrix products fused.
+The eager update dispatches hundreds of small operations per update. torch.compile
+(fullgraph=True) turns the same function, unchanged, into one program with everything around
+the matrix products fused: gradients from torch.func, Adam as torch's functional Adam applied
+in place to the learner's weights and to its optimisers' own moments and step counts.
 
 What a user sees:
 - The first updates run eagerly. The compiler runs in a background thread on copies of the
   weights, off the acting path; once it is done, the next update is the compiled one.
 - Its cost in seconds is reported in one log line, as is any failure, after which the
-  learner stays eager. Nothing else changes.
-- Random draws (the replay batches and the noise) are made outside, in the eager update's
-  order from the same streams, so compiled and eager updates compute the same numbers to
-  float rounding (tests/core/test_compiled_update.py).
+  learner stays eager. Nothing else changes: the learner draws the batches and the noise as
+  for the eager update, so both compute the same numbers to float rounding
+  (tests/core/test_compiled_update.py).
 """
 
 from __future__ import annotations
@@ -28,121 +24,11 @@ import types
 from typing import Callable, Optional
 
 import torch
-from torch.func import functional_call, grad_and_value
-from torch.optim.adam import adam as functional_adam
 
-from . import equations as eq
 from .config import asks_for_advice
-from .losses import policy_loss, soft_bellman_targets, twin_critic_loss
+from .update import algorithm1_update, update_noise
 
 LOG = logging.getLogger('eqhrl_ros.compile')
-
-
-def compile_refusal(config) -> str:
-    """Why this configuration cannot be compiled (''=it can). A batch from D_advising whose
-    size follows D_advising's ('proportional') would recompile at every new size."""
-    if config.advice_batch != 'full':
-        return f"advice_batch '{config.advice_batch}' changes the batch size at every step"
-    if config.updates_per_step < 1:
-        return 'updates_per_step is 0: there is no update to compile'
-    return ''
-
-
-# --------------------------------------------------------------------------- the pure update
-
-
-def _adam_(params, grads, state, settings: dict) -> None:
-    """torch's functional Adam, in place on ``params`` and on the optimiser's own moments;
-    ``settings``: lr, betas and eps, as the learner's torch.optim.Adam holds them."""
-    exp_avgs, exp_avg_sqs, steps = state
-    functional_adam(
-        params,
-        grads,
-        exp_avgs,
-        exp_avg_sqs,
-        [],
-        steps,
-        foreach=False,
-        # Compiled: step counts stay tensors (no .item()), so the update is one graph.
-        capturable=torch.compiler.is_compiling(),
-        amsgrad=False,
-        beta1=settings['betas'][0],
-        beta2=settings['betas'][1],
-        lr=settings['lr'],
-        weight_decay=0.0,
-        eps=settings['eps'],
-        maximize=False,
-    )
-
-
-def _with(net, weights):
-    """``net`` as a function of its inputs, computed with ``weights`` (name -> tensor)."""
-    return lambda *inputs: functional_call(net, weights, inputs)
-
-
-def algorithm1_update(nets, weights, state, batch, advice, noise, hyper) -> dict:
-    """One update of Algorithm 1's inner loop in its order; learner.EQSACLearner.update() eagerly.
-
-    ``nets``: the actor and twin-critic modules (their structure; their weights come from
-    ``weights``: name -> tensor dicts for 'actor', 'critic', 'critic_target' and the tensor
-    'log_alpha'); ``state``: each optimiser's (exp_avgs, exp_avg_sqs, steps) in the order of
-    ``weights``; ``batch``/``advice``: (obs, action, reward, next_obs, terminated) from D and
-    from D_advising (or None); ``noise``: the target noise of both batches, the actor's noise
-    and the actor's noise on advice (or None). Updates the weights in place; returns the losses.
-    """
-    actor_net, critic_net = nets
-    actor_w, critic_w, target_w = weights['actor'], weights['critic'], weights['critic_target']
-    actor = _with(actor_net, actor_w)
-    critic_target = _with(critic_net, target_w)
-    target_noise, actor_noise, advice_actor_noise = noise
-    losses = {}
-
-    # Eq. 4 targets of both batches in one pass (the actor, alpha and the target critics
-    # stay as they are until the end of the update).
-    with torch.no_grad():
-        both = batch if advice is None else [torch.cat(pair) for pair in zip(batch, advice)]
-        alpha = weights['log_alpha'].exp()
-        y = soft_bellman_targets(actor, critic_target, both[3], both[2], both[4], target_noise, alpha, hyper['gamma'])
-        y, advice_y = (y, None) if advice is None else y.split([len(batch[2]), len(advice[2])])
-
-    def critic_step(obs, action, y):
-        def loss_of(w):
-            return twin_critic_loss(_with(critic_net, w), obs, action, y)
-
-        grads, loss = grad_and_value(loss_of)(critic_w)
-        _adam_(list(critic_w.values()), list(grads.values()), state['critic'], hyper['critic_adam'])
-        return loss
-
-    # 1st critic update: the batch from D (Eq. 5); 2nd: the batch from D_advising.
-    losses['critic_loss'] = critic_step(batch[0], batch[1], y)
-    if advice is not None:
-        losses['advice_critic_loss'] = critic_step(advice[0], advice[1], advice_y)
-
-    def actor_and_alpha_step(obs, noise):
-        alpha = weights['log_alpha'].detach().exp()
-        critic = _with(critic_net, {k: v.detach() for k, v in critic_w.items()})
-
-        def loss_of(w):  # Eq. 6; log pi for the temperature
-            return policy_loss(_with(actor_net, w), critic, obs, noise, alpha)
-
-        grads, (loss, log_prob) = grad_and_value(loss_of, has_aux=True)(actor_w)
-        _adam_(list(actor_w.values()), list(grads.values()), state['actor'], hyper['actor_adam'])
-
-        def alpha_loss_of(log_alpha):
-            return eq.temperature_loss(log_alpha, log_prob, hyper['target_entropy'])
-
-        alpha_grad, alpha_loss = grad_and_value(alpha_loss_of)(weights['log_alpha'])
-        _adam_([weights['log_alpha']], [alpha_grad], state['alpha'], hyper['alpha_adam'])
-        return loss, alpha_loss
-
-    # Actor (Eq. 6) and temperature on the batch from D (and on advice, actor_on_advice).
-    losses['actor_loss'], losses['alpha_loss'] = actor_and_alpha_step(batch[0], actor_noise)
-    if advice_actor_noise is not None and advice is not None:
-        losses['advice_actor_loss'], _ = actor_and_alpha_step(advice[0], advice_actor_noise)
-
-    # Target critics: theta^- <- tau * theta + (1 - tau) * theta^-.
-    eq.soft_update(list(target_w.values()), list(critic_w.values()), hyper['tau'])
-    return losses
 
 
 # --------------------------------------------------------------------------- the guards
@@ -156,7 +42,7 @@ def algorithm1_update(nets, weights, state, batch, advice, noise, hyper) -> dict
 # into the program as constants, so two learners that differ only in gamma get two programs)
 # and torch's global state (grad mode and the like). 140 checks, 0.2 ms a call
 # (docs/performance.md).
-GUARDED_ARGUMENTS = ('weights', 'state', 'batch', 'advice', 'noise', 'hyper')
+GUARDED_ARGUMENTS = ('weights', 'state', 'batch', 'advice', 'noise', 'hyper', 'advised', 'step')
 
 
 def keep_guard(name: str, is_global: bool) -> bool:
@@ -194,7 +80,9 @@ def update_function_for(setting) -> Callable:
         function = _COPIES.get(setting)
         if function is None:
             original = algorithm1_update
-            function = types.FunctionType(original.__code__.replace(), original.__globals__, original.__name__)
+            function = types.FunctionType(
+                original.__code__.replace(), original.__globals__, original.__name__, original.__defaults__
+            )
             function.__doc__, function.__qualname__ = original.__doc__, original.__qualname__
             _COPIES[setting] = function
         return function
@@ -204,7 +92,8 @@ def update_function_for(setting) -> Callable:
 
 
 class CompiledUpdate:
-    """A learner's update compiled in the background; ``ready`` once it can be called.
+    """A learner's update compiled in the background; ``function`` is the program, to be
+    called as algorithm1_update once ``ready``.
 
     ``log``: where the one line about the compiler goes: info() with its cost, or warning() with
     why the learner stays eager. Python's logger 'eqhrl_ros.compile' by default; a node passes
@@ -218,33 +107,31 @@ class CompiledUpdate:
         self.failed = ''
         self.error: Optional[BaseException] = None
         self.seconds: Optional[float] = None
-        # The networks' structure, on copies: functional_call() gives them their weights, and
-        # tracing them in the background must not touch the modules the learner acts with.
-        self._nets = (copy.deepcopy(learner.actor), copy.deepcopy(learner.critic))
-        self._live_inputs = (None, None)  # (the objects they came from, (weights, state))
         self._variants = self._advice_variants()
-        self._settings = self._hyper()  # the config's constants, baked into the program
+        weights, state, hyper = learner.update_inputs()
         # loop_ordering_after_fusion off: with it, torch 2.11's inductor failed an assertion on
         # this program on CUDA; on the CPU it makes no difference in speed (docs/performance.md).
-        self._function = torch.compile(
-            update_function_for(self._setting()),
+        self.function = torch.compile(
+            update_function_for(self._setting(hyper)),
             fullgraph=True,
             dynamic=False,
             options={'loop_ordering_after_fusion': False, 'guard_filter_fn': _guards_to_keep},
         )
+        # Copies: tracing in the background must not touch the weights the learner acts and learns with.
+        copies = (copy.deepcopy(learner.update_nets), _clone(weights), _clone(state), hyper)
         if background:
-            self._thread = threading.Thread(target=self._warm_up, args=(self._copies(),), daemon=True)
+            self._thread = threading.Thread(target=self._warm_up, args=copies, daemon=True)
             self._thread.start()
         else:
             self._thread = None
-            self._warm_up(self._copies())
+            self._warm_up(*copies)
 
-    def _setting(self) -> tuple:
+    def _setting(self, hyper: dict) -> tuple:
         """What the program is specialised to: the shapes, the device, the variants and the
         constants. (Its guards check all of it again; this only keeps the settings apart.)"""
         learner, cfg = self.learner, self.learner.config
         shapes = (learner.obs_dim, learner.action_dim, tuple(cfg.hidden), cfg.batch_size)
-        return (*shapes, str(learner.device), cfg.actor_on_advice, tuple(self._variants), repr(self._settings))
+        return (*shapes, str(learner.device), cfg.actor_on_advice, tuple(self._variants), repr(hyper))
 
     def _advice_variants(self) -> list:
         """Whether an update has an advice batch, for every kind of update this learner makes."""
@@ -253,102 +140,11 @@ class CompiledUpdate:
             return [False]
         return [False, True]
 
-    # The inputs of algorithm1_update(), from the learner's live tensors or copies of them.
-
-    def _weights(self, copy: bool = False) -> dict:
-        take = (lambda t: t.detach().clone()) if copy else (lambda t: t.detach())
-        learner = self.learner  # read at every call: loading a checkpoint replaces the modules
-        return {
-            'actor': {k: take(v) for k, v in learner.actor.named_parameters()},
-            'critic': {k: take(v) for k, v in learner.critic.named_parameters()},
-            'critic_target': {k: take(v) for k, v in learner.critic_target.named_parameters()},
-            'log_alpha': take(learner.log_alpha),
-        }
-
-    def _state(self, copy: bool = False) -> dict:
-        take = (lambda t: t.clone()) if copy else (lambda t: t)
-        learner = self.learner
-        state = {}
-        for name, optimizer in (
-            ('actor', learner.actor_optimizer),
-            ('critic', learner.critic_optimizer),
-            ('alpha', learner.alpha_optimizer),
-        ):
-            params = [p for group in optimizer.param_groups for p in group['params']]
-            per = [optimizer.state[p] for p in params]
-            state[name] = tuple([take(s[key]) for s in per] for key in ('exp_avg', 'exp_avg_sq', 'step'))
-        return state
-
-    def _inputs(self) -> tuple:
-        """The live weights and optimiser state, gathered again only when the learner replaced
-        the objects that hold them (loading a checkpoint does): the compiled program steps them
-        in place, so the same tensors serve every call (gathering them took 0.2 ms a call)."""
-        learner = self.learner
-        owners = (
-            learner.actor,
-            learner.critic,
-            learner.critic_target,
-            learner.log_alpha,
-            learner.actor_optimizer,
-            learner.critic_optimizer,
-            learner.alpha_optimizer,
-        )
-        held, inputs = self._live_inputs
-        if held is None or any(a is not b for a, b in zip(owners, held)):
-            if not self._has_moments():
-                return None
-            inputs = (self._weights(), self._state())
-            self._live_inputs = (owners, inputs)
-        return inputs
-
-    def _has_moments(self) -> bool:
-        """Whether every optimiser holds Adam's moments: a learner that loaded a state saved
-        before its first update holds none until an eager update makes them."""
-        learner = self.learner
-        optimizers = (learner.actor_optimizer, learner.critic_optimizer, learner.alpha_optimizer)
-        return all(
-            'exp_avg' in optimizer.state.get(p, {})
-            for optimizer in optimizers
-            for p in optimizer.param_groups[0]['params']
-        )
-
-    def _hyper(self) -> dict:
-        learner = self.learner
-        hyper = {'gamma': learner.config.gamma, 'tau': learner.config.tau, 'target_entropy': learner.target_entropy}
-        for name in ('actor', 'critic', 'alpha'):  # Adam's settings from the optimisers themselves
-            group = getattr(learner, f'{name}_optimizer').param_groups[0]
-            hyper[f'{name}_adam'] = {'lr': group['lr'], 'betas': tuple(group['betas']), 'eps': group['eps']}
-        return hyper
-
-    def _copies(self):
-        """Copies of the weights and the optimiser state, and made-up batches of the right shapes,
-        for compiling without touching the learner (made here, in the caller's thread)."""
-        learner, size = self.learner, self.learner.config.batch_size
-        device = learner.device
-
-        def made_up_batch():
-            return (
-                torch.randn(size, learner.obs_dim, device=device),
-                torch.rand(size, learner.action_dim, device=device) * 2 - 1,
-                torch.randn(size, device=device),
-                torch.randn(size, learner.obs_dim, device=device),
-                torch.zeros(size, device=device),
-            )
-
-        return self._weights(copy=True), self._state(copy=True), made_up_batch, self._settings
-
-    def _noise(self, sizes: list, actor_on_advice: bool, draw) -> tuple:
-        m = self.learner.action_dim
-        target = torch.cat([draw((n, m)) for n in sizes])
-        actor = draw((sizes[0], m))
-        advice_actor = draw((sizes[1], m)) if actor_on_advice and len(sizes) > 1 else None
-        return target, actor, advice_actor
-
-    def _warm_up(self, copies) -> None:
+    def _warm_up(self, nets, weights, state, hyper) -> None:
         start = time.perf_counter()
         try:
             with _COMPILING:
-                self._compile(*copies)
+                self._compile(nets, weights, state, hyper)
         except Exception as error:  # noqa: BLE001 - any compiler failure leaves the eager update
             self.error = error  # the whole exception, for whoever wants more than the line
             self.failed = f'{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ""}'
@@ -363,17 +159,32 @@ class CompiledUpdate:
             f'{len(self._variants)} variant(s)); updates from now on run compiled'
         )
 
-    def _compile(self, weights, state, made_up_batch, hyper) -> None:
-        """One call of each variant on made-up inputs: the first call of a variant compiles it."""
-        device = self.learner.device
+    def _compile(self, nets, weights, state, hyper) -> None:
+        """One call of each variant on made-up batches of the right shapes: the first call of a
+        variant compiles it."""
+        learner, size = self.learner, self.learner.config.batch_size
+        device = learner.device
+
+        def made_up_batch():
+            return (
+                torch.randn(size, learner.obs_dim, device=device),
+                torch.rand(size, learner.action_dim, device=device) * 2 - 1,
+                torch.randn(size, device=device),
+                torch.randn(size, learner.obs_dim, device=device),
+                torch.zeros(size, device=device),
+            )
+
         for with_advice in self._variants:
             batch = made_up_batch()
             advice = made_up_batch() if with_advice else None
-            sizes = [len(batch[2])] + ([len(advice[2])] if advice is not None else [])
-            noise = self._noise(
-                sizes, self.learner.config.actor_on_advice, lambda shape: torch.randn(shape, device=device)
+            sizes = [size] + ([size] if with_advice else [])
+            noise = update_noise(
+                lambda shape: torch.randn(shape, device=device),
+                learner.action_dim,
+                sizes,
+                learner.config.actor_on_advice,
             )
-            self._function(self._nets, weights, state, batch, advice, noise, hyper)
+            self.function(nets, weights, state, batch, advice, noise, hyper)
 
     def wait(self, timeout: Optional[float] = None) -> bool:
         """Block until the background compile ended (tests, benchmarks); True if it is ready."""
@@ -381,25 +192,13 @@ class CompiledUpdate:
             self._thread.join(timeout)
         return self.ready
 
-    def __call__(self, batch, advice_batch) -> Optional[dict]:
-        """The update on the learner's live weights, with the noise drawn as the eager update draws
-        it; None, having drawn nothing, while the optimisers hold no moments (the eager update makes them)."""
-        learner = self.learner
-        live = self._inputs()
-        if live is None:
-            return None
-        weights, state = live
-        fields = ('obs', 'action', 'reward', 'next_obs', 'terminated')
 
-        def as_tuple(b):
-            # Contiguous, as in the warm-up: a compiled program is specialised to its inputs'
-            # layout, and a batch's fields are column views of its rows (replay.py).
-            return tuple(getattr(b, f).contiguous() for f in fields)
-
-        advice = as_tuple(advice_batch) if advice_batch is not None else None
-        sizes = [len(batch.reward)] + ([len(advice_batch.reward)] if advice_batch is not None else [])
-        noise = self._noise(sizes, learner.config.actor_on_advice, lambda shape: learner.noise(shape, 'update'))
-        losses = self._function(self._nets, weights, state, as_tuple(batch), advice, noise, self._settings)
-        info = {name: float(value) for name, value in losses.items()}
-        info['alpha'] = learner.alpha
-        return info
+def _clone(value):
+    """A copy of every tensor in nested dicts, tuples and lists."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().clone()
+    if isinstance(value, dict):
+        return {k: _clone(v) for k, v in value.items()}
+    if isinstance(value, (tuple, list)):
+        return type(value)(_clone(v) for v in value)
+    return value

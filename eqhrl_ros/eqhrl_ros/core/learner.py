@@ -30,10 +30,10 @@ from .advising import AdvisingGates, GateDecision
 from .config import LearnerConfig, asks_for_advice, check_value
 from .env_spec import ActionScaler, SuccessCriterion
 from .experts import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
-from .losses import policy_loss, soft_bellman_targets, twin_critic_loss
 from .networks import SquashedGaussianActor, TwinCritic
-from .replay import Batch, ReplayBuffer, checked_transition
+from .replay import ReplayBuffer, checked_transition
 from .summary import EpisodeSummary
+from .update import algorithm1_update, refusal, update_noise
 
 
 @dataclass(frozen=True)
@@ -146,6 +146,20 @@ def adam(params, lr: float, state: dict | None = None) -> torch.optim.Adam:
     return optimizer
 
 
+def adam_state(optimizer: torch.optim.Adam) -> tuple:
+    """(exp_avgs, exp_avg_sqs, steps) of each parameter, the optimiser's own tensors; those it
+    has not made yet (before its first step) made as torch's fused Adam makes them."""
+    per = []
+    for p in optimizer.param_groups[0]['params']:
+        state = optimizer.state[p]
+        if 'exp_avg' not in state:
+            state['step'] = torch.zeros((), dtype=torch.float32, device=p.device)
+            state['exp_avg'] = torch.zeros_like(p, memory_format=torch.preserve_format)
+            state['exp_avg_sq'] = torch.zeros_like(p, memory_format=torch.preserve_format)
+        per.append(state)
+    return tuple([s[key] for s in per] for key in ('exp_avg', 'exp_avg_sq', 'step'))
+
+
 def _tensors(value):
     """Every tensor inside nested dicts and lists (a state dict, an optimiser's state)."""
     if isinstance(value, torch.Tensor):
@@ -248,6 +262,8 @@ class EQSACLearner:
         self._optimizers_made = False
         # compile_update: made after the first eager update (compiled_update.py); None until then.
         self.compiled_update = None
+        self._update_inputs = (None, None)  # update_inputs(): (the objects they came from, inputs)
+        self._update_nets = None
         self.log = None  # the compiler's logger (info, warning); None: Python's; a node sets its own
 
         # One random stream per purpose, so that e.g. estimating E(s) never shifts
@@ -504,120 +520,98 @@ class EQSACLearner:
             self._optimizers_made = True
 
     def update(self) -> dict:
-        """One gradient update (Algorithm 1, inner loop), in the paper's order."""
+        """One gradient update: Algorithm 1's inner loop, algorithm1_update (update.py), compiled
+        once compile_update has its program ready. The draws come first, in every path's order."""
         self._make_optimizers()
-        cfg = self.config
-        info = {}
-        batch = self.replay.sample(cfg.batch_size, self.rng['replay']).to(self.device)
-        # EQSAC and QASAC also learn from D_advising (Section 3.3). Skipped while it is
-        # empty; sampled with replacement while it holds fewer than the batch asks for.
-        advice_batch = None
-        if asks_for_advice(self.mode) and len(self.advice_replay) > 0:
-            size = cfg.batch_size
-            if cfg.advice_batch == 'proportional':  # an ablation: D_advising's share of all transitions
-                size = max(1, round(cfg.batch_size * len(self.advice_replay) / len(self.replay)))
-            advice_batch = self.advice_replay.sample(
-                size, self.rng['replay'], replacement=len(self.advice_replay) < size
-            ).to(self.device)
-
-        if self.compiled_update and self.compiled_update.ready:
-            # The same steps as below, as one compiled program (compiled_update.py).
-            compiled_info = self.compiled_update(batch, advice_batch)
-            if compiled_info is not None:
-                self.updates += 1
-                return compiled_info
-            # None: the optimisers hold no moments yet (a state saved before any update was
-            # loaded); this update runs eagerly and makes them.
-
-        # Eq. 4 targets of both batches. The actor, alpha and the target critics stay
-        # as they are until the end of the update, so both come from one forward pass.
-        y, advice_y = self._soft_bellman_targets(batch, advice_batch)
-
-        # 1st critic update: the batch from D (Eq. 5).
-        info['critic_loss'] = self._critic_update(batch, y)
-        # 2nd critic update: the batch from D_advising (Eq. 5 again, on the updated critics).
-        if advice_batch is not None:
-            info['advice_critic_loss'] = self._critic_update(advice_batch, advice_y)
-
-        # Actor (Eq. 6) and temperature on the batch from D.
-        info.update(self._actor_and_alpha_update(batch))
-        if cfg.actor_on_advice and advice_batch is not None:
-            info['advice_actor_loss'] = self._actor_and_alpha_update(advice_batch)['actor_loss']
-
-        # Target critics: theta^- <- tau * theta + (1 - tau) * theta^-.
-        eq.soft_update(self.critic_target.parameters(), self.critic.parameters(), cfg.tau)
+        batch, advice = self.sample_update_batches()
+        noise = self.update_noise(batch, advice)
+        weights, state, hyper = self.update_inputs()
+        compiled = self.compiled_update
+        function = compiled.function if compiled and compiled.ready else algorithm1_update
+        losses = function(self.update_nets, weights, state, batch.fields(), advice and advice.fields(), noise, hyper)
         self.updates += 1
-        if cfg.compile_update and self.compiled_update is None:
+        info = {name: float(value) for name, value in losses.items()}
+        info['alpha'] = self.alpha
+        if self.config.compile_update and compiled is None:
             self.start_compiling()
         return info
+
+    def sample_update_batches(self) -> tuple:
+        """An update's batches: from D, and from D_advising (EQSAC and QASAC, Section 3.3; None
+        while it is empty or in mode sac), sampled with replacement while it holds fewer than
+        the batch asks for; ``advice_batch: proportional``: D_advising's share of the batch."""
+        cfg = self.config
+        batch = self.replay.sample(cfg.batch_size, self.rng['replay']).to(self.device)
+        if not asks_for_advice(self.mode) or len(self.advice_replay) == 0:
+            return batch, None
+        size = cfg.batch_size
+        if cfg.advice_batch == 'proportional':  # an ablation
+            size = max(1, round(cfg.batch_size * len(self.advice_replay) / len(self.replay)))
+        advice = self.advice_replay.sample(size, self.rng['replay'], replacement=len(self.advice_replay) < size)
+        return batch, advice.to(self.device)
+
+    def update_noise(self, batch, advice) -> tuple:
+        """An update's noise from the 'update' stream, in the order every path draws it."""
+        sizes = [len(batch.reward)] + ([len(advice.reward)] if advice is not None else [])
+        return update_noise(
+            lambda shape: self.noise(shape, 'update'), self.action_dim, sizes, self.config.actor_on_advice
+        )
+
+    def update_inputs(self) -> tuple:
+        """(weights, Adam state, hyper) for algorithm1_update: views of the live weights and of
+        the optimisers' own moments, which the update steps in place (so checkpoints save what it
+        learned). Gathered again only when the learner replaced the objects that hold them
+        (loading a checkpoint does); an optimiser without moments yet gets torch's initial ones."""
+        owners = (
+            self.actor,
+            self.critic,
+            self.critic_target,
+            self.log_alpha,
+            self.actor_optimizer,
+            self.critic_optimizer,
+            self.alpha_optimizer,
+        )
+        held, inputs = self._update_inputs
+        if held is None or any(a is not b for a, b in zip(owners, held)):
+            weights = {
+                'actor': {k: v.detach() for k, v in self.actor.named_parameters()},
+                'critic': {k: v.detach() for k, v in self.critic.named_parameters()},
+                'critic_target': {k: v.detach() for k, v in self.critic_target.named_parameters()},
+                'log_alpha': self.log_alpha.detach(),
+            }
+            state, hyper = {}, {'gamma': self.config.gamma, 'tau': self.config.tau, 'seeds': 1}
+            hyper['target_entropy'] = self.target_entropy
+            for name in ('actor', 'critic', 'alpha'):
+                optimizer = getattr(self, f'{name}_optimizer')
+                state[name] = adam_state(optimizer)
+                group = optimizer.param_groups[0]  # Adam's settings from the optimiser itself
+                hyper[f'{name}_adam'] = {'lr': group['lr'], 'betas': tuple(group['betas']), 'eps': group['eps']}
+            inputs = (weights, state, hyper)
+            self._update_inputs = (owners, inputs)
+        return inputs
+
+    @property
+    def update_nets(self) -> tuple:
+        """The actor's and the twin critic's structure for algorithm1_update (copies: it gives
+        them their weights, and must not touch the modules the learner acts with)."""
+        if self._update_nets is None:
+            self._update_nets = (copy.deepcopy(self.actor), copy.deepcopy(self.critic))
+        return self._update_nets
 
     def start_compiling(self, background: bool = True):
         """compile_update: the whole update compiled in a background thread (compiled_update.py),
         from the optimisers' state after an eager update; a configuration that cannot be compiled
         stays eager, said in one log line. Returns the CompiledUpdate (or None)."""
-        from .compiled_update import LOG, CompiledUpdate, compile_refusal
+        from .compiled_update import LOG, CompiledUpdate
 
-        refusal = compile_refusal(self.config)
-        if refusal:
+        why = refusal(self.config, 'compiled')
+        if why:
             self.compiled_update = False  # asked once, refused once
-            (self.log or LOG).warning(f'compile_update: {refusal}; the learner stays with the eager update')
+            (self.log or LOG).warning(f'compile_update: {why}; the learner stays with the eager update')
             return None
         self._make_optimizers()
         self.compiled_update = CompiledUpdate(self, log=self.log, background=background)
         return self.compiled_update
-
-    @torch.no_grad()
-    def _soft_bellman_targets(self, batch: Batch, advice_batch: Batch | None):
-        """Eq. 4 for the batch from D and, if any, the one from D_advising (else None)."""
-        batches = [batch] if advice_batch is None else [batch, advice_batch]
-        sizes = [len(b.reward) for b in batches]
-        # One draw per batch, in order: the same noise as computing each batch on its own.
-        noise = torch.cat([self.noise((n, self.action_dim), 'update') for n in sizes])
-        y = self._targets(
-            torch.cat([b.next_obs for b in batches]),
-            torch.cat([b.reward for b in batches]),
-            torch.cat([b.terminated for b in batches]),
-            noise,
-            self.log_alpha.detach().exp(),
-        )
-        y = y.split(sizes)
-        return y[0], (y[1] if advice_batch is not None else None)
-
-    # The three loss computations below are pure functions of their tensor arguments (no
-    # RNG, no optimiser): benchmarks/bench_update_variants.py swaps in compiled copies.
-
-    def _targets(self, next_obs, reward, terminated, noise, alpha) -> torch.Tensor:
-        return soft_bellman_targets(
-            self.actor, self.critic_target, next_obs, reward, terminated, noise, alpha, self.config.gamma
-        )
-
-    def _critic_loss(self, obs, action, y) -> torch.Tensor:
-        return twin_critic_loss(self.critic, obs, action, y)
-
-    def _actor_loss(self, obs, noise, alpha) -> tuple[torch.Tensor, torch.Tensor]:
-        return policy_loss(self.actor, self.critic, obs, noise, alpha)
-
-    def _critic_update(self, batch: Batch, y: torch.Tensor) -> float:
-        loss = self._critic_loss(batch.obs, batch.action, y)
-        self.critic_optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        self.critic_optimizer.step()
-        return float(loss.detach())
-
-    def _actor_and_alpha_update(self, batch: Batch) -> dict:
-        alpha = self.log_alpha.detach().exp()
-        noise = self.noise((len(batch.reward), self.action_dim), 'update')
-        loss, log_prob = self._actor_loss(batch.obs, noise, alpha)
-        self.actor_optimizer.zero_grad(set_to_none=True)
-        # Gradients for the actor only: the critics' weights are not trained by Eq. 6.
-        loss.backward(inputs=list(self.actor.parameters()))
-        self.actor_optimizer.step()
-
-        alpha_loss = eq.temperature_loss(self.log_alpha, log_prob, self.target_entropy)
-        self.alpha_optimizer.zero_grad(set_to_none=True)
-        alpha_loss.backward()
-        self.alpha_optimizer.step()
-        return {'actor_loss': float(loss.detach()), 'alpha_loss': float(alpha_loss.detach()), 'alpha': self.alpha}
 
     # ------------------------------------------------------------------ episodes
 

@@ -17,14 +17,18 @@ class _NumpyTanh(torch.autograd.Function):
     """tanh on numpy's SIMD kernel, with torch's tanh gradient 1 - tanh(x)^2.
 
     Why: this torch CPU build runs tanh element by element, several times slower than
-    numpy's kernel on a batch, for the same values to 1 ulp (docs/performance.md).
+    numpy's kernel on a batch, for the same values to 1 ulp (docs/performance.md). Written
+    with setup_context so that torch.func's transforms (the update's gradients) can use it:
+    they call forward with plain tensors.
     """
 
     @staticmethod
-    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
-        y = torch.from_numpy(np.tanh(x.detach().contiguous().numpy()))
-        ctx.save_for_backward(y)
-        return y
+    def forward(x: torch.Tensor) -> torch.Tensor:
+        return torch.from_numpy(np.tanh(x.detach().contiguous().numpy()))
+
+    @staticmethod
+    def setup_context(ctx, inputs, output) -> None:
+        ctx.save_for_backward(output)
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor) -> torch.Tensor:

@@ -22,6 +22,12 @@ class Batch:
             return self
         return Batch(*(t.to(device) for t in (self.obs, self.action, self.reward, self.next_obs, self.terminated)))
 
+    def fields(self) -> tuple:
+        """(obs, action, reward, next_obs, terminated) as update.algorithm1_update reads them:
+        contiguous (a compiled program is specialised to its inputs' layout, and these are
+        column views of the buffer's rows)."""
+        return tuple(t.contiguous() for t in (self.obs, self.action, self.reward, self.next_obs, self.terminated))
+
 
 def checked_transition(obs, action, reward, next_obs, obs_dim: int, action_dim: int):
     """(obs, action, next_obs) as flat float32 arrays, or a ValueError if a size is wrong or a

@@ -218,8 +218,6 @@ class SlowCompiler:
 def test_updates_go_on_eagerly_while_the_compiler_works_and_use_it_once_it_is_done(monkeypatch):
     compiler = SlowCompiler()
     monkeypatch.setattr(compiled.torch, 'compile', compiler)
-    # The stand-in runs algorithm1_update eagerly: numpy's tanh kernel cannot run under torch.func.
-    monkeypatch.setattr('eqhrl_ros.core.networks.NUMPY_TANH_FROM', 10**9)
     learner = filled(mode='sac', compile_update=True)
     learner.log = Lines()
     learner.update()

@@ -1,0 +1,121 @@
+"""Milliseconds per update of each update path, eager and compiled, for one source tree or
+for two side by side (before and after a change to the update).
+
+    .venv/bin/python benchmarks/bench_update_paths.py                      # this tree
+    .venv/bin/python benchmarks/bench_update_paths.py --trees OLD_CHECKOUT .   # old beside new
+
+Each tree is measured in child processes that import its ``eqhrl_ros`` package; with two
+trees the children alternate (old, new, old, new, ...: --reps each), so a machine that speeds
+up or slows down does so for both. A child fills a learner per configuration (Table 1 sizes:
+256x256, batch 256; EQSAC with D_advising filled, so its updates take the second critic step),
+compiles the compiled copies before timing, then times the eager and compiled updates of every
+configuration in interleaved rounds. Prints the median ms per update of each tree and path and,
+with two trees, the ratio of the second's speed to the first's. No target, no exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+CONFIGS = (('Pendulum-v1', 'sac'), ('Pendulum-v1', 'eqsac'), ('LunarLanderContinuous-v3', 'eqsac'))
+SIZES = {'Pendulum-v1': (3, 1), 'LunarLanderContinuous-v3': (8, 2)}
+
+
+def child(tree: str, rounds: int, updates: int, threads: int) -> dict:
+    sys.path.insert(0, str(Path(tree).resolve() / 'eqhrl_ros'))
+    import numpy as np
+    import torch
+
+    from eqhrl_ros.core import EQSACLearner, LearnerConfig
+
+    torch.set_num_threads(threads)
+    learners = {}
+    for env_id, mode in CONFIGS:
+        obs_dim, action_dim = SIZES[env_id]
+        for compiled in (False, True):
+            config = LearnerConfig(mode=mode, learning_starts=1, seed=0, compile_update=compiled)
+            learner = EQSACLearner(obs_dim, [-1.0] * action_dim, [1.0] * action_dim, config)
+            rng = np.random.default_rng(0)
+            for i in range(2000):
+                learner.store(
+                    rng.normal(size=obs_dim),
+                    rng.uniform(-1, 1, size=action_dim),
+                    float(rng.normal()),
+                    rng.normal(size=obs_dim),
+                    bool(i % 200 == 199),
+                    advised=i % 10 == 0,
+                )
+            learner.update()  # the first update; with compile_update it starts the compiler
+            if compiled and not learner.compiled_update.wait():
+                raise RuntimeError(f'compile failed: {learner.compiled_update.failed}')
+            learners[(env_id, mode, compiled)] = learner
+    seconds = {key: [] for key in learners}
+    for _ in range(rounds):
+        for key, learner in learners.items():
+            start = time.perf_counter()
+            for _ in range(updates):
+                learner.update()
+            seconds[key].append((time.perf_counter() - start) / updates * 1e3)
+    return {'|'.join(map(str, key)): values for key, values in seconds.items()}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--trees', nargs='+', default=['.'], help='source trees (repository roots), 1 or 2')
+    parser.add_argument('--reps', type=int, default=2, help='child processes per tree, alternating')
+    parser.add_argument('--rounds', type=int, default=4, help='timed rounds per child')
+    parser.add_argument('--updates', type=int, default=30, help='updates per configuration and round')
+    parser.add_argument('--threads', type=int, default=2)
+    parser.add_argument('--child', help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(child(args.child, args.rounds, args.updates, args.threads)))
+        return 0
+    times = {tree: {} for tree in args.trees}
+    for _ in range(args.reps):
+        for tree in args.trees:
+            out = subprocess.run(
+                [
+                    sys.executable,
+                    __file__,
+                    '--child',
+                    tree,
+                    '--rounds',
+                    str(args.rounds),
+                    '--updates',
+                    str(args.updates),
+                    '--threads',
+                    str(args.threads),
+                ],
+                capture_output=True,
+                text=True,
+                check=True,
+            ).stdout
+            for key, values in json.loads(out.strip().splitlines()[-1]).items():
+                times[tree].setdefault(key, []).extend(values)
+    print(
+        f'{args.threads} threads; per tree {args.reps} processes x {args.rounds} rounds x {args.updates} updates, '
+        'trees alternating; median ms per update'
+    )
+    names = ''.join(f' {Path(t).resolve().name[:14]:>14s}' for t in args.trees)
+    header = f'{"env":26s} {"mode":6s} {"path":9s}' + names
+    print(header + (' second/first speed' if len(args.trees) == 2 else ''))
+    for key in times[args.trees[0]]:
+        env_id, mode, compiled = key.split('|')
+        medians = [statistics.median(times[t][key]) for t in args.trees]
+        line = f'{env_id:26s} {mode:6s} {"compiled" if compiled == "True" else "eager":9s}'
+        line += ''.join(f' {m:14.2f}' for m in medians)
+        if len(medians) == 2:
+            line += f' {medians[0] / medians[1]:10.3f}x'
+        print(line, flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

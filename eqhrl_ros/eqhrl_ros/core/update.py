@@ -1,0 +1,199 @@
+"""Algorithm 1's update, written once: ``algorithm1_update``.
+
+Every way this package updates runs this one function:
+- the eager learner (EQSACLearner.update, learner.py) calls it as it is;
+- ``compile_update`` compiles this same function into one program (compiled_update.py);
+- seeds learning together (seed_batch.py) call it on weights stacked on a leading seed axis,
+  with an Adam step that gives each seed its own gradient and step count.
+
+It is a function of tensors: the networks' weights (name -> tensor), their Adam state, one
+update's batches from D and D_advising and its noise. It steps the weights and the Adam state
+in place, in the paper's order, each equation one call into equations.py. Random draws (the
+batches, the noise) are made by the caller, from the learner's streams, in the order
+``update_noise`` gives; so every path computes the same numbers to float rounding.
+
+Gradients: torch.func when compiling (the compiler traces it), torch.autograd otherwise (the
+same derivatives, without torch.func's per-operation wrapping, which cost an eager update a
+third more). Either way a step differentiates only the weights it updates: the critics are
+constants of the actor's loss, the actor and the target critics constants of Eq. 4.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+import torch
+from torch.func import functional_call, grad_and_value
+from torch.optim.adam import adam as functional_adam
+
+from . import equations as eq
+
+# A batch as the update reads it: (obs, action, reward, next_obs, terminated), each with the
+# batch on its first axis ([batch, ...]), or on its second when seeds are stacked ([N, batch, ...]).
+FIELDS = ('obs', 'action', 'reward', 'next_obs', 'terminated')
+PER_ROW = {'reward', 'terminated'}  # one number per row: the batch is their last axis
+
+
+def refusal(config, path: str) -> str:
+    """Why ``config`` cannot take the update path ``path`` ('compiled' or 'together'); ''
+    when it can. The one place where an option is refused a path."""
+    if config.advice_batch != 'full':
+        # A D_advising batch whose size follows |D_advising| changes shape at every step: a
+        # compiled program would be recompiled each time, and stacked seeds would not stack.
+        why = 'changes the batch size at every step' if path == 'compiled' else 'gives each seed its own batch size'
+        return f"advice_batch '{config.advice_batch}' {why}"
+    if path == 'compiled' and config.updates_per_step < 1:
+        return 'updates_per_step is 0: there is no update to compile'
+    return ''
+
+
+def update_noise(draw: Callable, action_dim: int, sizes: list, actor_on_advice: bool) -> tuple:
+    """One update's noise, drawn in the order every path uses: the targets' a' of the batch
+    from D and of the one from D_advising (``sizes``: their lengths), the actor step's, and the
+    actor step's on advice (actor_on_advice; else None). ``draw(shape)``: standard normal."""
+    target = torch.cat([draw((n, action_dim)) for n in sizes])
+    actor = draw((sizes[0], action_dim))
+    advice_actor = draw((sizes[1], action_dim)) if actor_on_advice and len(sizes) > 1 else None
+    return target, actor, advice_actor
+
+
+def with_weights(net, weights: dict):
+    """``net`` as a function of its inputs, computed with ``weights`` (name -> tensor)."""
+    return lambda *inputs: functional_call(net, weights, inputs)
+
+
+def gradient_and_value(loss_of: Callable, weights, has_aux: bool = False):
+    """torch.func.grad_and_value(loss_of)(weights): the gradient with respect to ``weights`` (a
+    tensor, or a dict of them) and the value (with ``has_aux``: loss_of returns (loss, aux))."""
+    if torch.compiler.is_compiling():
+        return grad_and_value(loss_of, has_aux=has_aux)(weights)
+    if isinstance(weights, dict):
+        leaves = {name: t.detach().requires_grad_(True) for name, t in weights.items()}
+        inputs = list(leaves.values())
+    else:
+        leaves = weights.detach().requires_grad_(True)
+        inputs = [leaves]
+    with torch.enable_grad():
+        out = loss_of(leaves)
+    loss = out[0] if has_aux else out
+    grads = torch.autograd.grad(loss, inputs)
+    grads = dict(zip(leaves, grads)) if isinstance(weights, dict) else grads[0]
+    if has_aux:
+        return grads, (loss.detach(), out[1].detach())
+    return grads, loss.detach()
+
+
+@torch.no_grad()
+def adam_(params: list, grads: list, state: tuple, settings: dict) -> None:
+    """torch's Adam, in place on ``params`` and on ``state`` (exp_avgs, exp_avg_sqs, steps: the
+    moments and step counts a torch.optim.Adam holds); ``settings``: its lr, betas and eps.
+    Fused (one kernel over every tensor) eagerly, as the learner's Adam is; the plain loop
+    with tensor step counts when compiling, so that the update is one graph."""
+    exp_avgs, exp_avg_sqs, steps = state
+    compiling = torch.compiler.is_compiling()
+    functional_adam(
+        params,
+        grads,
+        exp_avgs,
+        exp_avg_sqs,
+        [],
+        steps,
+        foreach=False,
+        capturable=compiling,
+        fused=None if compiling else True,
+        amsgrad=False,
+        beta1=settings['betas'][0],
+        beta2=settings['betas'][1],
+        lr=settings['lr'],
+        weight_decay=0.0,
+        eps=settings['eps'],
+        maximize=False,
+    )
+
+
+def algorithm1_update(
+    nets, weights, state, batch, advice, noise, hyper, advised=None, step: Optional[Callable] = None
+) -> dict:
+    """One update of Algorithm 1's inner loop, in its order. Returns the losses (tensors).
+
+    ``nets``: (actor, twin critic) modules, for their structure (the weights come from
+    ``weights``: 'actor', 'critic', 'critic_target' name -> tensor dicts and 'log_alpha');
+    ``state``: each network's Adam state ('actor', 'critic', 'alpha': see adam_);
+    ``batch``, ``advice``: the batches from D and D_advising (FIELDS order; advice None when
+    there is none); ``noise``: update_noise's; ``hyper``: gamma, tau, target_entropy, each
+    network's Adam settings ('<network>_adam') and 'seeds' (1, or N stacked seeds).
+    Stacked seeds: ``advised`` says which seeds have advice (the others' advice batch is a
+    stand-in and gets no step), and ``step(network, params, grads, advised)`` replaces adam_.
+    """
+    actor_net, critic_net = nets
+    actor_w, critic_w, target_w = weights['actor'], weights['critic'], weights['critic_target']
+    seeds = hyper['seeds']  # the loss of N stacked seeds is their mean: N x it gives each its own gradient
+    losses = {}
+
+    def adam_step(network, params, grads, only=None):
+        if step is None:
+            adam_(params, grads, state[network], hyper[f'{network}_adam'])
+        else:
+            step(network, params, grads, only)
+
+    # Eq. 4 targets of both batches in one pass: the actor, alpha and the target critics stay
+    # as they are until the end of the update. a' ~ pi(.|s') from the current actor.
+    with torch.no_grad():
+        sizes = [batch[2].shape[-1]] + ([advice[2].shape[-1]] if advice is not None else [])
+        if advice is None:
+            both = batch
+        else:
+            both = [
+                torch.cat(pair, dim=-1 if name in PER_ROW else -2) for name, pair in zip(FIELDS, zip(batch, advice))
+            ]
+        _, _, reward, next_obs, terminated = both
+        target_noise, actor_noise, advice_actor_noise = noise
+        alpha = weights['log_alpha'].exp().unsqueeze(-1)
+        next_mean, next_log_std = with_weights(actor_net, actor_w)(next_obs)
+        next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, target_noise)
+        next_q1, next_q2 = with_weights(critic_net, target_w)(next_obs, next_action)
+        y = eq.soft_bellman_target(reward, terminated, next_q1, next_q2, next_log_prob, alpha, hyper['gamma'])
+        y, advice_y = (y, None) if advice is None else y.split(sizes, dim=-1)
+
+    def critic_step(obs, action, y, only=None):  # Eq. 5 for Q_theta1 and Q_theta2
+        def loss_of(w):
+            q1, q2 = with_weights(critic_net, w)(obs, action)
+            return seeds * (eq.critic_loss(q1, y) + eq.critic_loss(q2, y))
+
+        grads, loss = gradient_and_value(loss_of, critic_w)
+        adam_step('critic', list(critic_w.values()), list(grads.values()), only)
+        return loss / seeds
+
+    # 1st critic update: the batch from D (Eq. 5); 2nd: the batch from D_advising (Section 3.3).
+    losses['critic_loss'] = critic_step(batch[0], batch[1], y)
+    if advice is not None:
+        losses['advice_critic_loss'] = critic_step(advice[0], advice[1], advice_y, advised)
+
+    def actor_and_alpha_step(obs, noise, only=None):
+        alpha = weights['log_alpha'].detach().exp().unsqueeze(-1)
+        critic = with_weights(critic_net, {name: t.detach() for name, t in critic_w.items()})
+
+        def loss_of(w):  # Eq. 6 with a = tanh(mean + std * noise); log pi for the temperature
+            mean, log_std = with_weights(actor_net, w)(obs)
+            action, log_prob = eq.squashed_gaussian_sample(mean, log_std, noise)
+            q1, q2 = critic(obs, action)
+            return seeds * eq.actor_loss(log_prob, q1, q2, alpha), log_prob
+
+        grads, (loss, log_prob) = gradient_and_value(loss_of, actor_w, has_aux=True)
+        adam_step('actor', list(actor_w.values()), list(grads.values()), only)
+
+        def alpha_loss_of(log_alpha):
+            return seeds * eq.temperature_loss(log_alpha.unsqueeze(-1), log_prob, hyper['target_entropy'])
+
+        alpha_grad, alpha_loss = gradient_and_value(alpha_loss_of, weights['log_alpha'])
+        adam_step('alpha', [weights['log_alpha']], [alpha_grad], only)
+        return loss / seeds, alpha_loss / seeds
+
+    # Actor (Eq. 6) and temperature on the batch from D (and on advice: actor_on_advice).
+    losses['actor_loss'], losses['alpha_loss'] = actor_and_alpha_step(batch[0], actor_noise)
+    if advice_actor_noise is not None and advice is not None:
+        losses['advice_actor_loss'], _ = actor_and_alpha_step(advice[0], advice_actor_noise, advised)
+
+    # Target critics: theta^- <- tau * theta + (1 - tau) * theta^-.
+    eq.soft_update(list(target_w.values()), list(critic_w.values()), hyper['tau'])
+    return losses
