@@ -6,7 +6,10 @@ Prints, for Pendulum: same-seed differences from SAC over episodes 100-199 (mean
 seeds with a 95 % percentile-bootstrap interval over seeds: eqhrl_ros.stats.bootstrap,
 10,000 resamples, seeded 0), advice given per seed, and whether episodes 30-49 are
 identical across algorithms; for LunarLander: QASAC minus SAC over episodes 50-69 per seed,
-and successful episodes per run (all, and in the last 10).
+and successful episodes per run (all, and in the last 10). For the decisive study
+(docs/results/study_pendulum_decisive): whether the exact E(s) changes the answer, on the
+seeds both estimators ran (EQSAC minus its timing-matched random arm, for each estimator, and
+the difference between the two, same seeds, 95 % t intervals: eqhrl_ros.stats.t_interval).
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eqhrl_ros.stats import bootstrap
+from eqhrl_ros.stats import bootstrap, t_interval
 
 RESULTS = Path(__file__).resolve().parents[1] / 'docs' / 'results'
 
@@ -68,5 +71,33 @@ def main() -> None:
             print(f'  {algorithm}: {len(wins)} successful episodes, {sum(e >= last for e in wins)} in the last 10')
 
 
+def decisive() -> None:
+    """AUC per (arm, seed) of the decisive study's advice-free evaluations, and the estimator check."""
+    path = RESULTS / 'study_pendulum_decisive' / 'eval.csv'
+    if not path.exists():
+        return
+    curves = defaultdict(lambda: defaultdict(list))
+    with path.open(newline='') as f:
+        for row in csv.DictReader(f):
+            curves[(row['arm'], int(row['seed']))][int(row['episode'])].append(float(row['return']))
+    auc = {key: float(np.mean([np.mean(v) for v in by_episode.values()])) for key, by_episode in curves.items()}
+    seeds = sorted(s for a, s in auc if a == 'eqsac_mc32' and ('random_eqsac_mc32', s) in auc)
+    if len(seeds) < 2:
+        return
+    gaps = {}
+    for arm, matched in (('eqsac', 'random_eqsac'), ('eqsac_mc32', 'random_eqsac_mc32')):
+        gaps[arm] = np.array([auc[(arm, s)] - auc[(matched, s)] for s in seeds])
+        low, high = t_interval(gaps[arm])
+        span = f'{seeds[0]}-{seeds[-1]}'
+        print(f'decisive, seeds {span}: {arm} - {matched}: {gaps[arm].mean():+.1f} [{low:+.1f}, {high:+.1f}]')
+    change = gaps['eqsac'] - gaps['eqsac_mc32']
+    low, high = t_interval(change)
+    print(
+        f'decisive: (exact - its random) - (K = 32 - its random), same seeds: {change.mean():+.1f} '
+        f'[{low:+.1f}, {high:+.1f}]'
+    )
+
+
 if __name__ == '__main__':
     main()
+    decisive()
