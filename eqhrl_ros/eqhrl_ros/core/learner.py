@@ -215,10 +215,6 @@ def _check_state(state) -> None:
         raise ValueError(f'gates.joint_threshold must be a number in [0, 1], found {threshold!r}')
 
 
-# The losses of an update as functions of the networks, so that one learner's networks
-# (EQSACLearner) and N learners' stacked networks (seed_batch.py) compute them with the same code.
-
-
 def resumed_settings(saved_config: dict) -> list:
     """The run-time (dynamic) LearnerConfig fields a checkpoint's config holds."""
     from .config import FIELDS
@@ -561,7 +557,8 @@ class EQSACLearner:
         """(weights, Adam state, hyper) for algorithm1_update: views of the live weights and of
         the optimisers' own moments, which the update steps in place (so checkpoints save what it
         learned). Gathered again only when the learner replaced the objects that hold them
-        (loading a checkpoint does); an optimiser without moments yet gets torch's initial ones."""
+        (loading a checkpoint does) or the tensors behind them (seed_batch.py stacks and
+        releases them); an optimiser without moments yet gets torch's initial ones."""
         owners = (
             self.actor,
             self.critic,
@@ -571,8 +568,11 @@ class EQSACLearner:
             self.critic_optimizer,
             self.alpha_optimizer,
         )
+        storage = tuple(p.data_ptr() for module in owners[:3] for p in module.parameters()) + (
+            self.log_alpha.data_ptr(),
+        )
         held, inputs = self._update_inputs
-        if held is None or any(a is not b for a, b in zip(owners, held)):
+        if held is None or any(a is not b for a, b in zip(owners, held[0])) or storage != held[1]:
             weights = {
                 'actor': {k: v.detach() for k, v in self.actor.named_parameters()},
                 'critic': {k: v.detach() for k, v in self.critic.named_parameters()},
@@ -587,7 +587,7 @@ class EQSACLearner:
                 group = optimizer.param_groups[0]  # Adam's settings from the optimiser itself
                 hyper[f'{name}_adam'] = {'lr': group['lr'], 'betas': tuple(group['betas']), 'eps': group['eps']}
             inputs = (weights, state, hyper)
-            self._update_inputs = (owners, inputs)
+            self._update_inputs = ((owners, storage), inputs)
         return inputs
 
     @property

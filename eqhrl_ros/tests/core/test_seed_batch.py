@@ -156,3 +156,27 @@ def test_runs_at_different_steps_are_refused():
     fresh = EQSACLearner(3, env_b.action_space.low, env_b.action_space.high, LearnerConfig(**SMALL, seed=1))
     with pytest.raises(ValueError, match='same step'):
         train_together([SeedRun(env_a, ahead), SeedRun(env_b, fresh)], 2)
+
+
+def test_a_seed_learns_alone_again_after_learning_together():
+    """Learning together moves a seed's weights into stacked tensors and release() gives them
+    back in tensors of their own: the lone update must then step those, not the stacked ones."""
+    groups = {seed: [learner(seed, mode='eqsac') for _ in range(2)] for seed in range(2)}
+    fill(groups, {0: 5, 1: 7})
+    alone = [groups[seed][0] for seed in groups]
+    for one in alone + [groups[seed][1] for seed in groups]:
+        one.update()  # each learner's update inputs gathered before any stacking
+    batch = SeedBatch([groups[seed][1] for seed in groups])
+    for _ in range(3):
+        for one in alone:
+            one.update()
+        batch.update()
+    batch.release()
+    for _ in range(3):
+        for seed in groups:
+            groups[seed][0].update()
+            groups[seed][1].update()
+    for seed in groups:
+        single, together = groups[seed]
+        assert together.updates == single.updates == 7
+        assert torch.allclose(weights(together), weights(single), rtol=0, atol=1e-5), seed
