@@ -50,7 +50,7 @@ def tanh(x: torch.Tensor) -> torch.Tensor:
         x.numel() >= NUMPY_TANH_FROM
         and x.device.type == 'cpu'
         and x.dtype == torch.float32
-        and not torch.compiler.is_compiling()
+        and not torch.compiler.is_dynamo_compiling()  # (not is_compiling(): process-wide, update.tracing)
     ):
         return _NumpyTanh.apply(x)
     return torch.tanh(x)

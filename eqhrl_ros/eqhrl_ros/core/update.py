@@ -57,6 +57,14 @@ def update_noise(draw: Callable, action_dim: int, sizes: list, actor_on_advice: 
     return target, actor, advice_actor
 
 
+def tracing() -> bool:
+    """Whether torch.compile is tracing this very call. Not torch.compiler.is_compiling(): that
+    is a process-wide flag, true in every thread while a compile runs in any (compile_update
+    compiles in the background while the eager updates go on), and with it an eager update
+    took the compiled path's Adam, which fails outside a compiled program on the CPU."""
+    return torch.compiler.is_dynamo_compiling()
+
+
 def with_weights(net, weights: dict):
     """``net`` as a function of its inputs, computed with ``weights`` (name -> tensor)."""
     return lambda *inputs: functional_call(net, weights, inputs)
@@ -65,7 +73,7 @@ def with_weights(net, weights: dict):
 def gradient_and_value(loss_of: Callable, weights, has_aux: bool = False):
     """torch.func.grad_and_value(loss_of)(weights): the gradient with respect to ``weights`` (a
     tensor, or a dict of them) and the value (with ``has_aux``: loss_of returns (loss, aux))."""
-    if torch.compiler.is_compiling():
+    if tracing():
         return grad_and_value(loss_of, has_aux=has_aux)(weights)
     if isinstance(weights, dict):
         leaves = {name: t.detach().requires_grad_(True) for name, t in weights.items()}
@@ -90,7 +98,7 @@ def adam_(params: list, grads: list, state: tuple, settings: dict) -> None:
     Fused (one kernel over every tensor) eagerly, as the learner's Adam is; the plain loop
     with tensor step counts when compiling, so that the update is one graph."""
     exp_avgs, exp_avg_sqs, steps = state
-    compiling = torch.compiler.is_compiling()
+    compiling = tracing()
     functional_adam(
         params,
         grads,

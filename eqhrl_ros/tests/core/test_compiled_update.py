@@ -272,3 +272,21 @@ def test_compile_update_is_off_by_default_and_a_learner_parameter():
     assert learner.config.compile_update is False and learner.compiled_update is None
     with pytest.raises(ValueError, match='compile_update must be true or false'):
         LearnerConfig(compile_update='yes')
+
+
+def test_an_eager_update_while_a_compile_runs_elsewhere_stays_eager(monkeypatch):
+    """torch.compiler.is_compiling() is one flag for the whole process, true while a compile runs
+    in any thread. compile_update compiles in the background while the eager updates go on: an
+    eager update that read the flag took the compiled path's Adam (capturable), which fails on
+    the CPU outside a compiled program, and ended a study run. Here the flag is set as a
+    background compile sets it."""
+    eager, during = filled(mode='eqsac', advised_every=3), filled(mode='eqsac', advised_every=3)
+    eager.update(), during.update()
+    monkeypatch.setattr(torch.compiler, '_is_compiling_flag', True)
+    assert torch.compiler.is_compiling()
+    for _ in range(3):
+        got = during.update()
+    monkeypatch.setattr(torch.compiler, '_is_compiling_flag', False)
+    for _ in range(3):
+        expected = eager.update()
+    assert got == expected and largest_difference(eager, during) == 0.0
