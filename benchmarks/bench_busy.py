@@ -36,7 +36,7 @@ import sys, time
 import numpy as np
 import torch
 torch.set_num_threads(int(sys.argv[1]))
-from eqhrl_ros.core.learner import EQSACLearner, LearnerConfig
+from eqhrl_ros.core.algorithm.learner import EQSACLearner, LearnerConfig
 learner = EQSACLearner(3, np.array([-2.0], np.float32), np.array([2.0], np.float32),
                        LearnerConfig(hidden=(int(sys.argv[3]),) * 2, batch_size=int(sys.argv[4]),
                                      learning_starts=10**9))

@@ -21,8 +21,8 @@ import numpy as np
 import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig
-from eqhrl_ros.core import equations as eq
-from eqhrl_ros.core.envs import gym_spec
+from eqhrl_ros.core.algorithm import equations as eq
+from eqhrl_ros.core.envs.gymnasium_envs import gym_spec
 
 ESTIMATORS = ('exact', 'monte_carlo')
 

@@ -11,7 +11,7 @@ inside its advising budget with the heuristic expert, so it also pays for D(s),
 E(s) and the second critic step on the advice batch.
 
 Contenders: SBX (Stable Baselines in JAX: the whole update one XLA program), Stable-Baselines3,
-ours eager (the shipped default) and ours with compile_update: true (core/compiled_update.py:
+ours eager (the shipped default) and ours with compile_update: true (core/algorithm/compiled_update.py:
 the whole update one torch.compile program; compiled before timing, its cost printed).
 
 Prints steps/s for each contender and its ratios to SBX and SB3; exits with 1 if a ratio

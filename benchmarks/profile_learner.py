@@ -18,7 +18,7 @@ import torch
 from torch.profiler import ProfilerActivity, profile
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
-from eqhrl_ros.core.config import MODES
+from eqhrl_ros.core.algorithm.config import MODES
 
 
 def main() -> None:

@@ -9,14 +9,14 @@ from the params file; options override them. Each run writes
 <output>/<algorithm>/seed<k>/episodes.csv (the learner node's format) and a DONE
 marker when finished; <output>/episodes.csv gathers all finished runs with the
 columns of COLUMNS. In-process runs also evaluate the policy without advice every
---eval-every episodes from --eval-starts fixed start states (core/evaluation.py):
+--eval-every episodes from --eval-starts fixed start states (core/runs/evaluation.py):
 <run>/eval.csv, gathered into <output>/eval.csv (EVAL_COLUMNS). Interrupt with Ctrl-C and run the same command again:
 finished runs are skipped; an unfinished lone in-process run continues from its last save
-(every --save-every minutes, between episodes: core/resume_point.py) and writes what it
+(every --save-every minutes, between episodes: core/runs/resume_point.py) and writes what it
 would have written uninterrupted; runs through ROS and seeds learning together start over.
 
 Seeds of an algorithm learn together in one process where that is faster (small networks,
-see --seeds-together; core/seed_batch.py): the same numbers as learning apart, to float
+see --seeds-together; core/algorithm/seed_batch.py): the same numbers as learning apart, to float
 rounding. --seeds-apart runs every seed in a process of its own, as --through-ros does.
 
 --through-ros runs each seed through the three ROS nodes (eqhrl-train) instead of
@@ -49,9 +49,9 @@ from pathlib import Path
 
 import yaml
 
-from ..core.config import MODES as ALGORITHMS
-from ..core.config import PAPER_MODES
-from ..core.expert_factory import EXPERT_BACKENDS
+from ..core.algorithm.config import MODES as ALGORITHMS
+from ..core.algorithm.config import PAPER_MODES
+from ..core.experts.factory import EXPERT_BACKENDS
 from ..paths import params_file
 from ..yaml_files import load_mapping
 from .run_pool import ClusterUnavailable, progress_queue, run_pool
@@ -76,7 +76,7 @@ class Settings:
     expert_options: dict = field(default_factory=dict)
     gate_trace: bool = False  # write <run>/gates.csv: D(s), E(s) and thresholds inside the budget
     # A lone in-process run saves its state between episodes this often (seconds; 0: never),
-    # and an interrupted one continues from there (core/resume_point.py). --save-every.
+    # and an interrupted one continues from there (core/runs/resume_point.py). --save-every.
     save_every_s: float = 300.0
 
 
@@ -140,9 +140,9 @@ def learner_config(settings: Settings, algorithm: str, seed: int):
 
 def make_expert(settings: Settings, seed: int = 0):
     """The run's expert: the backend of the settings, made imperfect by expert_options."""
-    from ..core.expert_factory import make_expert as expert_for
-    from ..core.imperfect_experts import DelayedExpert, WeakExpert
-    from ..core.simulated_human import HumanLimits
+    from ..core.experts.factory import make_expert as expert_for
+    from ..core.experts.imperfect import DelayedExpert, WeakExpert
+    from ..core.experts.simulated_human import HumanLimits
 
     if settings.expert_backend == 'none':
         return None
@@ -167,12 +167,12 @@ def run_dir(output: Path, algorithm: str, seed: int) -> Path:
 
 def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, progress, resume=None):
     """One seed's env, learner, expert and record files as a training.SeedRun, and a function
-    that closes them. ``resume``: a core.resume_point.ResumePoint to continue from if it
+    that closes them. ``resume``: a core.runs.resume_point.ResumePoint to continue from if it
     holds a usable save (the records then keep their rows up to it), or None."""
     from ..core import EpisodeSummary, EQSACLearner, make_env, success_criterion
-    from ..core.evaluation import EVAL_FIELDS, eval_seeds
-    from ..core.records import EpisodeRecord
-    from ..core.training import Evaluation, SeedRun
+    from ..core.runs.evaluation import EVAL_FIELDS, eval_seeds
+    from ..core.runs.records import EpisodeRecord
+    from ..core.runs.training import Evaluation, SeedRun
 
     env = make_env(settings.env_id, settings.max_episode_steps)
     learner = EQSACLearner(
@@ -238,12 +238,12 @@ def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, pr
 
 def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id=None) -> float:
     """One run in this process, continued from its resume point if it has one (saved every
-    settings.save_every_s between episodes: core/resume_point.py). Returns the wall time of
+    settings.save_every_s between episodes: core/runs/resume_point.py). Returns the wall time of
     the run so far in seconds, earlier processes included."""
     import torch
 
     from ..core import train
-    from ..core.resume_point import ResumePoint
+    from ..core.runs.resume_point import ResumePoint
 
     torch.set_num_threads(1)  # one process per core
     identity = {'settings': dataclasses.asdict(settings), 'algorithm': algorithm, 'seed': seed}
@@ -267,12 +267,12 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
 
 
 def run_together(settings: Settings, algorithm: str, seeds, output: Path, progress) -> None:
-    """Several seeds of one algorithm in this process, their updates as one (core/seed_batch.py):
+    """Several seeds of one algorithm in this process, their updates as one (core/algorithm/seed_batch.py):
     each seed's files and numbers as run_in_process would write them (to float rounding).
     A seed's DONE is written as soon as it finishes."""
     import torch
 
-    from ..core.training import train_together
+    from ..core.runs.training import train_together
 
     torch.set_num_threads(1)  # one process per core
     start = time.monotonic()
@@ -458,7 +458,7 @@ def run_worker(settings, algorithm, seed, directory, through_ros, progress, doma
         elapsed = run_in_process(settings, algorithm, seed, directory, progress, domain_id)
     (directory / 'DONE').write_text(f'{elapsed:.1f}\n')
     if not through_ros:
-        from ..core.resume_point import remove_files
+        from ..core.runs.resume_point import remove_files
 
         remove_files(directory)  # after DONE: a run killed in between is not redone
     return algorithm, seed, elapsed

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.config import MODE_COLORS, MODE_LABELS, MODES
+from ..core.algorithm.config import MODE_COLORS, MODE_LABELS, MODES
 from ..plots import smooth
 from ..yaml_files import load_mapping
 

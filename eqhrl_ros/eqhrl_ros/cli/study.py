@@ -20,7 +20,7 @@ learner settings and expert:
 - ``learner``: learner parameters (the params file's names), over the plan's own.
 - ``expert``: ``human`` (simulated_human.HumanLimits fields: a noisy hand, skipped and missed
   requests), ``delay_steps`` (the answer is for the state that many steps before),
-  ``gain`` (a timid controller): core/imperfect_experts.py.
+  ``gain`` (a timid controller): core/experts/imperfect.py.
 - ``match`` (mode random): the arm's random_ask_rate for seed k is the named arm's requests
   per step inside the budget in seed k; the run waits for that one to finish. With
   ``match_timing: episode``, the arm instead asks in each episode exactly as many times as the
@@ -36,7 +36,7 @@ Each run writes <output>/<arm>/seed<k>/ (episodes.csv, eval.csv, gates.csv, DONE
 <output>/episodes.csv, eval.csv and gates.csv gather the finished runs (after each one) with
 an ``arm`` column, and <output>/arms.csv says what each arm is. Interrupt with Ctrl-C and run the same
 command again: finished runs are kept, unfinished ones continue from their last save (every
---save-every minutes, between episodes: core/resume_point.py). eqhrl-study-report
+--save-every minutes, between episodes: core/runs/resume_point.py). eqhrl-study-report
 turns the output into tables and figures.
 """
 
@@ -54,7 +54,7 @@ from pathlib import Path
 
 import yaml
 
-from ..core.config import MODES
+from ..core.algorithm.config import MODES
 from ..paths import shared_file
 from ..yaml_files import load_mapping
 from . import experiment

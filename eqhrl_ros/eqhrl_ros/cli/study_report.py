@@ -40,7 +40,7 @@ from typing import Optional
 import numpy as np
 import yaml
 
-from ..core.simulated_human import expected_seconds_per_request
+from ..core.experts.simulated_human import expected_seconds_per_request
 from ..stats import (
     holm,
     iqm,
@@ -601,7 +601,7 @@ def plot_frontier(arms: list, scores: dict, path: Path) -> bool:
     if len(line) < 2:
         return False
     plt = _pyplot()
-    from ..core.config import MODE_COLORS
+    from ..core.algorithm.config import MODE_COLORS
 
     seconds = expected_seconds_per_request()
     fig, ax = plt.subplots(figsize=(8, 5))

@@ -25,7 +25,7 @@ import os
 import sys
 import time
 
-from ..core.config import MODES
+from ..core.algorithm.config import MODES
 from ..nodes.spinning import EXECUTORS
 
 DISCOVERY = ('off', 'localhost', 'subnet')

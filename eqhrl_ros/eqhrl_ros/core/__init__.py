@@ -1,62 +1,72 @@
 """The EQ-HRL learning core. Imports no ROS module: nodes, scripts and tests all drive it.
 
-- config.py      every hyperparameter once (default, range, description); the modes
-- equations.py   every equation of the paper (Eqs. 4-10), named as the paper names it
-- networks.py    the squashed-Gaussian actor and the twin critics
-- update.py      Algorithm 1's update, once: algorithm1_update (eager, compiled and seeds together)
-- replay.py      replay memories D and D_advising
-- advising.py    FIFO queues, dynamic/fixed thresholds and the early-advising budget
-- learner.py     EQSACLearner: SAC, QASAC and EQSAC (Algorithm 1)
-- compiled_update.py algorithm1_update compiled as one program (compile_update)
-- experts.py     the expert interface and built-in controllers
-- imperfect_experts.py delayed and weak experts (studies)
-- simulated_human.py a simulated person (reaction times, noise, skips)
-- teleop.py      a person's commands and answer window
-- expert_factory.py the expert a backend name stands for (above the experts it builds)
-- checkpoint.py  safe checkpoints and exported policies
-- signing.py     a deployment's shared key: signed weights, batches and commands (HMAC)
-- env_spec.py    EnvSpec: an env's spaces, pace and success rule, whoever announces it; ActionScaler
-- envs.py        gymnasium envs: construction, their EnvSpec, action labels
-- evaluation.py  the advice-free evaluation of a policy
-- errors.py      the errors the core raises
-- training.py    the in-process training loop (one seed, or seeds together)
-- seed_batch.py  SeedBatch: many seeds' updates as one (one batched product per layer)
-- trainer.py     Trainer: learning fed by actor nodes (acting and learning apart)
-- transitions.py batches of transitions on their way to the trainer; the actor's outbox
-- weights.py     the networks an actor needs, as safetensors bytes
-- summary.py     one episode's statistics (the record's fields)
-- records.py     a run's folder: episodes.csv and where saves go
-- resume_point.py a lone in-process run saved between episodes and resumed exactly
+Five wings, each importing only the wings above it in this list (tests/core/test_import_graph.py):
+
+data/       what is stored and what travels
+  errors.py       the errors the core raises
+  advice.py       AdviceRequest, Advice and the expert interface; the kinds of failed advice
+  replay.py       replay memories D and D_advising
+  summary.py      one episode's statistics (the record's fields)
+  transitions.py  batches of transitions on their way to the trainer; the actor's outbox
+  weights.py      the networks an actor needs, as safetensors bytes; which trainer it follows
+  signing.py      a deployment's shared key: signed weights, batches and commands (HMAC)
+  torch_files.py  torch's zip files written atomically and read safely
+envs/       an env as the learner sees it
+  spec.py         EnvSpec: an env's spaces, pace and success rule, whoever announces it; ActionScaler
+  gymnasium_envs.py gymnasium envs: construction, their EnvSpec, action labels
+algorithm/  EQ-HRL itself
+  config.py       every hyperparameter once (default, range, description); the modes
+  equations.py    every equation of the paper (Eqs. 4-10), named as the paper names it
+  networks.py     the squashed-Gaussian actor and the twin critics
+  update.py       Algorithm 1's update, once: algorithm1_update (eager, compiled and seeds together)
+  compiled_update.py algorithm1_update compiled as one program (compile_update)
+  seed_batch.py   SeedBatch: many seeds' updates as one (one batched product per layer)
+  advising.py     FIFO queues, dynamic/fixed thresholds and the early-advising budget
+  learner.py      EQSACLearner: SAC, QASAC and EQSAC (Algorithm 1)
+experts/    whoever answers a request
+  controllers.py  the built-in controllers of the shipped envs
+  policy.py       an exported policy and the expert that serves it
+  simulated_human.py a simulated person (reaction times, noise, skips)
+  imperfect.py    delayed and weak experts (studies)
+  teleop.py       a person's commands and answer window
+  factory.py      the expert a backend name stands for (above the experts it builds)
+runs/       a run from start to end
+  training.py     the in-process training loop (one seed, or seeds together)
+  trainer.py      Trainer: learning fed by actor nodes (acting and learning apart)
+  checkpoint.py   checkpoints with their replay memories
+  resume_point.py a lone in-process run saved between episodes and resumed exactly
+  records.py      a run's folder: episodes.csv and where saves go
+  evaluation.py   the advice-free evaluation of a policy
 """
 
 import importlib
 
 # Names and the module that holds each. Loaded on first use (PEP 562), so that a light
-# reader of core.summary or core.records does not pay for torch.
+# reader of core.data.summary or core.runs.records does not pay for torch.
 _HOME = {
-    'AdvisingGates': 'advising',
-    'FifoQueue': 'advising',
-    'GateDecision': 'advising',
-    'CheckpointError': 'checkpoint',
-    'PolicyExpert': 'checkpoint',
-    'export_policy': 'checkpoint',
-    'load_checkpoint': 'checkpoint',
-    'save_checkpoint': 'checkpoint',
-    'ActionScaler': 'env_spec',
-    'make_env': 'envs',
-    'success_criterion': 'envs',
-    'EnvSpec': 'env_spec',
-    'gym_spec': 'envs',
-    'Advice': 'experts',
-    'AdviceRequest': 'experts',
-    'heuristic_expert': 'experts',
-    'make_expert': 'expert_factory',
-    'EQSACLearner': 'learner',
-    'LearnerConfig': 'learner',
-    'Proposal': 'learner',
-    'EpisodeSummary': 'summary',
-    'run_episode': 'training',
-    'train': 'training',
+    'AdvisingGates': 'algorithm.advising',
+    'FifoQueue': 'algorithm.advising',
+    'GateDecision': 'algorithm.advising',
+    'CheckpointError': 'data.errors',
+    'PolicyExpert': 'experts.policy',
+    'export_policy': 'experts.policy',
+    'load_checkpoint': 'runs.checkpoint',
+    'save_checkpoint': 'runs.checkpoint',
+    'ActionScaler': 'envs.spec',
+    'make_env': 'envs.gymnasium_envs',
+    'success_criterion': 'envs.gymnasium_envs',
+    'EnvSpec': 'envs.spec',
+    'gym_spec': 'envs.gymnasium_envs',
+    'Advice': 'data.advice',
+    'AdviceRequest': 'data.advice',
+    'heuristic_expert': 'experts.controllers',
+    'make_expert': 'experts.factory',
+    'EQSACLearner': 'algorithm.learner',
+    'LearnerConfig': 'algorithm.config',
+    'Proposal': 'algorithm.learner',
+    'EpisodeSummary': 'data.summary',
+    'run_episode': 'runs.training',
+    'train': 'runs.training',
 }
 __all__ = sorted(_HOME)
 

@@ -30,10 +30,10 @@ from std_msgs.msg import Float32MultiArray
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 from eqhrl_interfaces.srv import Advise
 
-from ..core.config import asks_for_advice
-from ..core.env_spec import EnvSpec
-from ..core.experts import Advice
-from ..core.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
+from ..core.algorithm.config import asks_for_advice
+from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
+from ..core.data.advice import Advice
+from ..core.envs.spec import EnvSpec
 from . import advise_msgs, messages
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .health import OK, WARN, Check, Health

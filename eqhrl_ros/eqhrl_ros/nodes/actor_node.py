@@ -27,10 +27,10 @@ from rclpy.time import Time
 
 from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
 
-from ..core.learner import EpisodeSummary, EQSACLearner
-from ..core.signing import signer_from
-from ..core.transitions import Outbox
-from ..core.weights import TrainerPin, WeightsError, apply_weights
+from ..core.algorithm.learner import EpisodeSummary, EQSACLearner
+from ..core.data.signing import signer_from
+from ..core.data.transitions import Outbox
+from ..core.data.weights import TrainerPin, WeightsError, apply_weights
 from . import trainer_msgs
 from .acting import ActingNode
 from .health import OK, WARN, Check
@@ -180,7 +180,7 @@ class ActorNode(ActingNode):
 
     def _apply(self, msg: PolicyWeights) -> None:
         """Between two steps (under the node's lock): the networks whole, or not at all, and only
-        from the trainer this actor follows (core.weights.TrainerPin)."""
+        from the trainer this actor follows (core.data.weights.TrainerPin)."""
         new_trainer = msg.trainer_id != self.trainer_id
         unsigned = trainer_msgs.signature_refusal(msg, self.signer)
         if unsigned:

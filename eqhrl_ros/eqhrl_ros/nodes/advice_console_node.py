@@ -44,9 +44,9 @@ from std_msgs.msg import Bool, Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 
-from ..core.config import check_value
-from ..core.env_spec import EnvSpec
-from ..core.signing import CommandSeal, signer_from
+from ..core.algorithm.config import check_value
+from ..core.data.signing import CommandSeal, signer_from
+from ..core.envs.spec import EnvSpec
 from . import messages
 from .connection_guard import ConnectionGuard, GuardedProtocol
 from .env_info import EnvInfoWatcher, configured_spec, shown

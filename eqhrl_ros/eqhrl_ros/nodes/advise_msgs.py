@@ -7,7 +7,7 @@ import numpy as np
 
 from eqhrl_interfaces.srv import Advise
 
-from ..core.experts import Advice, AdviceRequest
+from ..core.data.advice import Advice, AdviceRequest
 
 
 def request_msg(request: AdviceRequest, timeout_s: float = 0.0) -> Advise.Request:

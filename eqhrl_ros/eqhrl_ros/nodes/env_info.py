@@ -17,7 +17,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from eqhrl_interfaces.msg import EnvInfo
 
-from ..core.env_spec import EnvSpec, spec_from_parameters
+from ..core.envs.spec import EnvSpec, spec_from_parameters
 from .graph_trust import publishers
 from .spinning import start_up_errors, stop_with_error
 
@@ -79,7 +79,7 @@ def configured_spec(params: dict) -> Optional[EnvSpec]:
     env_id = params.get('env_id', '')
     if not env_id:
         return from_parameters
-    from ..core.envs import gym_spec  # gymnasium: only for a node given a gymnasium id
+    from ..core.envs.gymnasium_envs import gym_spec
 
     spec = gym_spec(env_id)
     if from_parameters is not None:

@@ -18,10 +18,11 @@ from rclpy.node import Node
 
 from eqhrl_interfaces.srv import Advise
 
-from ..core.env_spec import EnvSpec
-from ..core.expert_factory import make_expert
-from ..core.experts import Advice, expert_disagreements
-from ..core.simulated_human import HumanLimits, SimulatedHuman
+from ..core.data.advice import Advice
+from ..core.envs.spec import EnvSpec
+from ..core.experts.controllers import expert_disagreements
+from ..core.experts.factory import make_expert
+from ..core.experts.simulated_human import HumanLimits, SimulatedHuman
 from .advise_msgs import answer, fill_response, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .params import EXPERT_PARAMS, HUMAN_LIMIT_PARAMS, choices_validator, declare, reject_unknown_overrides

@@ -24,8 +24,8 @@ from std_msgs.msg import Bool, Float32MultiArray
 
 from eqhrl_interfaces.msg import EnvInfo
 
-from ..core.env_spec import spec_from_parameters
-from ..core.envs import gym_spec, make_env
+from ..core.envs.gymnasium_envs import gym_spec, make_env
+from ..core.envs.spec import spec_from_parameters
 from . import env_info, messages
 from .health import OK, WARN, Check, Health
 from .params import GYM_ENV_PARAMS, choices_validator, declare, reject_unknown_overrides

@@ -24,8 +24,8 @@ from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest
 
-from ..core.env_spec import EnvSpec
-from ..core.signing import CommandSeal, signer_from
+from ..core.data.signing import CommandSeal, signer_from
+from ..core.envs.spec import EnvSpec
 from . import messages
 from .env_info import EnvInfoWatcher, configured_spec
 from .params import KEYBOARD_PARAMS, declare, reject_unknown_overrides

@@ -8,9 +8,9 @@ and trainer_node.py.
 
 from __future__ import annotations
 
-from ..core.checkpoint import load_checkpoint
-from ..core.learner import EpisodeSummary, EQSACLearner, resumed_settings
-from ..core.records import EpisodeRecord
+from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, resumed_settings
+from ..core.runs.checkpoint import load_checkpoint
+from ..core.runs.records import EpisodeRecord
 from .acting import OBSERVATION_QOS, ActingNode
 from .params import LEARNER_NODE_PARAMS
 from .run_files import RunFiles, save_and_close
@@ -44,7 +44,7 @@ class LearnerNode(RunFiles, ActingNode):
         """The budgets the run had at its save, as this node's parameters (what ros2 param get says)."""
         from rclpy.parameter import Parameter
 
-        from ..core.config import FIELDS, ros_name
+        from ..core.algorithm.config import FIELDS, ros_name
 
         changed = []
         for name in resumed_settings(learner.config.to_dict()):

@@ -37,8 +37,8 @@ from std_msgs.msg import Float32MultiArray, MultiArrayDimension, MultiArrayLayou
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 
-from ..core.summary import EpisodeSummary
-from ..core.teleop import COMMAND_FIELDS, REQUEST_FIELD
+from ..core.data.summary import EpisodeSummary
+from ..core.experts.teleop import COMMAND_FIELDS, REQUEST_FIELD
 
 OBS_TAIL = ('reward', 'terminated', 'truncated', 'episode', 'step')
 OBS_SUCCESS = 'success'  # the optional last field of an observation
@@ -322,7 +322,7 @@ def command_msg(
 ) -> Float32MultiArray:
     """teleop_command as keyboard_teleop and advice_console publish it (COMMAND_FIELDS), then the
     (episode, step) of the request the person's screen shows (``request``, if any), and with a
-    core.signing.CommandSeal its 'counter' and 'signature' fields after them."""
+    core.data.signing.CommandSeal its 'counter' and 'signature' fields after them."""
     values = ([float(v) for v in command], [float(enabled)], [float(answer)], [float(skip)])
     fields = list(zip(COMMAND_FIELDS, values))
     if request is not None:

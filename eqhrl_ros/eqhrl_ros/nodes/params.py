@@ -15,10 +15,10 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..core.config import INT_MAX, LearnerConfig, ros_name
-from ..core.expert_factory import EXPERT_BACKENDS
-from ..core.simulated_human import HumanLimits
-from ..core.teleop import ANSWER_MODES
+from ..core.algorithm.config import INT_MAX, LearnerConfig, ros_name
+from ..core.experts.factory import EXPERT_BACKENDS
+from ..core.experts.simulated_human import HumanLimits
+from ..core.experts.teleop import ANSWER_MODES
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ class Param:
 
 
 def params_of(declared) -> tuple[Param, ...]:
-    """ROS parameters for the fields of a dataclass declared with core.config.hyper()."""
+    """ROS parameters for the fields of a dataclass declared with core.algorithm.config.hyper()."""
 
     def param(f):
         if f.default == ():  # an empty list would be typed as bytes: declared typed and unset
@@ -76,9 +76,9 @@ def params_of(declared) -> tuple[Param, ...]:
 
 
 # Parameters of the learner that map one-to-one onto core.LearnerConfig fields: derived
-# from the fields' declarations (core/config.py), never written here.
+# from the fields' declarations (core/algorithm/config.py), never written here.
 LEARNER_CONFIG_PARAMS = params_of(LearnerConfig)
-# The simulated person's limits (expert backend simulated_human): core/simulated_human.py.
+# The simulated person's limits (expert backend simulated_human): core/experts/simulated_human.py.
 HUMAN_LIMIT_PARAMS = params_of(HumanLimits)
 
 # The env's spaces, for an env node that publishes no env_info. Every node accepts them, so

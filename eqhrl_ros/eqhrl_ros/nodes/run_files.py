@@ -3,8 +3,10 @@ checkpoints and the exported policy; periodic saves that survive a full disk; th
 
 from __future__ import annotations
 
-from ..core.checkpoint import CheckpointWriteError, check_checkpoint_file, export_policy, save_checkpoint
-from ..core.records import RunFolder
+from ..core.data.errors import CheckpointWriteError
+from ..core.experts.policy import export_policy
+from ..core.runs.checkpoint import check_checkpoint_file, save_checkpoint
+from ..core.runs.records import RunFolder
 from .spinning import ExitError
 
 

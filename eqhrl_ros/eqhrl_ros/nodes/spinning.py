@@ -27,7 +27,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
-from ..core.errors import CheckpointError
+from ..core.data.errors import CheckpointError
 
 
 # What a node raises when it cannot start as configured: bad parameters, an unknown

@@ -6,7 +6,7 @@ Subscribes to ``joy`` (sensor_msgs/Joy, from the `joy` node), ``cmd_vel``
 as ``source`` says, and serves ``advise``.
 
 In ``answer_mode: window`` each request is held open until the person acts (see
-core.teleop.TeleopExpert) or the answer window passes. The service callback is a
+core.experts.teleop.TeleopExpert) or the answer window passes. The service callback is a
 coroutine awaiting that moment, in its own callback group: the executor goes on
 delivering the person's commands meanwhile, and nothing blocks a thread.
 """
@@ -28,10 +28,10 @@ from std_msgs.msg import Float32MultiArray
 from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
 from eqhrl_interfaces.srv import Advise
 
-from ..core.env_spec import EnvSpec
-from ..core.experts import SKIPPED, Advice
-from ..core.signing import CommandCheck, signer_from
-from ..core.teleop import TWIST_FIELDS, Command, TeleopExpert, array_command, joy_command, twist_command
+from ..core.data.advice import SKIPPED, Advice
+from ..core.data.signing import CommandCheck, signer_from
+from ..core.envs.spec import EnvSpec
+from ..core.experts.teleop import TWIST_FIELDS, Command, TeleopExpert, array_command, joy_command, twist_command
 from . import messages
 from .advise_msgs import answer, fill_response, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec

@@ -18,9 +18,9 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionBatch
 
-from ..core.signing import Signer
-from ..core.summary import EpisodeSummary
-from ..core.transitions import TransitionBatch as Batch
+from ..core.data.signing import Signer
+from ..core.data.summary import EpisodeSummary
+from ..core.data.transitions import TransitionBatch as Batch
 
 TRANSITIONS_TOPIC = '/transitions'
 WEIGHTS_TOPIC = '/weights'

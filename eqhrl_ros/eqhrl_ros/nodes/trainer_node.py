@@ -1,7 +1,7 @@
 """trainer: learns from the transitions of any number of actor nodes; sends them weights.
 
 Transitions arrive on /transitions (nodes/actor_node.py) and go into D, and advised ones
-into D_advising too (core/trainer.py). The subscription only queues each arriving batch;
+into D_advising too (core/runs/trainer.py). The subscription only queues each arriving batch;
 a learning thread of its own stores the queued batches and makes the updates owed, one at a
 time. So the executor is always free to take the next batch: rclpy takes one message per
 subscription per wait, and callbacks that held the executor for slices of updates let the
@@ -28,13 +28,13 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionBatch
 
-from ..core.checkpoint import load_checkpoint
-from ..core.learner import EQSACLearner, LearnerConfig
-from ..core.records import EpisodeRecord
-from ..core.signing import signer_from
-from ..core.summary import EpisodeSummary
-from ..core.trainer import TRAINER_CSV_FIELDS, BatchLimits, Trainer
-from ..core.weights import encode_weights
+from ..core.algorithm.learner import EQSACLearner, LearnerConfig
+from ..core.data.signing import signer_from
+from ..core.data.summary import EpisodeSummary
+from ..core.data.weights import encode_weights
+from ..core.runs.checkpoint import load_checkpoint
+from ..core.runs.records import EpisodeRecord
+from ..core.runs.trainer import TRAINER_CSV_FIELDS, BatchLimits, Trainer
 from . import messages, trainer_msgs
 from .acting import printable_name
 from .env_info import configured_spec

@@ -321,7 +321,7 @@ def test_a_save_of_another_run_is_not_resumed(tmp_path, capsys):
     """A resume point made with other settings is reported and removed; the run starts over."""
     import torch
 
-    from eqhrl_ros.core.resume_point import CHECKPOINT
+    from eqhrl_ros.core.runs.resume_point import CHECKPOINT
 
     args = experiment.parse_args(['--params', 'demo', '--episodes', '3', '--max-steps', '15', '--output', 'x'])
     settings = experiment.load_settings(args)
@@ -350,8 +350,8 @@ def test_a_resume_point_that_cannot_be_written_costs_the_save_not_the_run(tmp_pa
     """A full disk at a save: one line, the run goes on to its end."""
     import torch
 
-    from eqhrl_ros.core import resume_point
-    from eqhrl_ros.core.errors import CheckpointWriteError
+    from eqhrl_ros.core.data.errors import CheckpointWriteError
+    from eqhrl_ros.core.runs import resume_point
 
     def full_disk(*args, **kwargs):
         raise CheckpointWriteError('resume.pt: No space left on device')

@@ -8,10 +8,10 @@ import pytest
 import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, train
-from eqhrl_ros.core.advising import AdvisingGates
-from eqhrl_ros.core.experts import Advice, AdviceRequest
-from eqhrl_ros.core.imperfect_experts import DelayedExpert, WeakExpert
-from eqhrl_ros.core.training import run_episode
+from eqhrl_ros.core.algorithm.advising import AdvisingGates
+from eqhrl_ros.core.data.advice import Advice, AdviceRequest
+from eqhrl_ros.core.experts.imperfect import DelayedExpert, WeakExpert
+from eqhrl_ros.core.runs.training import run_episode
 
 SMALL = dict(hidden=(16, 16), batch_size=16, learning_starts=40, queue_length=3, advising_budget=3)
 

@@ -6,11 +6,11 @@ import pytest
 import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
-from eqhrl_ros.core.summary import EpisodeSummary
-from eqhrl_ros.core.trainer import TRAINER_CSV_FIELDS, Trainer
-from eqhrl_ros.core.training import ask_expert
-from eqhrl_ros.core.transitions import Outbox, SequenceTracker, TransitionBatch
-from eqhrl_ros.core.weights import WeightsError, apply_weights, encode_weights
+from eqhrl_ros.core.data.summary import EpisodeSummary
+from eqhrl_ros.core.data.transitions import Outbox, SequenceTracker, TransitionBatch
+from eqhrl_ros.core.data.weights import WeightsError, apply_weights, encode_weights
+from eqhrl_ros.core.runs.trainer import TRAINER_CSV_FIELDS, Trainer
+from eqhrl_ros.core.runs.training import ask_expert
 
 SETTINGS = dict(
     mode='eqsac',
@@ -304,7 +304,7 @@ def test_an_update_that_makes_the_networks_non_finite_is_undone():
 
 
 def test_an_actor_follows_the_trainer_it_joined_and_no_stranger_beside_it():
-    from eqhrl_ros.core.weights import TrainerPin
+    from eqhrl_ros.core.data.weights import TrainerPin
 
     pin = TrainerPin()
     assert pin.judge('real', 0, 0, 0, alone=True) == 'apply'
@@ -321,7 +321,7 @@ def test_an_actor_follows_the_trainer_it_joined_and_no_stranger_beside_it():
 
 
 def test_a_named_trainer_is_the_only_one_followed():
-    from eqhrl_ros.core.weights import TrainerPin
+    from eqhrl_ros.core.data.weights import TrainerPin
 
     pin = TrainerPin('lab-trainer')
     assert 'follows' in pin.judge('rogue', 1, 0, 0, alone=True)

@@ -2,7 +2,7 @@
 
 import pytest
 
-from eqhrl_ros.core.advising import AdvisingGates, FifoQueue
+from eqhrl_ros.core.algorithm.advising import AdvisingGates, FifoQueue
 
 
 def full_gates(mode='eqsac', budget=30, d=(1.0, 2.0, 3.0), e=(0.5, 0.6, 0.7), **kw):

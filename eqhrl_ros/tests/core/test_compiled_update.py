@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig
-from eqhrl_ros.core import compiled_update as compiled
+from eqhrl_ros.core.algorithm import compiled_update as compiled
 
 # Small networks: the program's size (and so the compile time) does not depend on the widths.
 SMALL = {'hidden': (32, 32), 'batch_size': 32, 'learning_starts': 1, 'seed': 3}

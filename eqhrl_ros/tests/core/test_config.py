@@ -5,7 +5,7 @@ import dataclasses
 import pytest
 import yaml
 
-from eqhrl_ros.core.config import FIELDS, LearnerConfig, check_value, ros_name
+from eqhrl_ros.core.algorithm.config import FIELDS, LearnerConfig, check_value, ros_name
 from eqhrl_ros.nodes.params import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
 
 from ros_helpers import PARAMS_DIR
@@ -72,7 +72,8 @@ def test_the_learner_trainer_and_checkpoints_load_without_gymnasium():
     import subprocess
     import sys
 
-    probe = 'import sys, eqhrl_ros.core.learner, eqhrl_ros.core.trainer, eqhrl_ros.core.checkpoint\n'
+    probe = 'import sys, eqhrl_ros.core.algorithm.learner, eqhrl_ros.core.runs.trainer\n'
+    probe += 'import eqhrl_ros.core.runs.checkpoint\n'
     probe += "print(sorted(m for m in sys.modules if m.split('.')[0] in ('gymnasium', 'rclpy')))"
     done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
@@ -80,7 +81,7 @@ def test_the_learner_trainer_and_checkpoints_load_without_gymnasium():
 
 
 def test_every_mode_has_a_label_and_a_colour():
-    from eqhrl_ros.core.config import MODE_COLORS, MODE_LABELS, MODES
+    from eqhrl_ros.core.algorithm.config import MODE_COLORS, MODE_LABELS, MODES
 
     assert set(MODE_LABELS) == set(MODES) == set(MODE_COLORS)
     assert len(set(MODE_COLORS.values())) == len(MODES)

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig
-from eqhrl_ros.core.weights import apply_weights, encode_weights
+from eqhrl_ros.core.data.weights import apply_weights, encode_weights
 
 
 def learner(device: str) -> EQSACLearner:

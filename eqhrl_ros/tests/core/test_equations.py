@@ -7,8 +7,8 @@ import pytest
 import torch
 from scipy import integrate, special, stats
 
-from eqhrl_ros.core import equations as eq
-from eqhrl_ros.core.networks import TwinCritic
+from eqhrl_ros.core.algorithm import equations as eq
+from eqhrl_ros.core.algorithm.networks import TwinCritic
 
 
 def test_bellman_target_eq4_matches_hand_computation_on_tiny_network():
@@ -103,7 +103,7 @@ def test_eq9_exact_entropy_is_the_integral_over_actions(mu, sigma):
 def test_expected_log_jacobian_is_exact_over_the_whole_log_std_range():
     """Against scipy's adaptive quadrature of E[log(1 - tanh(u)^2)] on a grid of means and
     log-stds spanning the actor's clamp [-5, 2] (both rules, and the switch between them)."""
-    from eqhrl_ros.core.networks import LOG_STD_MAX, LOG_STD_MIN
+    from eqhrl_ros.core.algorithm.networks import LOG_STD_MAX, LOG_STD_MIN
 
     def reference(mu, sigma):
         def f(u):

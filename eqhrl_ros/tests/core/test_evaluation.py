@@ -2,8 +2,8 @@
 changing what training does."""
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, train
-from eqhrl_ros.core.evaluation import eval_seeds, evaluate
-from eqhrl_ros.core.training import Evaluation
+from eqhrl_ros.core.runs.evaluation import eval_seeds, evaluate
+from eqhrl_ros.core.runs.training import Evaluation
 
 
 def pendulum_learner() -> EQSACLearner:

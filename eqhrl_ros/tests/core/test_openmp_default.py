@@ -6,7 +6,7 @@ import sys
 
 SCRIPT = (
     'import os, sys; import eqhrl_ros; assert "torch" not in sys.modules; '
-    'import eqhrl_ros.core.learner; print(os.environ["GOMP_SPINCOUNT"])'
+    'import eqhrl_ros.core.algorithm.learner; print(os.environ["GOMP_SPINCOUNT"])'
 )
 
 

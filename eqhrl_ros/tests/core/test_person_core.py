@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from eqhrl_ros.core.expert_factory import make_expert
-from eqhrl_ros.core.experts import SKIPPED, Advice, AdviceRequest
-from eqhrl_ros.core.learner import EQSACLearner, LearnerConfig
-from eqhrl_ros.core.simulated_human import HumanLimits, SimulatedHuman
-from eqhrl_ros.core.teleop import Command, TeleopExpert
+from eqhrl_ros.core.algorithm.learner import EQSACLearner, LearnerConfig
+from eqhrl_ros.core.data.advice import SKIPPED, Advice, AdviceRequest
+from eqhrl_ros.core.experts.factory import make_expert
+from eqhrl_ros.core.experts.simulated_human import HumanLimits, SimulatedHuman
+from eqhrl_ros.core.experts.teleop import Command, TeleopExpert
 
 
 def request(step=0, n=1):
@@ -119,7 +119,7 @@ def test_the_simulated_persons_draws_follow_its_limits():
 
 def test_the_simulated_persons_outcome_respects_the_answer_window():
     human = SimulatedHuman(make_expert('heuristic', 'Pendulum-v1'), HumanLimits(answer_window_s=2.0), seed=0)
-    from eqhrl_ros.core.simulated_human import HumanPlan
+    from eqhrl_ros.core.experts.simulated_human import HumanPlan
 
     answer = HumanPlan('answer', 1.5, np.array([0.3], np.float32))
     assert human.outcome(answer).advised and human.outcome(answer).response_time_s == 1.5
@@ -182,7 +182,7 @@ def test_the_deadman_pressed_alone_does_not_answer_with_the_command_held_before(
 
 def test_a_budget_in_the_persons_seconds_ends_the_requests_when_spent():
     from eqhrl_ros.core import EQSACLearner, LearnerConfig
-    from eqhrl_ros.core.experts import Advice
+    from eqhrl_ros.core.data.advice import Advice
 
     learner = EQSACLearner(
         3,
@@ -207,7 +207,7 @@ def test_a_budget_in_the_persons_seconds_ends_the_requests_when_spent():
 
 def test_a_press_meant_for_the_request_on_screen_never_lands_on_a_newer_one():
     """A skip meant for episode 5, step 195 used to be counted on episode 6, step 2, shown 0.3 s before."""
-    from eqhrl_ros.core.teleop import Command
+    from eqhrl_ros.core.experts.teleop import Command
 
     clock = FakeClock()
     expert = TeleopExpert(name='person', clock=clock)
@@ -247,7 +247,7 @@ def test_a_takeover_replaces_the_action_and_is_counted_apart_from_requests():
     [HumanLimits(), HumanLimits(reaction_median_s=2.5, reaction_sigma=0.8, answer_window_s=3.0, miss_probability=0.3)],
 )
 def test_the_expected_seconds_per_request_is_the_simulated_persons_mean_time(limits):
-    from eqhrl_ros.core.simulated_human import expected_seconds_per_request
+    from eqhrl_ros.core.experts.simulated_human import expected_seconds_per_request
 
     person = SimulatedHuman(lambda r: Advice(np.zeros(1, np.float32)), limits, seed=3)
     times = [person.outcome(person.plan(request())).response_time_s for _ in range(40_000)]

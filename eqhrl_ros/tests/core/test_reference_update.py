@@ -19,10 +19,10 @@ import torch
 import torch.nn.functional as F
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig
-from eqhrl_ros.core.config import MODES, asks_for_advice
-from eqhrl_ros.core.networks import LOG_STD_MAX, LOG_STD_MIN
-from eqhrl_ros.core.seed_batch import SeedBatch, batchable
-from eqhrl_ros.core.update import refusal
+from eqhrl_ros.core.algorithm.config import MODES, asks_for_advice
+from eqhrl_ros.core.algorithm.networks import LOG_STD_MAX, LOG_STD_MIN
+from eqhrl_ros.core.algorithm.seed_batch import SeedBatch, batchable
+from eqhrl_ros.core.algorithm.update import refusal
 
 
 def actor_forward(layers, obs):

@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 import torch
 
-from eqhrl_ros.core import checkpoint as ckpt
-from eqhrl_ros.core import records
-from eqhrl_ros.core.checkpoint import CheckpointError, CheckpointWriteError, load_checkpoint, save_checkpoint
-from eqhrl_ros.core.learner import EQSACLearner, LearnerConfig
-from eqhrl_ros.core.records import EpisodeRecord, RunFolder, RunFolderError
+from eqhrl_ros.core.algorithm.learner import EQSACLearner, LearnerConfig
+from eqhrl_ros.core.data.errors import CheckpointError, CheckpointWriteError
+from eqhrl_ros.core.runs import checkpoint as ckpt
+from eqhrl_ros.core.runs import records
+from eqhrl_ros.core.runs.checkpoint import load_checkpoint, save_checkpoint
+from eqhrl_ros.core.runs.records import EpisodeRecord, RunFolder, RunFolderError
 
 from process_helpers import fail_writes
 
@@ -43,8 +44,9 @@ def params_of(learner):
 WRITE_IN_A_SMALL_FILE_LIMIT = textwrap.dedent("""
     import resource, sys
     import numpy as np
-    from eqhrl_ros.core.checkpoint import CheckpointWriteError, save_checkpoint
-    from eqhrl_ros.core.learner import EQSACLearner, LearnerConfig
+    from eqhrl_ros.core.data.errors import CheckpointWriteError
+    from eqhrl_ros.core.runs.checkpoint import save_checkpoint
+    from eqhrl_ros.core.algorithm.learner import EQSACLearner, LearnerConfig
     learner = EQSACLearner(3, np.array([-2.0], np.float32), np.array([2.0], np.float32),
                            LearnerConfig(hidden=(64, 64)))
     # Files may grow to 20 KB here: a real write error (EFBIG) from the OS, as a full disk gives ENOSPC.
@@ -103,8 +105,8 @@ KILLED_BETWEEN_THE_RENAMES = textwrap.dedent("""
     import os, signal, sys
     from pathlib import Path
     import numpy as np
-    from eqhrl_ros.core import checkpoint
-    from eqhrl_ros.core.learner import EQSACLearner, LearnerConfig
+    from eqhrl_ros.core.runs import checkpoint
+    from eqhrl_ros.core.algorithm.learner import EQSACLearner, LearnerConfig
     folder = Path(sys.argv[1])
     config = LearnerConfig(hidden=(16, 16), batch_size=8, learning_starts=10, replay_capacity=500)
     learner = EQSACLearner(3, np.array([-2.0], np.float32), np.array([2.0], np.float32), config)
@@ -116,12 +118,12 @@ KILLED_BETWEEN_THE_RENAMES = textwrap.dedent("""
     train(20)
     checkpoint.save_checkpoint(learner, folder / 'checkpoint.pt', folder / 'replay.pt')
     train(30)
-    replace = checkpoint._replace
+    replace = checkpoint.replace_file
     def killed_before_the_checkpoint(tmp, target):
         if target.name == 'checkpoint.pt':
             os.kill(os.getpid(), signal.SIGKILL)  # the new replay file is in place, the checkpoint not
         replace(tmp, target)
-    checkpoint._replace = killed_before_the_checkpoint
+    checkpoint.replace_file = killed_before_the_checkpoint
     checkpoint.save_checkpoint(learner, folder / 'checkpoint.pt', folder / 'replay.pt')
 """)
 
@@ -221,8 +223,8 @@ def test_non_finite_replay_memories_are_refused(tmp_path):
 BOMB_LOAD = textwrap.dedent("""
     import resource, sys
     import numpy as np
-    from eqhrl_ros.core.checkpoint import CheckpointError, load_checkpoint
-    from eqhrl_ros.core.learner import EQSACLearner, LearnerConfig
+    from eqhrl_ros.core.runs.checkpoint import CheckpointError, load_checkpoint
+    from eqhrl_ros.core.algorithm.learner import EQSACLearner, LearnerConfig
     learner = EQSACLearner(3, np.array([-2.0], np.float32), np.array([2.0], np.float32),
                            LearnerConfig(hidden=(16, 16)))
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

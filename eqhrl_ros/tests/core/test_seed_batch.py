@@ -1,12 +1,12 @@
-"""Seeds together (core/seed_batch.py, training.train_together) compute what seeds apart compute."""
+"""Seeds together (core/algorithm/seed_batch.py, training.train_together) compute what seeds apart compute."""
 
 import numpy as np
 import pytest
 import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env
-from eqhrl_ros.core.seed_batch import SeedBatch, batchable
-from eqhrl_ros.core.training import SeedRun, train, train_together
+from eqhrl_ros.core.algorithm.seed_batch import SeedBatch, batchable
+from eqhrl_ros.core.runs.training import SeedRun, train, train_together
 
 # Small networks: an update takes milliseconds. Alone and together differ only in float rounding
 # (the same kernels at these sizes: 1e-6 apart after 200 updates here); a rounding difference

@@ -1,10 +1,10 @@
-"""The shared key (core/signing.py): forgeries, altered content, moved senders and replays refused."""
+"""The shared key (core/data/signing.py): forgeries, altered content, moved senders and replays refused."""
 
 import os
 
 import pytest
 
-from eqhrl_ros.core.signing import (
+from eqhrl_ros.core.data.signing import (
     CommandCheck,
     CommandSeal,
     KeyFileError,

@@ -146,7 +146,7 @@ def test_bad_batches_and_bad_weights_are_refused_and_nothing_stops(harness, ros_
 
 
 def _one_transition_batch(reward):
-    from eqhrl_ros.core.transitions import Outbox
+    from eqhrl_ros.core.data.transitions import Outbox
 
     outbox = Outbox('rogue', 3, 1, 1, 10)
     outbox.add([0.0, 0.0, 0.0], [0.0], reward, [0.0, 0.0, 0.0], False, False)
@@ -282,7 +282,7 @@ def test_a_rogue_trainer_beside_the_real_one_changes_no_action(harness, ros_cont
     import torch
 
     from eqhrl_ros.core import EQSACLearner, LearnerConfig
-    from eqhrl_ros.core.weights import encode_weights
+    from eqhrl_ros.core.data.weights import encode_weights
 
     actor = add_actor(harness, ros_context, '/a0')
     trainer = add_trainer(harness, ros_context, tmp_path)
@@ -333,7 +333,7 @@ def test_two_nodes_under_one_actor_name_are_refused_by_the_trainer(harness, ros_
 
 
 def test_with_a_shared_key_only_signed_batches_and_weights_are_taken(harness, ros_context, tmp_path):
-    from eqhrl_ros.core.signing import Signer, new_key_file
+    from eqhrl_ros.core.data.signing import Signer, new_key_file
 
     key = str(new_key_file(tmp_path / 'deployment.key'))
     actor = add_actor(harness, ros_context, '/a0', key_file=key)

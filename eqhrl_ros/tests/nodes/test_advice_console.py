@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from rclpy.executors import SingleThreadedExecutor
 
-from eqhrl_ros.core.experts import SKIPPED
+from eqhrl_ros.core.data.advice import SKIPPED
 from eqhrl_ros.nodes.advice_console_node import AdviceConsole, is_loopback
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode

@@ -11,8 +11,8 @@ import rclpy
 from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.msg import EnvInfo
-from eqhrl_ros.core.env_spec import SUCCESS_RULES, EnvSpec
-from eqhrl_ros.core.experts import DoubleIntegratorExpert
+from eqhrl_ros.core.envs.spec import SUCCESS_RULES, EnvSpec
+from eqhrl_ros.core.experts.controllers import DoubleIntegratorExpert
 from eqhrl_ros.nodes import env_info, messages
 from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegrator, DoubleIntegratorEnv
 from eqhrl_ros.nodes.expert_node import ExpertNode

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import rclpy
 
-from eqhrl_ros.core.summary import EpisodeSummary
+from eqhrl_ros.core.data.summary import EpisodeSummary
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode

@@ -8,9 +8,9 @@ import rclpy
 from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
-from eqhrl_ros.core.expert_factory import make_expert
-from eqhrl_ros.core.experts import AdviceRequest
-from eqhrl_ros.core.simulated_human import HumanLimits, SimulatedHuman
+from eqhrl_ros.core.data.advice import AdviceRequest
+from eqhrl_ros.core.experts.factory import make_expert
+from eqhrl_ros.core.experts.simulated_human import HumanLimits, SimulatedHuman
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
@@ -186,7 +186,7 @@ def test_a_request_the_episode_ends_is_ended_at_once_everywhere_and_not_counted_
 def test_the_persons_budget_in_seconds_is_set_at_run_time_and_kept_by_checkpoints(harness, ros_context, tmp_path):
     from rclpy.parameter import Parameter
 
-    from eqhrl_ros.core.checkpoint import load_checkpoint, save_checkpoint
+    from eqhrl_ros.core.runs.checkpoint import load_checkpoint, save_checkpoint
 
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
     assert harness.spin_until(lambda: learner.learner is not None)

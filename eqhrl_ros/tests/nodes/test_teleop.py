@@ -18,8 +18,8 @@ from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
 from eqhrl_interfaces.srv import Advise
-from eqhrl_ros.core.experts import AdviceRequest
-from eqhrl_ros.core.teleop import TeleopExpert, array_command, joy_command, twist_command
+from eqhrl_ros.core.data.advice import AdviceRequest
+from eqhrl_ros.core.experts.teleop import TeleopExpert, array_command, joy_command, twist_command
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
@@ -425,7 +425,7 @@ def test_a_second_command_publisher_answers_nothing_for_the_person(harness, ros_
 
 
 def test_with_a_shared_key_only_a_signed_command_answers(harness, ros_context, tmp_path):
-    from eqhrl_ros.core.signing import CommandSeal, Signer, new_key_file, read_key
+    from eqhrl_ros.core.data.signing import CommandSeal, Signer, new_key_file, read_key
 
     key = str(new_key_file(tmp_path / 'deployment.key'))
     teleop = harness.add(
@@ -452,7 +452,7 @@ def test_with_a_shared_key_only_a_signed_command_answers(harness, ros_context, t
 
 
 def test_a_key_file_with_a_source_that_signs_nothing_is_refused(ros_context, tmp_path):
-    from eqhrl_ros.core.signing import new_key_file
+    from eqhrl_ros.core.data.signing import new_key_file
 
     key = str(new_key_file(tmp_path / 'deployment.key'))
     with pytest.raises(ValueError, match='sign nothing'):

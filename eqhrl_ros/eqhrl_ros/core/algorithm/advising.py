@@ -119,7 +119,7 @@ class AdvisingGates:
         gate_target_rate: float = 0.015,
         gate_threshold_step: float = 0.01,
     ):
-        # The rules of each value live with LearnerConfig's fields (core/config.py).
+        # The rules of each value live with LearnerConfig's fields (core/algorithm/config.py).
         self.mode = check_value('mode', mode)
         check_value('threshold_kind', threshold_kind)
         self.advising_budget = check_value('advising_budget', advising_budget)

@@ -3,7 +3,7 @@ runner's --expert): above the experts it builds, so that none of them imports it
 
 from __future__ import annotations
 
-from .experts import heuristic_expert
+from .controllers import heuristic_expert
 from .simulated_human import SimulatedHuman
 
 EXPERT_BACKENDS = ('heuristic', 'policy', 'simulated_human')
@@ -20,7 +20,7 @@ def make_expert(backend: str, env_id: str, policy_path: str = '', human_limits=N
     if backend == 'policy':
         if not policy_path:
             raise ValueError("backend 'policy' needs a policy file (policy_path is empty)")
-        from .checkpoint import PolicyExpert  # torch: only when a policy answers
+        from .policy import PolicyExpert
 
         return PolicyExpert(policy_path, name=f'policy:{policy_path}')
     if backend == 'heuristic':

@@ -15,8 +15,8 @@ from typing import Optional
 
 import numpy as np
 
-from .config import check_fields, hyper
-from .experts import SKIPPED, Advice, AdviceRequest
+from ..algorithm.config import check_fields, hyper
+from ..data.advice import SKIPPED, Advice, AdviceRequest
 
 PLAN_KINDS = ('answer', 'skip', 'miss')
 

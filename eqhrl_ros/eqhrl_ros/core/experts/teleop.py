@@ -13,7 +13,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from .experts import SKIPPED, Advice, AdviceRequest
+from ..data.advice import SKIPPED, Advice, AdviceRequest
 
 
 @dataclass(frozen=True)

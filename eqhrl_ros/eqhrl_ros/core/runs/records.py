@@ -21,15 +21,15 @@ import tempfile
 from pathlib import Path
 from typing import Optional, Sequence
 
-from .errors import RunFolderError
+from ..data.errors import RunFolderError
 
-# Saves write '.<name>.<random>.tmp' beside their target, then rename it (core/checkpoint.py).
+# Saves write '.<name>.<random>.tmp' beside their target, then rename it (core/runs/checkpoint.py).
 TEMPORARY_GLOB = '.*.pt.*.tmp'
 
 
 def previous_replay_path(replay_path) -> Path:
     """Where a save keeps the previous replay file until its new checkpoint is in place
-    (core/checkpoint.py): a resume may need it, so it is not a temporary."""
+    (core/runs/checkpoint.py): a resume may need it, so it is not a temporary."""
     replay_path = Path(replay_path)
     return replay_path.with_name(f'.{replay_path.name}.previous')
 

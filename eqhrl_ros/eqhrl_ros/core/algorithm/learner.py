@@ -11,8 +11,8 @@ One step of Algorithm 1, as the caller drives it:
     summary = learner.step(obs, action, reward, next_obs, terminated, truncated, advised)
                                                      # store in D (and D_advising); update()
 
-The caller may be a plain loop (core/training.py) or a ROS node; the learner never
-knows who answers advice. Every equation it uses lives in core/equations.py.
+The caller may be a plain loop (core/runs/training.py) or a ROS node; the learner never
+knows who answers advice. Every equation it uses lives in core/algorithm/equations.py.
 """
 
 from __future__ import annotations
@@ -25,14 +25,14 @@ from typing import Optional
 import numpy as np
 import torch
 
+from ..data.advice import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
+from ..data.replay import ReplayBuffer, checked_transition
+from ..data.summary import EpisodeSummary
+from ..envs.spec import ActionScaler, SuccessCriterion
 from . import equations as eq
 from .advising import AdvisingGates, GateDecision
 from .config import LearnerConfig, asks_for_advice, check_value
-from .env_spec import ActionScaler, SuccessCriterion
-from .experts import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
 from .networks import SquashedGaussianActor, TwinCritic
-from .replay import ReplayBuffer, checked_transition
-from .summary import EpisodeSummary
 from .update import algorithm1_update, refusal, update_noise
 
 

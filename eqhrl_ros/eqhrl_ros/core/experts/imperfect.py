@@ -1,6 +1,6 @@
 """Experts worse than the controller they wrap, for asking what a person's imperfection costs.
 
-A noisy hand and missed requests are SimulatedHuman's (core/simulated_human.py). These add
+A noisy hand and missed requests are SimulatedHuman's (core/experts/simulated_human.py). These add
 the two limits it cannot express, as wrappers around any expert:
 - ``DelayedExpert``: the answer is for the state some steps ago (a person reacts to what
   they saw, and the robot has moved on since).
@@ -15,7 +15,7 @@ from collections import deque
 
 import numpy as np
 
-from .experts import Advice, AdviceRequest
+from ..data.advice import Advice, AdviceRequest
 
 
 class DelayedExpert:

@@ -8,8 +8,8 @@ from typing import Callable, Optional, Sequence
 import gymnasium as gym
 
 from .evaluation import evaluate
-from .experts import Expert
-from .learner import EpisodeSummary, EQSACLearner, Resolution
+from ..data.advice import Expert
+from ..algorithm.learner import EpisodeSummary, EQSACLearner, Resolution
 
 
 def ask_expert(learner: EQSACLearner, proposal, expert: Optional[Expert]) -> Resolution:
@@ -154,7 +154,7 @@ class TrainingTogether:
         self.batch = self._batch()
 
     def _batch(self):
-        from .seed_batch import SeedBatch
+        from ..algorithm.seed_batch import SeedBatch
 
         return SeedBatch([run.learner for run, _ in self.active]) if self.active else None
 
@@ -203,7 +203,7 @@ class TrainingTogether:
 
 @dataclass
 class Evaluation:
-    """What train() needs for the advice-free evaluation (core/evaluation.py)."""
+    """What train() needs for the advice-free evaluation (core/runs/evaluation.py)."""
 
     env: gym.Env  # an env of its own: the training env's state and random stream stay untouched
     every: int  # episodes between evaluations (and one after the last episode)

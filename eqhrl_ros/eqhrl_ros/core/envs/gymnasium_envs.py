@@ -6,13 +6,8 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from . import env_spec
-from .env_spec import (
-    ActionScaler,  # noqa: F401  (re-exported: its home is env_spec)
-    EnvSpec,
-    SuccessCriterion,
-    builtin_success,
-)
+from . import spec as env_spec
+from .spec import EnvSpec, SuccessCriterion, builtin_success
 
 # What each action value does, for a person steering (gymnasium's own documentation of the envs).
 ACTION_LABELS = {

@@ -17,9 +17,9 @@ import math
 import numpy as np
 import torch
 
-from .learner import NETWORK_STATE, AdviceCounts, EQSACLearner
-from .summary import EpisodeSummary
-from .transitions import SequenceTracker, TransitionBatch
+from ..algorithm.learner import NETWORK_STATE, AdviceCounts, EQSACLearner
+from ..data.summary import EpisodeSummary
+from ..data.transitions import SequenceTracker, TransitionBatch
 
 # episodes.csv of a trainer: a learner's columns and the actor each episode came from.
 TRAINER_CSV_FIELDS = (*EpisodeSummary.CSV_FIELDS, 'actor')

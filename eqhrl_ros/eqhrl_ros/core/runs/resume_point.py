@@ -3,7 +3,7 @@
 A run of LunarLander's 400 episodes takes about an hour on one core: a Ctrl-C, a closed
 terminal or a reboot must not cost all of it. Every few minutes, at the end of an episode
 (after its record and its evaluation are written), the runner saves what the rest of the
-run depends on, in one checkpoint (core/checkpoint.py: written whole, then renamed):
+run depends on, in one checkpoint (core/runs/checkpoint.py: written whole, then renamed):
 - the learner: networks, optimisers, gates, counters and random streams, and both replay
   memories (their own file, paired with the checkpoint);
 - the env's random stream: the next episode's start state (and, in LunarLander, the
@@ -29,7 +29,7 @@ from typing import Callable
 import numpy as np
 
 from .checkpoint import load_checkpoint, save_checkpoint
-from .errors import CheckpointError, CheckpointWriteError
+from ..data.errors import CheckpointError, CheckpointWriteError
 from .records import previous_replay_path
 
 CHECKPOINT = 'resume.pt'
