@@ -84,8 +84,8 @@ $(VENV)/.stamp-bench: $(VENV)/.stamp-eqhrl_ros benchmarks/requirements.txt
 	$(VPY) -m pip install -q -r benchmarks/requirements.txt -c constraints.txt 2>&1 | $(PIP_QUIET)
 	touch $@
 
-# Each exits non-zero when a speed target is missed (bench_learner: issue 22, against SBX); `bench` runs both.
-# bench_ros's targets are for the EventsExecutor (opt-in since issue 16; see flood.py).
+# Each exits non-zero when a speed target is missed (bench_learner: against SBX); `bench` runs both.
+# bench_ros's targets are for the EventsExecutor (opt-in; see flood.py).
 bench: $(VENV)/.stamp-bench
 	$(VPY) benchmarks/bench_learner.py; learner=$$?; $(VPY) benchmarks/bench_ros.py --executor events; ros=$$?; \
 	  exit $$(( learner || ros ))
@@ -96,25 +96,25 @@ bench-learner: $(VENV)/.stamp-bench
 bench-ros: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_ros.py --executor events
 
-# A hostile flood on the learner's and the env's input topics (issue 16): memory and recovery.
+# A hostile flood on the learner's and the env's input topics: memory and recovery.
 bench-flood: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/flood.py --target learner; learner=$$?; $(VPY) benchmarks/flood.py --target env; env=$$?; \
 	  exit $$(( learner || env ))
 
 # What torch.compile and bfloat16 matrix products would buy the update (evidence, no target).
-# Actors and a trainer against the lock-step learner (issue 20); exits 1 if a 50 Hz env had
+# Actors and a trainer against the lock-step learner; exits 1 if a 50 Hz env had
 # late steps with the actor.
 bench-actors: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_actors.py
 
-# A busy machine (issue 22, item 3): exits 1 if our default keeps under 40 % of its quiet
+# A busy machine: exits 1 if our default keeps under 40 % of its quiet
 # speed beside one CPU-bound process, in-process and through ROS.
 bench-busy: $(VENV)/.stamp-eqhrl_ros
 	a=0; b=0; $(VPY) benchmarks/bench_busy.py --hidden 256 --batch 256 || a=$$?; \
 	$(VPY) benchmarks/bench_busy.py --rounds 2 --ros-episodes 8 --settings "2:default" "2:spin 1000" || b=$$?; \
 	exit $$(( a || b ))
 
-# Seeds together against seeds apart (issue 22, item 1): the curve for N seeds, and a
+# Seeds together against seeds apart: the curve for N seeds, and a
 # non-zero exit if 10 seeds together miss 2x (Pendulum) or 1.5x (LunarLander) seeds apart.
 bench-seeds: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_seeds.py

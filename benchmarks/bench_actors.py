@@ -1,4 +1,4 @@
-"""Acting apart from learning (issue 20): actors and a trainer against the lock-step learner.
+"""Acting apart from learning: actors and a trainer against the lock-step learner.
 
     make bench-actors      # or: .venv/bin/python benchmarks/bench_actors.py [--part throughput|realtime|learning]
 

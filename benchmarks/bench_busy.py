@@ -15,7 +15,7 @@ Settings: torch threads (1 or 2) x OpenMP's waiting: the default (libgomp spins 
 before it sleeps), OMP_WAIT_POLICY=PASSIVE (sleeps at once), or a shorter spin
 (GOMP_SPINCOUNT, libgomp's own setting; torch's CPU wheels use libgomp). --settings picks.
 Our default (2 threads, 1,000 spins) must keep at
-least 40 % of its quiet speed beside the busy process (issue 22, item 3): the script exits 1
+least 40 % of its quiet speed beside the busy process: the script exits 1
 on a miss. The figures are in docs/performance.md.
 """
 
@@ -66,7 +66,7 @@ WAITING = {
 }
 SETTINGS = [(threads, policy) for threads in (2, 1) for policy in ('default', 'spin 1000', 'PASSIVE')]
 # What eqhrl_ros runs with unless told otherwise (eqhrl_ros/__init__.py; torch's own threads),
-# and the share of its quiet speed it must keep beside one busy process (issue 22, item 3).
+# and the share of its quiet speed it must keep beside one busy process.
 OURS = (2, 'spin 1000')
 TARGET = 0.40
 

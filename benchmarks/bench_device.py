@@ -1,4 +1,4 @@
-"""The learner on a GPU (issue 22, item 4): the same loops on the CPU and on a torch device.
+"""The learner on a GPU: the same loops on the CPU and on a torch device.
 
     .venv/bin/python benchmarks/bench_device.py                    # cpu only (what CI machines have)
     python benchmarks/bench_device.py --device cuda               # on a machine with a GPU
@@ -12,7 +12,7 @@ Prints, for each env and mode, side by side in interleaved rounds on the same ma
 - env steps per second of one lone learner on the CPU (--threads torch threads) and on the device;
 - milliseconds per update alone (the replay memory full, no env), median of --updates;
 - with --compiled, the same with compile_update: true (compiled before timing);
-- the device's curve of seeds together (core/algorithm/seed_batch.py): seed-steps per second for N seeds.
+- the device's curve of seeds together (core/algorithm/stacked_seeds.py): seed-steps per second for N seeds.
 The figures are the machine's: the script prints which CPU and which GPU made them.
 """
 
@@ -48,7 +48,7 @@ class Loop:
     """One lone learner's Algorithm 1 loop, advanced some env steps at a time."""
 
     def __init__(self, env_id: str, mode: str, device: str, warmup: int, compiled: bool = False, foreground=False):
-        from eqhrl_ros.core.runs.training import _Acting
+        from eqhrl_ros.core.runs.in_process import _Acting
 
         self.device = device
         self.env = make_env(env_id)
@@ -97,7 +97,7 @@ def steps_per_second(env_id: str, devices, args) -> dict:
 
 
 def seeds_together(env_id: str, device: str, n: int, args) -> float:
-    from eqhrl_ros.core.runs.training import SeedRun, TrainingTogether
+    from eqhrl_ros.core.runs.in_process import SeedRun, TrainingTogether
 
     runs = []
     for seed in range(n):

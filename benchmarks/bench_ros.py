@@ -12,10 +12,10 @@
 4. Start-up: `eqhrl-train` from the command to the first env step, as its env node
    logs it.
 
-Prints each figure with its target; exits with 1 if one is missed (issue 8).
+Prints each figure with its target; exits with 1 if one is missed.
 Runs in a private ROS domain with localhost-only discovery. The targets were set
 for the EventsExecutor, which `make bench-ros` passes (--executor events); the
-nodes' default since issue 16 is the SingleThreadedExecutor, bounded under floods
+nodes' default is the SingleThreadedExecutor, bounded under floods
 and slower through the topics (see the package README).
 """
 

@@ -1,4 +1,4 @@
-"""Many seeds in one process (issue 22, item 1): seed-steps per second, seeds together vs apart.
+"""Many seeds in one process: seed-steps per second, seeds together vs apart.
 
     make bench-seeds     # or: .venv/bin/python benchmarks/bench_seeds.py [--steps 60 --curve 1 2 5 10 20]
 
@@ -8,7 +8,7 @@ Table 1's sizes (256x256, batch 256) inside its advising budget with the heurist
 
 - apart: today's runner, eqhrl-experiment --seeds-apart: --processes processes, one
   torch thread each, each running its share of the seeds one after the other;
-- together: the seeds in one process (core/algorithm/seed_batch.py), with --processes torch threads;
+- together: the seeds in one process (core/algorithm/stacked_seeds.py), with --processes torch threads;
 - together x P: the seeds split over --processes processes of one thread each, each
   process running its share together (what eqhrl-experiment does by default);
 - with --compiled, also apart compiled: apart with compile_update on (compiled_update.py),
@@ -52,7 +52,7 @@ def _seeds_apart(env_id, seeds, args, barrier, results, compiled: bool = False) 
     import torch
 
     from eqhrl_ros.core import heuristic_expert
-    from eqhrl_ros.core.runs.training import _Acting
+    from eqhrl_ros.core.runs.in_process import _Acting
 
     torch.set_num_threads(1)
     loops = []
@@ -81,11 +81,11 @@ def _step_alone(acting, learner) -> None:
 
 
 def _seeds_together(env_id, seeds, threads, args, barrier, results) -> None:
-    """One process with its seeds together (core/training.TrainingTogether)."""
+    """One process with its seeds together (core/runs/in_process.TrainingTogether)."""
     import torch
 
     from eqhrl_ros.core import heuristic_expert
-    from eqhrl_ros.core.runs.training import SeedRun, TrainingTogether
+    from eqhrl_ros.core.runs.in_process import SeedRun, TrainingTogether
 
     torch.set_num_threads(threads)
     runs = []
@@ -134,7 +134,7 @@ def check_equal(env_id: str) -> float:
     """Largest weight difference between two seeds updated alone and together (200 updates)."""
     import torch
 
-    from eqhrl_ros.core.algorithm.seed_batch import SeedBatch
+    from eqhrl_ros.core.algorithm.stacked_seeds import StackedSeeds
 
     torch.set_num_threads(1)
     alone, together = [], []
@@ -149,7 +149,7 @@ def check_equal(env_id: str) -> float:
                 learner.store(obs, learner.normalize(action), reward, next_obs, terminated, advised=step % 5 == 0)
                 obs = env.reset()[0] if terminated or truncated else next_obs
             group.append(learner)
-    batch = SeedBatch(together)
+    batch = StackedSeeds(together)
     for _ in range(200):
         for learner in alone:
             learner.update()

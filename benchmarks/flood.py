@@ -17,8 +17,8 @@ input topic for --seconds, and meanwhile watches:
   measured before it (every later 0.5 s window at least that fast);
 - log lines the target wrote during the flood (rejections must be throttled).
 
-Exits non-zero when the target's memory grew by more than --max-growth-mb (issue 16:
-20 MB for a 60 s flood) or it did not recover within --max-recovery-s (3 s).
+Exits non-zero when the target's memory grew by more than --max-growth-mb
+(20 MB for a 60 s flood) or it did not recover within --max-recovery-s (3 s).
 """
 
 from __future__ import annotations

@@ -50,7 +50,7 @@ def main() -> None:
         for _ in range(args.steps):
             proposal = learner.propose(obs)
             action, advised = (
-                learner.resolve_advice(proposal, expert(proposal.request)).take()
+                learner.resolve_advice(proposal, expert(proposal.request)).action_and_advised()
                 if proposal.decision.fire
                 else (proposal.action, False)
             )

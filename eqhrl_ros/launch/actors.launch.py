@@ -28,7 +28,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from eqhrl_ros.nodes.params import ACTOR_NODE_PARAMS, TRAINER_PARAMS, learner_section_for
+from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, TRAINER_PARAMS, learner_section_for
 
 
 def _section(data: dict, name: str) -> dict:

@@ -16,7 +16,7 @@ finished runs are skipped; an unfinished lone in-process run continues from its 
 would have written uninterrupted; runs through ROS and seeds learning together start over.
 
 Seeds of an algorithm learn together in one process where that is faster (small networks,
-see --seeds-together; core/algorithm/seed_batch.py): the same numbers as learning apart, to float
+see --seeds-together; core/algorithm/stacked_seeds.py): the same numbers as learning apart, to float
 rounding. --seeds-apart runs every seed in a process of its own, as --through-ros does.
 
 --through-ros runs each seed through the three ROS nodes (eqhrl-train) instead of
@@ -35,6 +35,7 @@ import contextlib
 import csv
 import dataclasses
 import math
+import numbers
 import os
 import queue
 import shlex
@@ -56,6 +57,7 @@ from ..paths import params_file
 from ..yaml_files import load_mapping
 from .run_pool import ClusterUnavailable, progress_queue, run_pool
 
+DEFAULT_EPISODES = 200  # --episodes where neither it nor the params file's max_episodes is set
 COLUMNS = ('algorithm', 'seed', 'episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')
 
 
@@ -82,12 +84,13 @@ class Settings:
 
 def load_settings(args) -> Settings:
     """The params file's sections, refused as the nodes would refuse them (a typo included)."""
-    from ..nodes.params import (
+    from ..parameters import (
         EXPERT_PARAMS,
         GYM_ENV_PARAMS,
         LEARNER_CONFIG_PARAMS,
         LEARNER_NODE_PARAMS,
         check_section,
+        default_of,
         file_section,
     )
 
@@ -113,12 +116,17 @@ def load_settings(args) -> Settings:
             raise ValueError('--env-node runs an env node, so it needs --through-ros')
         env_node_command(args.env_node, 0, 1)  # refuses an empty command or a program not found
     settings = Settings(
-        env_id=args.env or learner.get('env_id') or env.get('env_id') or ('' if args.env_node else 'Pendulum-v1'),
+        env_id=args.env
+        or learner.get('env_id')
+        or env.get('env_id')
+        or ('' if args.env_node else default_of(GYM_ENV_PARAMS, 'env_id')),
         learner=learner,
-        max_episode_steps=args.max_steps or int(env.get('max_episode_steps', 100)),
-        episodes=args.episodes or int(learner.get('max_episodes', 0)) or 200,
-        expert_backend=args.expert or expert.get('backend', 'heuristic'),
-        policy_path=args.policy_path or expert.get('policy_path', ''),
+        max_episode_steps=args.max_steps
+        or int(env.get('max_episode_steps', default_of(GYM_ENV_PARAMS, 'max_episode_steps'))),
+        # A learner node's max_episodes of 0 means "never stop"; a run of experiments needs an end.
+        episodes=args.episodes or int(learner.get('max_episodes', 0)) or DEFAULT_EPISODES,
+        expert_backend=args.expert or expert.get('backend', default_of(EXPERT_PARAMS, 'backend')),
+        policy_path=args.policy_path or expert.get('policy_path', default_of(EXPERT_PARAMS, 'policy_path')),
         params_path=str(path),
         env_node=args.env_node or '',
         eval_every=0 if args.through_ros else args.eval_every,
@@ -131,7 +139,7 @@ def load_settings(args) -> Settings:
 
 def learner_config(settings: Settings, algorithm: str, seed: int):
     from ..core import LearnerConfig
-    from ..nodes.params import LEARNER_NODE_PARAMS
+    from ..parameters import LEARNER_NODE_PARAMS
 
     return LearnerConfig.from_params(
         settings.learner, node_keys=[p.name for p in LEARNER_NODE_PARAMS], mode=algorithm, seed=seed
@@ -171,8 +179,8 @@ def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, pr
     holds a usable save (the records then keep their rows up to it), or None."""
     from ..core import EpisodeSummary, EQSACLearner, make_env, success_criterion
     from ..core.runs.evaluation import EVAL_FIELDS, eval_seeds
+    from ..core.runs.in_process import Evaluation, SeedRun
     from ..core.runs.records import EpisodeRecord
-    from ..core.runs.training import Evaluation, SeedRun
 
     env = make_env(settings.env_id, settings.max_episode_steps)
     learner = EQSACLearner(
@@ -267,12 +275,12 @@ def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Pat
 
 
 def run_together(settings: Settings, algorithm: str, seeds, output: Path, progress) -> None:
-    """Several seeds of one algorithm in this process, their updates as one (core/algorithm/seed_batch.py):
+    """Several seeds of one algorithm in this process, their updates as one (core/algorithm/stacked_seeds.py):
     each seed's files and numbers as run_in_process would write them (to float rounding).
     A seed's DONE is written as soon as it finishes."""
     import torch
 
-    from ..core.runs.training import train_together
+    from ..core.runs.in_process import train_together
 
     torch.set_num_threads(1)  # one process per core
     start = time.monotonic()
@@ -311,20 +319,16 @@ def seeds_together_refusal(settings: Settings, through_ros: bool) -> str:
     return ''
 
 
-GATE_FIELDS = ('episode', 'step', 'discrepancy', 'd_threshold', 'entropy', 'e_threshold', 'ask', 'respond', 'fire')
+# gates.csv: where a decision was made, then these GateDecision fields (tests/test_one_home.py).
+GATE_COLUMNS = ('discrepancy', 'd_threshold', 'entropy', 'e_threshold', 'ask', 'respond', 'fire')
+GATE_FIELDS = ('episode', 'step', *GATE_COLUMNS)
 
 
 def gate_row(decision) -> list:
-    """A GateDecision as GATE_FIELDS[2:] (NaN: not evaluated, or a queue still empty)."""
-    return [
-        f'{decision.discrepancy:.6g}',
-        f'{decision.d_threshold:.6g}',
-        f'{decision.entropy:.6g}',
-        f'{decision.e_threshold:.6g}',
-        int(decision.ask),
-        int(decision.respond),
-        int(decision.fire),
-    ]
+    """A GateDecision as GATE_COLUMNS: numbers to 6 significant digits (NaN: not evaluated, or
+    a queue still empty), flags as 0 or 1."""
+    values = (getattr(decision, name) for name in GATE_COLUMNS)
+    return [f'{v:.6g}' if isinstance(v, numbers.Real) and not isinstance(v, bool) else int(v) for v in values]
 
 
 def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id: int) -> None:

@@ -21,7 +21,7 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 @dataclass(frozen=True)
 class NodeProgram:
     module: str  # eqhrl_ros.nodes.<module>, with main(args=None)
-    params: tuple  # names of the parameter tables in nodes/params.py
+    params: tuple  # names of the parameter tables in eqhrl_ros/parameters.py
     summary: str
 
 
@@ -86,7 +86,7 @@ TABLE_TITLES = {
 
 def node_tables(name: str) -> list:
     """[(title, params)] of a node: what --help prints and the package README's tables hold."""
-    from ..nodes import params
+    from .. import parameters as params
 
     program = NODES[name]
     tables = [(TABLE_TITLES.get(table, name), getattr(params, table)) for table in program.params]
@@ -98,7 +98,7 @@ def node_tables(name: str) -> list:
 
 
 def help_text(name: str) -> str:
-    from ..nodes import params
+    from .. import parameters as params
 
     program = NODES[name]
     tables = [table for _, table in node_tables(name)]

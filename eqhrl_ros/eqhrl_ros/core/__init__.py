@@ -20,7 +20,7 @@ algorithm/  EQ-HRL itself
   networks.py     the squashed-Gaussian actor and the twin critics
   update.py       Algorithm 1's update, once: algorithm1_update (eager, compiled and seeds together)
   compiled_update.py algorithm1_update compiled as one program (compile_update)
-  seed_batch.py   SeedBatch: many seeds' updates as one (one batched product per layer)
+  stacked_seeds.py   StackedSeeds: many seeds' updates as one (one batched product per layer)
   advising.py     FIFO queues, dynamic/fixed thresholds and the early-advising budget
   learner.py      EQSACLearner: SAC, QASAC and EQSAC (Algorithm 1)
 experts/    whoever answers a request
@@ -31,7 +31,7 @@ experts/    whoever answers a request
   teleop.py       a person's commands and answer window
   factory.py      the expert a backend name stands for (above the experts it builds)
 runs/       a run from start to end
-  training.py     the in-process training loop (one seed, or seeds together)
+  in_process.py     the in-process training loop (one seed, or seeds together)
   trainer.py      Trainer: learning fed by actor nodes (acting and learning apart)
   checkpoint.py   checkpoints with their replay memories
   resume_point.py a lone in-process run saved between episodes and resumed exactly
@@ -65,8 +65,8 @@ _HOME = {
     'LearnerConfig': 'algorithm.config',
     'Proposal': 'algorithm.learner',
     'EpisodeSummary': 'data.summary',
-    'run_episode': 'runs.training',
-    'train': 'runs.training',
+    'run_episode': 'runs.in_process',
+    'train': 'runs.in_process',
 }
 __all__ = sorted(_HOME)
 

@@ -1,7 +1,7 @@
 """actor: acts on the env node's observations with the latest weights; a trainer learns.
 
 It holds the policy and the twin critics, evaluates D(s), E(s) and the gates, asks the
-`advise` service as the learner node does (nodes/acting.py), and publishes each action at
+`advise` service as the learner node does (nodes/acting_node.py), and publishes each action at
 the env's pace: no gradient update ever runs in its callbacks. Every transition, with its
 advised flag, goes to the trainer on /transitions in batches with sequence numbers; new
 weights from /weights are applied between two steps (callbacks share one lock).
@@ -31,10 +31,10 @@ from ..core.algorithm.learner import EpisodeSummary, EQSACLearner
 from ..core.data.signing import signer_from
 from ..core.data.transitions import Outbox
 from ..core.data.weights import TrainerPin, WeightsError, apply_weights
+from ..parameters import ACTOR_NODE_PARAMS
 from . import trainer_msgs
-from .acting import ActingNode
+from .acting_node import ActingNode
 from .health import OK, WARN, Check
-from .params import ACTOR_NODE_PARAMS
 from .spinning import run_node
 
 
@@ -151,7 +151,7 @@ class ActorNode(ActingNode):
             )
             self._trainer_away_since = None
         for _ in range(trainer_msgs.SEND_AT_ONCE):
-            batch = outbox.take()
+            batch = outbox.pop_oldest()
             if batch is None:
                 break
             msg = trainer_msgs.batch_msg(batch, self.learner.scaler.low, self.learner.scaler.high)

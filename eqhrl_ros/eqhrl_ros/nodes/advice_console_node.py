@@ -47,10 +47,11 @@ from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 from ..core.algorithm.config import check_value
 from ..core.data.signing import CommandSeal, signer_from
 from ..core.envs.spec import EnvSpec
+from ..parameters import CONSOLE_PARAMS
 from . import messages
 from .connection_guard import ConnectionGuard, GuardedProtocol
 from .env_info import EnvInfoWatcher, configured_spec, shown
-from .params import CONSOLE_PARAMS, declare, reject_unknown_overrides
+from .params import declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
 from .teleop_expert_node import ANSWER_MARGIN_S
 

@@ -23,9 +23,10 @@ from ..core.envs.spec import EnvSpec
 from ..core.experts.controllers import expert_disagreements
 from ..core.experts.factory import make_expert
 from ..core.experts.simulated_human import HumanLimits, SimulatedHuman
+from ..parameters import EXPERT_PARAMS, HUMAN_LIMIT_PARAMS
 from .advise_msgs import answer, fill_response, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec, shown
-from .params import EXPERT_PARAMS, HUMAN_LIMIT_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .params import choices_validator, declare, reject_unknown_overrides
 from .spinning import pause, run_node, steady_clock
 from .teleop_expert_node import ANSWER_MARGIN_S
 

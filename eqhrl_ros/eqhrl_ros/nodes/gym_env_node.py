@@ -26,9 +26,10 @@ from eqhrl_interfaces.msg import EnvInfo
 
 from ..core.envs.gymnasium_envs import gym_spec, make_env
 from ..core.envs.spec import spec_from_parameters
+from ..parameters import GYM_ENV_PARAMS
 from . import env_info, messages
 from .health import OK, WARN, Check, Health
-from .params import GYM_ENV_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .params import choices_validator, declare, reject_unknown_overrides
 from .spinning import run_node, seconds_since_process_start, steady_clock
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)

@@ -26,9 +26,10 @@ from eqhrl_interfaces.msg import AdviceRequest
 
 from ..core.data.signing import CommandSeal, signer_from
 from ..core.envs.spec import EnvSpec
+from ..parameters import KEYBOARD_PARAMS
 from . import messages
 from .env_info import EnvInfoWatcher, configured_spec
-from .params import KEYBOARD_PARAMS, declare, reject_unknown_overrides
+from .params import declare, reject_unknown_overrides
 from .spinning import run_node
 
 KEYS = {'a': (0, -1), 'd': (0, +1), 'w': (1, +1), 's': (1, -1)}

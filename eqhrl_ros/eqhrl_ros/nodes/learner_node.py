@@ -1,7 +1,7 @@
 """learner: runs EQSACLearner on the env node's observations and asks the expert service.
 
 Algorithm 1 in lock-step: each transition is stored and learned from (the updates) before the
-next action goes out. The acting half (observations, gates, advice) is nodes/acting.py; this
+next action goes out. The acting half (observations, gates, advice) is nodes/acting_node.py; this
 node adds the record, checkpoints and resume. For acting and learning apart, see actor_node.py
 and trainer_node.py.
 """
@@ -11,8 +11,8 @@ from __future__ import annotations
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, resumed_settings
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
-from .acting import OBSERVATION_QOS, ActingNode
-from .params import LEARNER_NODE_PARAMS
+from ..parameters import LEARNER_NODE_PARAMS
+from .acting_node import OBSERVATION_QOS, ActingNode
 from .run_files import RunFiles, save_and_close
 from .spinning import run_node
 

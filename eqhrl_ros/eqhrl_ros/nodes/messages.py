@@ -371,16 +371,13 @@ def parse_fields(msg: Float32MultiArray) -> dict:
 
 
 def gate_msg(episode: int, step: int, decision) -> GateDecision:
+    """learner/gate_debug: where the decision was made, then each field GateDecision.msg shares with
+    the core's GateDecision, by name."""
+    kinds = GateDecision.get_fields_and_field_types()
+    values = {name: getattr(decision, name) for name in kinds if name not in ('episode', 'step')}
+    convert = {'boolean': bool, 'float': float, 'double': float}
     return GateDecision(
-        episode=int(episode),
-        step=int(step),
-        fire=bool(decision.fire),
-        ask=bool(decision.ask),
-        respond=bool(decision.respond),
-        discrepancy=float(decision.discrepancy),
-        entropy=float(decision.entropy),
-        d_threshold=float(decision.d_threshold),
-        e_threshold=float(decision.e_threshold),
+        episode=int(episode), step=int(step), **{name: convert[kinds[name]](v) for name, v in values.items()}
     )
 
 

@@ -11,7 +11,7 @@ from .spinning import ExitError
 
 
 class RunFiles:
-    """Mixed into a node that has ``params`` (nodes/params.run_params), ``_lock``, and, once its
+    """Mixed into a node that has ``params`` (parameters.run_params), ``_lock``, and, once its
     spaces are known, ``learner`` and ``record``."""
 
     record = None

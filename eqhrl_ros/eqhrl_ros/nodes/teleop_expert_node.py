@@ -32,11 +32,12 @@ from ..core.data.advice import SKIPPED, Advice
 from ..core.data.signing import CommandCheck, signer_from
 from ..core.envs.spec import EnvSpec
 from ..core.experts.teleop import TWIST_FIELDS, Command, TeleopExpert, array_command, joy_command, twist_command
+from ..parameters import TELEOP_EXPERT_PARAMS
 from . import messages
 from .advise_msgs import answer, fill_response, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec
 from .graph_trust import OnePublisher
-from .params import TELEOP_EXPERT_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .params import choices_validator, declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
 
 # The answer must reach the learner before its advice_timeout_s ends.

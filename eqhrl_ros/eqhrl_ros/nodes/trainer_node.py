@@ -35,12 +35,13 @@ from ..core.data.weights import encode_weights
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
 from ..core.runs.trainer import TRAINER_CSV_FIELDS, BatchLimits, Trainer
+from ..parameters import LEARNER_CONFIG_PARAMS, TRAINER_PARAMS
 from . import messages, trainer_msgs
-from .acting import printable_name
+from .acting_node import printable_name
 from .env_info import configured_spec
 from .graph_trust import GRAPH_CACHE_S, full_name
 from .health import OK, WARN, Check, Health
-from .params import LEARNER_CONFIG_PARAMS, TRAINER_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .params import choices_validator, declare, reject_unknown_overrides
 from .run_files import RunFiles, save_and_close
 from .spinning import run_node, steady_clock, stop_with_error
 
@@ -257,7 +258,7 @@ class TrainerNode(RunFiles, Node):
                     with self._inbox_bytes_lock:
                         self._inbox_bytes -= trainer_msgs.batch_bytes(msg)
                     self._store(msg)
-                busy = self.trainer is not None and not self.done and self.trainer.owed() > 0
+                busy = self.trainer is not None and not self.done and self.trainer.updates_owed() > 0
                 if busy:
                     try:
                         if self.trainer.update().get('restored'):
@@ -332,7 +333,7 @@ class TrainerNode(RunFiles, Node):
             'learning',
             WARN if trainer.restored else OK,
             f'networks restored {trainer.restored} times after non-finite updates' if trainer.restored else 'learning',
-            {'updates': self.learner.updates, 'weights sent': self.weights_published, 'owed': trainer.owed()},
+            {'updates': self.learner.updates, 'weights sent': self.weights_published, 'owed': trainer.updates_owed()},
         )
         return [actors, learning]
 
@@ -348,7 +349,7 @@ class TrainerNode(RunFiles, Node):
         self.get_logger().info(
             f'{transitions} transitions from {len(sequences)} actor(s) '
             f'({(transitions - before_t) / seconds:.1f}/s), '
-            f'{updates} updates ({(updates - before_u) / seconds:.1f}/s), {self.trainer.owed()} owed, '
+            f'{updates} updates ({(updates - before_u) / seconds:.1f}/s), {self.trainer.updates_owed()} owed, '
             f'weights v{updates} sent {self.weights_published} times, '
             f'{self.trainer.sequences.lost} batches lost, {self.refused_batches} refused, '
             f'{self.dropped_batches} dropped (inbox full)'

@@ -1,4 +1,4 @@
-"""Actors and a trainer as separate processes, as on several machines (issue 20): an actor
+"""Actors and a trainer as separate processes, as on several machines: an actor
 that dies leaves the others going; a trainer that dies leaves the actors acting and keeping
 their transitions; a trainer restarted with resume continues and the actors take its weights."""
 

@@ -1,4 +1,4 @@
-"""A user's env node that is not gymnasium, as users run it: separate processes (issue 18)."""
+"""A user's env node that is not gymnasium, as users run it: separate processes."""
 
 import statistics
 

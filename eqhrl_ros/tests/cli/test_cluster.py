@@ -1,4 +1,4 @@
-"""eqhrl-study and eqhrl-experiment --cluster (issue 39, item 8): runs handed to a Dask cluster
+"""eqhrl-study and eqhrl-experiment --cluster: runs handed to a Dask cluster
 give the folders and results of the local process pool."""
 
 import csv

@@ -1,5 +1,5 @@
 """Actors and a trainer on two "hosts": Linux network namespaces joined by a veth pair, with
-addresses inside them only (issue 38). The trainer runs in one namespace; two actors, each with
+addresses inside them only. The trainer runs in one namespace; two actors, each with
 its env and expert, in the other. Discovery goes over the link as across a real network (the
 default SUBNET range, and ROS_STATIC_PEERS in case multicast does not pass).
 

@@ -1,4 +1,4 @@
-"""A real-time env keeps its rate inside eqhrl-train while the learner updates (issue 19, item 5).
+"""A real-time env keeps its rate inside eqhrl-train while the learner updates.
 
 The env, the expert and the learner each have their own executor and thread: a 200-step
 episode at 15 Hz takes 200/15 = 13.3 s, the first episode included (its clock starts when

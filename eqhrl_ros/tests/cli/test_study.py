@@ -1,4 +1,4 @@
-"""eqhrl-study and eqhrl-study-report (issue 21): one resumable command for a study, and the
+"""eqhrl-study and eqhrl-study-report: one resumable command for a study, and the
 tables and figures made from its raw CSVs."""
 
 import csv

@@ -1,4 +1,4 @@
-"""The study's ablations (issue 21, item 2) and imperfect experts (item 4): each changes only
+"""The study's ablations and imperfect experts: each changes only
 what it names."""
 
 import dataclasses
@@ -11,7 +11,7 @@ from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_e
 from eqhrl_ros.core.algorithm.advising import AdvisingGates
 from eqhrl_ros.core.data.advice import Advice, AdviceRequest
 from eqhrl_ros.core.experts.imperfect import DelayedExpert, WeakExpert
-from eqhrl_ros.core.runs.training import run_episode
+from eqhrl_ros.core.runs.in_process import run_episode
 
 SMALL = dict(hidden=(16, 16), batch_size=16, learning_starts=40, queue_length=3, advising_budget=3)
 

@@ -1,4 +1,4 @@
-"""Acting apart from learning (issue 20), without ROS: an actor-side learner that only acts,
+"""Acting apart from learning, without ROS: an actor-side learner that only acts,
 the trainer that learns from its transitions, the outbox, sequences and the weights codec."""
 
 import numpy as np
@@ -9,8 +9,8 @@ from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_e
 from eqhrl_ros.core.data.summary import EpisodeSummary
 from eqhrl_ros.core.data.transitions import Outbox, SequenceTracker, TransitionBatch
 from eqhrl_ros.core.data.weights import WeightsError, apply_weights, encode_weights
+from eqhrl_ros.core.runs.in_process import ask_expert
 from eqhrl_ros.core.runs.trainer import TRAINER_CSV_FIELDS, Trainer
-from eqhrl_ros.core.runs.training import ask_expert
 
 SETTINGS = dict(
     mode='eqsac',
@@ -35,7 +35,7 @@ def run_split(env, actor: EQSACLearner, trainer: Trainer, outbox: Outbox, expert
     while True:
         proposal = actor.propose(obs)
         if proposal.decision.fire:
-            action, advised = ask_expert(actor, proposal, expert).take()
+            action, advised = ask_expert(actor, proposal, expert).action_and_advised()
         else:
             action, advised = proposal.action, False
         next_obs, reward, terminated, truncated, _ = env.step(action)
@@ -43,9 +43,9 @@ def run_split(env, actor: EQSACLearner, trainer: Trainer, outbox: Outbox, expert
         outbox.add(obs, actor.normalize(action), reward, next_obs, terminated, advised)
         if summary is not None:
             outbox.end_episode(summary)
-        while (batch := outbox.take()) is not None:
+        while (batch := outbox.pop_oldest()) is not None:
             trainer.receive(batch)
-        for _ in range(trainer.owed()):
+        for _ in range(trainer.updates_owed()):
             trainer.update()
         if trainer.weights_due():
             apply_weights(actor, encode_weights(trainer.learner))
@@ -87,14 +87,14 @@ def test_updates_keep_the_ratio_once_learning_starts():
     for i in range(30):
         outbox.add([0.1, 0.2, float(i)], [0.0], -1.0, [0.1, 0.2, i + 1.0], False, i % 3 == 0)
     outbox.seal()
-    while (batch := outbox.take()) is not None:
+    while (batch := outbox.pop_oldest()) is not None:
         trainer.receive(batch)
     # 30 stored, the 10th filled D to learning_starts: 21 eligible, half of them due.
     assert trainer.eligible == 21
-    assert trainer.owed() == 10
-    for _ in range(trainer.owed()):
+    assert trainer.updates_owed() == 10
+    for _ in range(trainer.updates_owed()):
         trainer.update()
-    assert trainer.owed() == 0 and trainer.learner.updates == 10
+    assert trainer.updates_owed() == 0 and trainer.learner.updates == 10
     assert trainer.weights_due()
     trainer.weights_sent()
     assert not trainer.weights_due()
@@ -145,7 +145,7 @@ def test_outbox_seals_at_size_and_episode_end_and_drops_the_oldest_past_its_limi
         outbox.add([i, i], [0.0], 0.0, [i, i], False, False)
     assert [b.sequence for b in outbox.sealed] == [2, 3]  # 0 and 1 dropped, oldest first
     assert (outbox.dropped_batches, outbox.dropped_transitions, outbox.dropped_episodes) == (2, 5, 1)
-    assert outbox.take().sequence == 2 and outbox.waiting == 3
+    assert outbox.pop_oldest().sequence == 2 and outbox.waiting == 3
     with pytest.raises(ValueError):
         Outbox('a', 2, 1, batch_transitions=10, limit=5)
 

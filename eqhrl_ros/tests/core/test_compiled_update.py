@@ -1,4 +1,4 @@
-"""compile_update (issue 22, item 2): the whole update as one compiled program, off the acting path.
+"""compile_update: the whole update as one compiled program, off the acting path.
 
 The compiled update must compute what the eager update computes (same draws, same order,
 float rounding apart), compile without holding up the updates that run meanwhile, and fall

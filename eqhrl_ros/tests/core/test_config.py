@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from eqhrl_ros.core.algorithm.config import FIELDS, LearnerConfig, check_value, ros_name
-from eqhrl_ros.nodes.params import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
+from eqhrl_ros.parameters import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
 
 from ros_helpers import PARAMS_DIR
 
@@ -58,7 +58,8 @@ def test_from_params_refuses_unknown_keys():
 def test_the_on_set_callback_refuses_a_parameter_without_a_name():
     from rclpy.parameter import Parameter
 
-    from eqhrl_ros.nodes.params import LEARNER_CONFIG_PARAMS, choices_validator
+    from eqhrl_ros.nodes.params import choices_validator
+    from eqhrl_ros.parameters import LEARNER_CONFIG_PARAMS
 
     validate = choices_validator(LEARNER_CONFIG_PARAMS)
     assert not validate([Parameter('', value=5)]).successful

@@ -1,4 +1,4 @@
-"""LearnerConfig.device (issue 22, item 4): the learner on cpu or cuda; tests run on the CPU."""
+"""LearnerConfig.device: the learner on cpu or cuda; tests run on the CPU."""
 
 import pytest
 import torch

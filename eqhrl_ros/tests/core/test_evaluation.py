@@ -1,9 +1,9 @@
-"""Advice-free evaluation (issue 21, item 1): the policy alone from fixed start states, without
+"""Advice-free evaluation: the policy alone from fixed start states, without
 changing what training does."""
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, train
 from eqhrl_ros.core.runs.evaluation import eval_seeds, evaluate
-from eqhrl_ros.core.runs.training import Evaluation
+from eqhrl_ros.core.runs.in_process import Evaluation
 
 
 def pendulum_learner() -> EQSACLearner:

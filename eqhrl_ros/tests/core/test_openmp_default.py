@@ -1,4 +1,4 @@
-"""The OpenMP spin default (issue 22, item 3): set on import, before torch; a user's value wins."""
+"""The OpenMP spin default: set on import, before torch; a user's value wins."""
 
 import os
 import subprocess

@@ -228,7 +228,9 @@ def test_a_takeover_replaces_the_action_and_is_counted_apart_from_requests():
     obs = np.zeros(3, np.float32)
     for i, starts in enumerate((True, False, False, True)):
         proposal = learner.propose(obs)
-        action, advised = learner.take_over(proposal, np.array([1.5], np.float32), 0.05 * i, starts).take()
+        action, advised = learner.take_over(
+            proposal, np.array([1.5], np.float32), 0.05 * i, starts
+        ).action_and_advised()
         assert action.tolist() == [1.5] and advised  # as advice, into D_advising by default
         learner.step(obs, action, -1.0, obs, False, False, advised=advised)
     refused = learner.take_over(learner.propose(obs), np.array([9.0], np.float32), 0.0, True)

@@ -1,9 +1,9 @@
 """Every update path computes the paper's maths: each checked against a plain reference,
-for every mode and option (issue 34, item 1).
+for every mode and option.
 
 The update (update.algorithm1_update) is tuned for speed (fused Adam, numpy's tanh, the twin
 critics as one batched network, both Eq. 4 targets in one pass, packed replay rows) and runs
-three ways: eagerly, compiled (compile_update) and for stacked seeds (SeedBatch). The
+three ways: eagerly, compiled (compile_update) and for stacked seeds (StackedSeeds). The
 reference below is the straightforward version, written from the equations with plain
 torch ops on the same weights, the default (unfused) Adam, the same random streams and the
 paper's order: critic step on D, critic step on D_advising, actor and temperature (and again
@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from eqhrl_ros.core import EQSACLearner, LearnerConfig
 from eqhrl_ros.core.algorithm.config import MODES, asks_for_advice
 from eqhrl_ros.core.algorithm.networks import LOG_STD_MAX, LOG_STD_MIN
-from eqhrl_ros.core.algorithm.seed_batch import SeedBatch, batchable
+from eqhrl_ros.core.algorithm.stacked_seeds import StackedSeeds, batchable
 from eqhrl_ros.core.algorithm.update import refusal
 
 
@@ -201,10 +201,10 @@ def test_seeds_together_match_each_seeds_plain_reference(options):
     if options.get('advice_batch') == 'proportional':  # refused, in one place: update.refusal
         assert why == refusal(learners[0].config, 'together') and 'proportional' in why
         with pytest.raises(ValueError, match='proportional'):
-            SeedBatch(learners)
+            StackedSeeds(learners)
         return
     refs = [reference_of(learner) for learner in learners]
-    together = SeedBatch(learners)
+    together = StackedSeeds(learners)
     for _ in range(5):
         for ref, learner in zip(refs, learners):
             reference_update(ref, learner)

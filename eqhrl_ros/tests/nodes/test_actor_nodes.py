@@ -1,4 +1,4 @@
-"""Actor nodes and a trainer over ROS topics, in the test process (issue 20).
+"""Actor nodes and a trainer over ROS topics, in the test process.
 
 Each actor has its own env (and expert) in a namespace of its own; all send to one trainer on
 /transitions and take its weights from /weights, as on several machines."""
@@ -150,7 +150,7 @@ def _one_transition_batch(reward):
 
     outbox = Outbox('rogue', 3, 1, 1, 10)
     outbox.add([0.0, 0.0, 0.0], [0.0], reward, [0.0, 0.0, 0.0], False, False)
-    return outbox.take()
+    return outbox.pop_oldest()
 
 
 def test_actor_and_trainer_help_lists_their_parameters():
@@ -167,7 +167,7 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
     import sys
     import types
 
-    from eqhrl_ros.nodes.params import ACTOR_NODE_PARAMS, LEARNER_CONFIG_PARAMS, TRAINER_PARAMS
+    from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, LEARNER_CONFIG_PARAMS, TRAINER_PARAMS
 
     from ros_helpers import PARAMS_DIR
 

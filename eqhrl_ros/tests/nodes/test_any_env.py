@@ -1,4 +1,4 @@
-"""Any env node (issue 18): spaces from env_info or parameters, success reported by the env,
+"""Any env node: spaces from env_info or parameters, success reported by the env,
 shared params sections, and the example env node that is not gymnasium."""
 
 import csv
@@ -19,8 +19,8 @@ from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.keyboard_teleop_node import KeyboardTeleop
 from eqhrl_ros.nodes.learner_node import LearnerNode
-from eqhrl_ros.nodes.params import file_section
 from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
+from eqhrl_ros.parameters import file_section
 
 from ros_helpers import observation_publisher, params, small_learner_params
 

@@ -231,7 +231,7 @@ def test_resume_from_a_corrupt_checkpoint_refuses_to_start(tmp_path):
     assert (tmp_path / 'checkpoint.pt').read_bytes().startswith(b'PK\x03\x04 this')  # left untouched
 
 
-# ------------------------------------------------------------------ issue 16: starved, flooded, relabelled
+# ------------------------------------------------------------------ starved, flooded, relabelled
 
 
 def rows_of(path):

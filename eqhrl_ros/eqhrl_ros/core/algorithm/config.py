@@ -1,7 +1,7 @@
 """The learner's hyperparameters, each declared once: default, range or choices, description.
 
 Everything else is derived from these fields: LearnerConfig's validation (here), the
-learner node's ROS parameters and their descriptors (nodes/params.py), the package
+learner node's ROS parameters (parameters.py, declared with descriptors by nodes/params.py), the package
 README's parameter table (tools/update_param_tables.py) and the check of the params
 files (tests). Defaults are the paper's Table 1 unless the description says otherwise.
 No torch here: a node's --help reads these without loading it.

@@ -4,14 +4,14 @@ One step of Algorithm 1, as the caller drives it:
 
     proposal = learner.propose(obs)                  # a_t ~ pi(.|s_t); D(s), E(s); the gates
     if proposal.decision.fire:                       # Eq. 7 and Eq. 10
-        action, advised = learner.resolve_advice(proposal, expert(proposal.request)).take()
+        action, advised = learner.resolve_advice(proposal, expert(proposal.request)).action_and_advised()
     else:
         action, advised = proposal.action, False
     next_obs, reward, terminated, truncated, _ = env.step(action)
     summary = learner.step(obs, action, reward, next_obs, terminated, truncated, advised)
                                                      # store in D (and D_advising); update()
 
-The caller may be a plain loop (core/runs/training.py) or a ROS node; the learner never
+The caller may be a plain loop (core/runs/in_process.py) or a ROS node; the learner never
 knows who answers advice. Every equation it uses lives in core/algorithm/equations.py.
 """
 
@@ -54,7 +54,7 @@ class Resolution:
     outcome: str  # 'given', 'declined' or 'failed'
     detail: str = ''  # the failure kind, or the expert's reason for declining
 
-    def take(self) -> tuple[np.ndarray, bool]:
+    def action_and_advised(self) -> tuple[np.ndarray, bool]:
         """(action, advised): what Algorithm 1 acts with and stores."""
         return self.action, self.advised
 
@@ -458,7 +458,7 @@ class EQSACLearner:
     ) -> None:
         """The storing half of step(): the transition into D (and D_advising when advised) and
         into the episode's statistics, without updates or the episode's end. For callers that
-        update elsewhere (seed_batch.py updates many learners at once)."""
+        update elsewhere (stacked_seeds.py updates many learners at once)."""
         normalized = self.normalize(action)
         if store:
             self.store(obs, normalized, reward, next_obs, terminated, advised)
@@ -557,7 +557,7 @@ class EQSACLearner:
         """(weights, Adam state, hyper) for algorithm1_update: views of the live weights and of
         the optimisers' own moments, which the update steps in place (so checkpoints save what it
         learned). Gathered again only when the learner replaced the objects that hold them
-        (loading a checkpoint does) or the tensors behind them (seed_batch.py stacks and
+        (loading a checkpoint does) or the tensors behind them (stacked_seeds.py stacks and
         releases them); an optimiser without moments yet gets torch's initial ones."""
         owners = (
             self.actor,

@@ -65,7 +65,7 @@ class Tanh(nn.Module):
 
 def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
     """x @ weight.T + bias for one network (weight [out, in]), or for N stacked networks at once
-    (weight [N, out, in], bias [N, out], x [N, batch, in]) with one batched product (seed_batch.py)."""
+    (weight [N, out, in], bias [N, out], x [N, batch, in]) with one batched product (stacked_seeds.py)."""
     if weight.dim() == 2:
         return F.linear(x, weight, bias)
     return torch.baddbmm(bias.unsqueeze(-2), x, weight.transpose(-1, -2))
@@ -97,7 +97,7 @@ class SquashedGaussianActor(nn.Module):
         self._hidden = [layer for layer in self.body if isinstance(layer, nn.Linear)]
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(mean, log_std) of u for each row of ``obs``; with stacked parameters (seed_batch.py),
+        """(mean, log_std) of u for each row of ``obs``; with stacked parameters (stacked_seeds.py),
         obs is [N, batch, obs_dim] and network k acts on obs[k]."""
         x = obs
         for layer in self._hidden:  # = self.body(obs)
@@ -139,7 +139,7 @@ class TwinCritic(nn.Module):
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(Q1, Q2) of each row. With stacked parameters (weights [N, 2, in, out]: N twin
-        critics, seed_batch.py), obs and action are [N, batch, dim] and Q1, Q2 are [N, batch]."""
+        critics, stacked_seeds.py), obs and action are [N, batch, dim] and Q1, Q2 are [N, batch]."""
         # (Lists, not ParameterList slices: a slice builds a new module on every call.)
         *weights, last_weight = self.weights
         *biases, last_bias = self.biases

@@ -3,7 +3,7 @@
 Every way this package updates runs this one function:
 - the eager learner (EQSACLearner.update, learner.py) calls it as it is;
 - ``compile_update`` compiles this same function into one program (compiled_update.py);
-- seeds learning together (seed_batch.py) call it on weights stacked on a leading seed axis,
+- seeds learning together (stacked_seeds.py) call it on weights stacked on a leading seed axis,
   with an Adam step that gives each seed its own gradient and step count.
 
 It is a function of tensors: the networks' weights (name -> tensor), their Adam state, one

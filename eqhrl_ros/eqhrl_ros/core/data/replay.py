@@ -9,18 +9,18 @@ import torch
 
 
 @dataclass
-class Batch:
+class Minibatch:
     obs: torch.Tensor
     action: torch.Tensor  # normalised to [-1, 1]
     reward: torch.Tensor
     next_obs: torch.Tensor
     terminated: torch.Tensor  # 1.0 where the episode ended by termination (no bootstrap)
 
-    def to(self, device: torch.device) -> 'Batch':
+    def to(self, device: torch.device) -> 'Minibatch':
         """The batch on ``device`` (itself when it is there already: no copy on CPU)."""
         if self.obs.device == device:
             return self
-        return Batch(*(t.to(device) for t in (self.obs, self.action, self.reward, self.next_obs, self.terminated)))
+        return Minibatch(*(t.to(device) for t in (self.obs, self.action, self.reward, self.next_obs, self.terminated)))
 
     def fields(self) -> tuple:
         """(obs, action, reward, next_obs, terminated) as update.algorithm1_update reads them:
@@ -97,7 +97,7 @@ class ReplayBuffer:
         self.position = (i + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
-    def sample(self, batch_size: int, generator: torch.Generator, replacement: bool = True) -> Batch:
+    def sample(self, batch_size: int, generator: torch.Generator, replacement: bool = True) -> Minibatch:
         """Uniform sample. With replacement by default (as SB3 and CleanRL); without
         replacement needs at least ``batch_size`` transitions."""
         if self.size == 0:
@@ -106,7 +106,7 @@ class ReplayBuffer:
             index = torch.randint(self.size, (batch_size,), generator=generator)
         else:
             index = torch.randperm(self.size, generator=generator)[:batch_size]
-        return Batch(**self._split(self.rows.index_select(0, index)))
+        return Minibatch(**self._split(self.rows.index_select(0, index)))
 
     def state_dict(self) -> dict:
         """Tensors of the stored part only, in insertion order's ring layout, plus the cursor."""

@@ -5,15 +5,23 @@ No torch here, so that light readers (a teleop, a report) can name the fields.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
+
+
+def _column(fmt: str = '', name: str = ''):
+    """A field's column in episodes.csv: its name there ('' for the field's own) and how a number
+    is written ('' for an int; a bool is written 0 or 1)."""
+    return {'csv': name, 'fmt': fmt}
 
 
 @dataclass(frozen=True)
 class EpisodeSummary:
-    """Per-episode statistics (what the learner node publishes and writes to CSV)."""
+    """Per-episode statistics. Every field is a column of episodes.csv, in this order, and a field
+    of eqhrl_interfaces/msg/EpisodeStats.msg (tests/test_one_home.py holds the three together)."""
 
     episode: int
-    episode_return: float
+    episode_return: float = field(metadata=_column('.4f', name='return'))
     length: int
     advice_asked: int
     advice_given: int
@@ -22,56 +30,28 @@ class EpisodeSummary:
     advice_failed: int
     success: bool
     total_steps: int
-    alpha: float
+    alpha: float = field(metadata=_column('.6f'))
     # The learner did not see the whole episode (an observation was lost, or it joined
     # mid-episode): return and length cover only what it saw. Never a normal episode.
     interrupted: bool = False
     # Seconds of a person's time spent on this episode's advice requests (reaction times of
     # answers and skips, whole answer windows let pass), and over the whole run so far.
-    human_time_s: float = 0.0
-    human_time_total_s: float = 0.0
+    human_time_s: float = field(default=0.0, metadata=_column('.3f'))
+    human_time_total_s: float = field(default=0.0, metadata=_column('.3f'))
     # The person took over unasked: stretches of steps, steps and seconds (not requests).
     takeovers: int = 0
     takeover_steps: int = 0
-    takeover_s: float = 0.0
-
-    CSV_FIELDS = (
-        'episode',
-        'return',
-        'length',
-        'advice_asked',
-        'advice_given',
-        'advice_human',
-        'advice_declined',
-        'advice_failed',
-        'success',
-        'total_steps',
-        'alpha',
-        'interrupted',
-        'human_time_s',
-        'human_time_total_s',
-        'takeovers',
-        'takeover_steps',
-        'takeover_s',
-    )
+    takeover_s: float = field(default=0.0, metadata=_column('.3f'))
 
     def csv_row(self) -> list:
-        return [
-            self.episode,
-            f'{self.episode_return:.4f}',
-            self.length,
-            self.advice_asked,
-            self.advice_given,
-            self.advice_human,
-            self.advice_declined,
-            self.advice_failed,
-            int(self.success),
-            self.total_steps,
-            f'{self.alpha:.6f}',
-            int(self.interrupted),
-            f'{self.human_time_s:.3f}',
-            f'{self.human_time_total_s:.3f}',
-            self.takeovers,
-            self.takeover_steps,
-            f'{self.takeover_s:.3f}',
-        ]
+        """This episode as a row of episodes.csv (CSV_FIELDS)."""
+        row = []
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            fmt = f.metadata.get('fmt', '')
+            row.append(int(value) if isinstance(value, bool) else format(value, fmt) if fmt else value)
+        return row
+
+
+# The columns of episodes.csv: the fields' names, but 'return' for episode_return.
+EpisodeSummary.CSV_FIELDS = tuple(f.metadata.get('csv') or f.name for f in dataclasses.fields(EpisodeSummary))

@@ -107,7 +107,7 @@ class Outbox:
             self.dropped_transitions += len(dropped)
             self.dropped_episodes += len(dropped.episodes)
 
-    def take(self) -> TransitionBatch | None:
+    def pop_oldest(self) -> TransitionBatch | None:
         """The oldest sealed batch, to send now (None when there is none)."""
         return self.sealed.popleft() if self.sealed else None
 

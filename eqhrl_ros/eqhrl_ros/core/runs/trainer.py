@@ -159,7 +159,7 @@ class Trainer:
         learner.episode += 1
         return row
 
-    def owed(self) -> int:
+    def updates_owed(self) -> int:
         """Updates due now to keep updates_per_transition."""
         return int(self.updates_per_transition * self.eligible + 1e-9) - self.updates_here
 

@@ -1,4 +1,4 @@
-"""SeedBatch: N learners of one configuration, seeds apart, updated together.
+"""StackedSeeds: N learners of one configuration, seeds apart, updated together.
 
 Each seed keeps its own EQSACLearner: its replay memories D and D_advising, its random
 streams, gates, counters and checkpoint are a lone run's. What changes is where its
@@ -6,7 +6,7 @@ weights live: every parameter of every seed is a view into one tensor per parame
 with the seeds stacked on a first axis, so that an update of all N seeds runs each layer
 as one batched matrix product (networks.linear, TwinCritic.forward) instead of N.
 
-``SeedBatch.update()`` runs the lone update's function (update.algorithm1_update) once on
+``StackedSeeds.update()`` runs the lone update's function (update.algorithm1_update) once on
 the stacked weights:
 - each seed samples its batches and draws its noise from its own streams, as its lone
   update does (EQSACLearner.sample_update_batches, update.update_noise);
@@ -15,7 +15,7 @@ the stacked weights:
 - Adam steps each seed's own parameters with that seed's own optimiser state (one fused call
   over all of them). A seed whose D_advising is still empty gets no step on the advice
   batch, as a lone run would not.
-The result equals N lone runs to float rounding (tests/core/test_seed_batch.py).
+The result equals N lone runs to float rounding (tests/core/test_stacked_seeds.py).
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def _stack(modules: Sequence[nn.Module]) -> nn.Module:
     return stacked
 
 
-class SeedBatch:
+class StackedSeeds:
     """N learners whose updates run as one (module docstring)."""
 
     def __init__(self, learners: Sequence[EQSACLearner]):

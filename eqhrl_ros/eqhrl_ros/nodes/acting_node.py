@@ -34,10 +34,11 @@ from ..core.algorithm.config import asks_for_advice
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
 from ..core.data.advice import Advice
 from ..core.envs.spec import EnvSpec
+from ..parameters import LEARNER_CONFIG_PARAMS
 from . import advise_msgs, messages
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .health import OK, WARN, Check, Health
-from .params import LEARNER_CONFIG_PARAMS, choices_validator, declare, reject_unknown_overrides
+from .params import choices_validator, declare, reject_unknown_overrides
 from .spinning import steady_clock
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -422,7 +423,7 @@ class ActingNode(Node):
                 self.get_logger().info(
                     f'the person takes over at episode {self.learner.episode}, step {self.learner.episode_step}'
                 )
-            self._finish_step(*resolution.take())
+            self._finish_step(*resolution.action_and_advised())
             return
         if self._taking_over_since is not None:
             self._taking_over_since = None
@@ -431,7 +432,7 @@ class ActingNode(Node):
             self._finish_step(proposal.action, advised=False)
             return
         if not self.advice_client.service_is_ready():
-            self._finish_step(*self.learner.resolve_advice(proposal, failure='unavailable').take())
+            self._finish_step(*self.learner.resolve_advice(proposal, failure='unavailable').action_and_advised())
             return
         self._token += 1
         token = self._token
@@ -489,7 +490,7 @@ class ActingNode(Node):
                 resolution.action if resolution.outcome == 'given' else (),
             )
         )
-        self._finish_step(*resolution.take())
+        self._finish_step(*resolution.action_and_advised())
 
     def _on_advice_timeout(self, token: int) -> None:
         with self._lock:

@@ -46,7 +46,7 @@ class _Acting:
         if self.on_proposal is not None:
             self.on_proposal(learner, proposal)
         if proposal.decision.fire:
-            action, advised = ask_expert(learner, proposal, self.expert).take()
+            action, advised = ask_expert(learner, proposal, self.expert).action_and_advised()
         else:
             action, advised = proposal.action, False
         next_obs, reward, terminated, truncated, _ = self.env.step(action)
@@ -123,10 +123,10 @@ class SeedRun:
 
 
 def train_together(runs: Sequence[SeedRun], episodes: int) -> None:
-    """train() for runs that differ only in their seed, with their updates as one (seed_batch.py).
+    """train() for runs that differ only in their seed, with their updates as one (stacked_seeds.py).
 
     Each run acts exactly as it would alone; after every env step of all of them, the
-    learners (which would each update alone at that point) update in one SeedBatch.update().
+    learners (which would each update alone at that point) update in one StackedSeeds.update().
     A run leaves when its learner reaches ``episodes`` (its on_finished is then called); the
     others go on. The learners must be at the same step (fresh ones are).
     """
@@ -154,9 +154,9 @@ class TrainingTogether:
         self.batch = self._batch()
 
     def _batch(self):
-        from ..algorithm.seed_batch import SeedBatch
+        from ..algorithm.stacked_seeds import StackedSeeds
 
-        return SeedBatch([run.learner for run, _ in self.active]) if self.active else None
+        return StackedSeeds([run.learner for run, _ in self.active]) if self.active else None
 
     @property
     def done(self) -> bool:

@@ -1,12 +1,12 @@
-"""Seeds together (core/algorithm/seed_batch.py, training.train_together) compute what seeds apart compute."""
+"""Seeds together (core/algorithm/stacked_seeds.py, training.train_together) compute what seeds apart compute."""
 
 import numpy as np
 import pytest
 import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env
-from eqhrl_ros.core.algorithm.seed_batch import SeedBatch, batchable
-from eqhrl_ros.core.runs.training import SeedRun, train, train_together
+from eqhrl_ros.core.algorithm.stacked_seeds import StackedSeeds, batchable
+from eqhrl_ros.core.runs.in_process import SeedRun, train, train_together
 
 # Small networks: an update takes milliseconds. Alone and together differ only in float rounding
 # (the same kernels at these sizes: 1e-6 apart after 200 updates here); a rounding difference
@@ -43,7 +43,7 @@ def test_an_update_together_is_each_seeds_own_update(mode, actor_on_advice):
     groups = {seed: [learner(seed, mode=mode, actor_on_advice=actor_on_advice) for _ in range(2)] for seed in range(3)}
     fill(groups, {0: 0, 1: 9, 2: 4})
     alone = [groups[seed][0] for seed in groups]
-    batch = SeedBatch([groups[seed][1] for seed in groups])
+    batch = StackedSeeds([groups[seed][1] for seed in groups])
     for _ in range(200):
         for one in alone:
             one.update()
@@ -71,7 +71,7 @@ def test_an_update_together_is_each_seeds_own_update(mode, actor_on_advice):
 def test_released_learners_own_their_weights_and_save_like_lone_ones():
     learners = [learner(seed) for seed in range(2)]
     fill({0: [learners[0]], 1: [learners[1]]}, {0: 0, 1: 0})
-    batch = SeedBatch(learners)
+    batch = StackedSeeds(learners)
     batch.update()
     batch.release()
     before = weights(learners[1]).clone()
@@ -89,9 +89,9 @@ def test_learners_that_differ_beyond_the_seed_are_refused():
     assert batchable([learner(0), learner(1)]) == ''
     assert 'batch_size' in batchable([learner(0), learner(1, batch_size=16)])
     with pytest.raises(ValueError, match='cannot learn together.*gamma'):
-        SeedBatch([learner(0), learner(1, gamma=0.9)])
+        StackedSeeds([learner(0), learner(1, gamma=0.9)])
     with pytest.raises(ValueError, match='proportional'):
-        SeedBatch([learner(0, advice_batch='proportional'), learner(1, advice_batch='proportional')])
+        StackedSeeds([learner(0, advice_batch='proportional'), learner(1, advice_batch='proportional')])
 
 
 @pytest.mark.parametrize('env_id,episodes', [('Pendulum-v1', 3), ('LunarLanderContinuous-v3', 3)])
@@ -166,7 +166,7 @@ def test_a_seed_learns_alone_again_after_learning_together():
     alone = [groups[seed][0] for seed in groups]
     for one in alone + [groups[seed][1] for seed in groups]:
         one.update()  # each learner's update inputs gathered before any stacking
-    batch = SeedBatch([groups[seed][1] for seed in groups])
+    batch = StackedSeeds([groups[seed][1] for seed in groups])
     for _ in range(3):
         for one in alone:
             one.update()
