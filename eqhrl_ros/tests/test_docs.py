@@ -5,6 +5,7 @@ from pathlib import Path
 import pytest
 
 from eqhrl_ros.cli.nodes import NODES, node_tables
+from eqhrl_ros.experiments import seed_runs
 from eqhrl_ros.nodes import messages
 
 README = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
@@ -61,11 +62,9 @@ def test_every_interface_field_has_a_comment_and_the_readme_links_the_type(path)
 
 
 def test_the_readme_states_where_seeds_learn_together():
-    """The README's rule for --seeds-together's default is the code's (experiment.TOGETHER_MAX_WORK)."""
+    """The README's rule for --seeds-together's default is the code's (seed_runs.TOGETHER_MAX_WORK)."""
     import re
-
-    from eqhrl_ros.cli import experiment
 
     text = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
     width, _, batch = re.search(r'hidden width² × batch size ≤ (\d+) × (\d+) × (\d+)', text).groups()[0:3]
-    assert int(width) ** 2 * int(batch) == experiment.TOGETHER_MAX_WORK
+    assert int(width) ** 2 * int(batch) == seed_runs.TOGETHER_MAX_WORK

@@ -8,11 +8,11 @@ import subprocess
 import sys
 
 from eqhrl_interfaces.msg import EpisodeStats, GateDecision
-from eqhrl_ros.cli import experiment
 from eqhrl_ros.core.algorithm.advising import GateDecision as CoreGateDecision
 from eqhrl_ros.core.data.summary import EpisodeSummary
 from eqhrl_ros.core.runs.evaluation import EVAL_FIELDS, EvalEpisode
 from eqhrl_ros.core.runs.trainer import TRAINER_CSV_FIELDS
+from eqhrl_ros.experiments import gather, seed_runs
 
 # How the message generator names the Python types of the dataclasses' fields.
 MESSAGE_KINDS = {'int': ('int32', 'int64'), 'float': ('double',), 'bool': ('boolean',)}
@@ -47,15 +47,15 @@ def test_the_gate_topic_and_gates_csv_take_their_fields_from_the_core_gate_decis
     core = {f.name for f in dataclasses.fields(CoreGateDecision)}
     message = set(GateDecision.get_fields_and_field_types()) - {'episode', 'step'}
     assert message <= core, message - core
-    assert set(experiment.GATE_COLUMNS) <= core
-    assert experiment.GATE_FIELDS == ('episode', 'step', *experiment.GATE_COLUMNS)
+    assert set(seed_runs.GATE_COLUMNS) <= core
+    assert seed_runs.GATE_FIELDS == ('episode', 'step', *seed_runs.GATE_COLUMNS)
 
 
 def test_the_gathered_tables_name_columns_their_runs_write():
-    assert experiment.COLUMNS[:2] == ('algorithm', 'seed')
-    assert set(experiment.COLUMNS[2:]) <= set(EpisodeSummary.CSV_FIELDS)
-    assert experiment.EVAL_COLUMNS[:2] == ('algorithm', 'seed')
-    assert set(experiment.EVAL_COLUMNS[2:]) <= set(EVAL_FIELDS)
+    assert gather.COLUMNS[:2] == ('algorithm', 'seed')
+    assert set(gather.COLUMNS[2:]) <= set(EpisodeSummary.CSV_FIELDS)
+    assert gather.EVAL_COLUMNS[:2] == ('algorithm', 'seed')
+    assert set(gather.EVAL_COLUMNS[2:]) <= set(EVAL_FIELDS)
     assert len(EvalEpisode(1, 2, -3.0, 4, True).csv_row()) == len(EVAL_FIELDS)
 
 
@@ -63,9 +63,10 @@ def test_the_experiment_runner_reads_a_params_file_without_starting_ros():
     probe = (
         'import sys\n'
         'from eqhrl_ros.cli import experiment\n'
+        'from eqhrl_ros.experiments.settings import learner_config, load_settings\n'
         "args = experiment.parse_args(['--params', 'pendulum', '--seeds', '0', '--output', '/tmp/unused'])\n"
-        'settings = experiment.load_settings(args)\n'
-        'experiment.learner_config(settings, "eqsac", 0)\n'
+        'settings = load_settings(args)\n'
+        'learner_config(settings, "eqsac", 0)\n'
         "print(settings.env_id, sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'rcl_interfaces')))\n"
     )
     done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True, timeout=120)

@@ -55,10 +55,13 @@ from pathlib import Path
 import yaml
 
 from ..core.algorithm.config import MODES
+from ..experiments import gather as gathering
+from ..experiments.run_pool import ClusterUnavailable, progress_queue, run_pool
+from ..experiments.seed_runs import GATE_FIELDS, run_dir, run_worker
+from ..experiments.settings import Settings, learner_config, load_settings, make_expert
 from ..paths import shared_file
 from ..yaml_files import load_mapping
 from . import experiment
-from .run_pool import ClusterUnavailable, progress_queue, run_pool
 
 PLAN_KEYS = {
     'name',
@@ -203,7 +206,7 @@ def load_plan(name_or_path: str) -> Plan:
     )
 
 
-def arm_settings(plan: Plan, arm: Arm, save_every: float | None = None) -> experiment.Settings:
+def arm_settings(plan: Plan, arm: Arm, save_every: float | None = None) -> Settings:
     """The experiment runner's settings for one arm, checked as the runner checks a params file.
     ``save_every``: --save-every (minutes; None: the runner's default)."""
     args = argparse.Namespace(
@@ -220,16 +223,16 @@ def arm_settings(plan: Plan, arm: Arm, save_every: float | None = None) -> exper
         eval_starts=plan.eval_starts,
         save_every=save_every,
     )
-    settings = experiment.load_settings(args)
+    settings = load_settings(args)
     learner = {**settings.learner, **plan.learner, **arm.learner}
     settings = dataclasses.replace(settings, learner=learner, expert_options=arm.expert, gate_trace=arm.gate_trace)
-    experiment.learner_config(settings, arm.mode, 0)  # refuses a bad learner setting now, not in a worker
-    experiment.make_expert(settings)
+    learner_config(settings, arm.mode, 0)  # refuses a bad learner setting now, not in a worker
+    make_expert(settings)
     return settings
 
 
-def budget_of(settings: experiment.Settings) -> int:
-    return int(experiment.learner_config(settings, 'sac', 0).advising_budget)
+def budget_of(settings: Settings) -> int:
+    return int(learner_config(settings, 'sac', 0).advising_budget)
 
 
 def requests_per_episode(run: Path, budget: int) -> list[tuple[int, int]]:
@@ -291,18 +294,18 @@ def write_arms(output: Path, plan: Plan) -> None:
 def gather(output: Path, plan: Plan) -> None:
     arms = [a.name for a in plan.arms]
     seeds = sorted({s for a in plan.arms for s in a.seeds})
-    experiment.gather(output, arms, seeds, label='arm')
+    gathering.gather(output, arms, seeds, label='arm')
     rows = []
     for arm in plan.arms:
         for seed in arm.seeds:
-            run = experiment.run_dir(output, arm.name, seed)
+            run = run_dir(output, arm.name, seed)
             if (run / 'DONE').exists() and (run / 'gates.csv').exists():
                 with (run / 'gates.csv').open(newline='') as f:
                     rows += [[arm.name, seed, *r.values()] for r in csv.DictReader(f)]
     if rows:
         with (output / 'gates.csv').open('w', newline='') as f:
             writer = csv.writer(f)
-            writer.writerow(('arm', 'seed', *experiment.GATE_FIELDS))
+            writer.writerow(('arm', 'seed', *GATE_FIELDS))
             writer.writerows(rows)
 
 
@@ -347,10 +350,10 @@ def main(argv=None) -> int:
         runs = [(a, s) for a, s in runs if a.group in args.groups]
     if args.max_seeds:
         runs = [(a, s) for a, s in runs if a.seeds.index(s) < args.max_seeds]
-    done = [(a, s) for a, s in runs if (experiment.run_dir(output, a.name, s) / 'DONE').exists()]
+    done = [(a, s) for a, s in runs if (run_dir(output, a.name, s) / 'DONE').exists()]
     todo = [(a, s) for a, s in runs if (a, s) not in done]
     steps = len(todo) * plan.episodes * (plan.max_steps or settings[plan.arms[0].name].max_episode_steps)
-    durations = [d for d in (run_minutes(experiment.run_dir(output, a.name, s)) for a, s in done) if d is not None]
+    durations = [d for d in (run_minutes(run_dir(output, a.name, s)) for a, s in done) if d is not None]
     if not todo:
         estimate = ''
     elif durations:
@@ -398,12 +401,12 @@ def main(argv=None) -> int:
                     if ready is None:
                         continue  # its matched run is not finished yet
                     pending.remove((arm, seed))
-                    started = experiment.run_dir(output, arm.name, seed)
+                    started = run_dir(output, arm.name, seed)
                     started.mkdir(parents=True, exist_ok=True)
                     (started / 'STARTED').touch()
                     running[(arm.name, seed)] = pool.apply_async(
-                        experiment.run_worker,
-                        (ready, arm.mode, seed, experiment.run_dir(output, arm.name, seed), False, progress, 0),
+                        run_worker,
+                        (ready, arm.mode, seed, run_dir(output, arm.name, seed), False, progress, 0),
                     )
                 while True:  # progress is only for the Manager's sake here: drain it
                     try:
@@ -435,8 +438,8 @@ def _ready(plan: Plan, arm: Arm, seed: int, output: Path, settings: dict):
     own = settings[arm.name]
     if not arm.match:
         return own
-    matched = experiment.run_dir(output, arm.match, seed)
-    thinned = experiment.run_dir(output, arm.thins, seed) if arm.thins else None
+    matched = run_dir(output, arm.match, seed)
+    thinned = run_dir(output, arm.thins, seed) if arm.thins else None
     if not (matched / 'DONE').exists() or (thinned and not (thinned / 'DONE').exists()):
         return None
     rate, asked, steps = matched_rate(matched, budget_of(settings[arm.match]))
@@ -453,7 +456,7 @@ def _ready(plan: Plan, arm: Arm, seed: int, output: Path, settings: dict):
     else:
         learner = {'random_ask_rate': rate}
         record.update(random_ask_rate=rate)
-    run = experiment.run_dir(output, arm.name, seed)
+    run = run_dir(output, arm.name, seed)
     run.mkdir(parents=True, exist_ok=True)
     (run / 'match.yaml').write_text(yaml.safe_dump(record, default_flow_style=None))
     return dataclasses.replace(own, learner={**own.learner, **learner})

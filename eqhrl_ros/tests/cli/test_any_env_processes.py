@@ -5,6 +5,7 @@ import statistics
 import pytest
 
 from eqhrl_ros.cli import experiment
+from eqhrl_ros.experiments import ros_runs
 
 from process_helpers import output, read_rows, start, stop, wait_for
 from ros_helpers import PARAMS_DIR
@@ -76,5 +77,5 @@ def test_the_experiment_runner_drives_a_users_env_node_by_command(tmp_path, caps
 def test_parallel_runs_of_one_experiment_never_share_a_ros_domain():
     """Two runs in one domain hear each other's env (a learner saw another run's observations
     before this rule). Each run gets its own domain, valid on every platform."""
-    ids = experiment.domain_ids(100)
+    ids = ros_runs.domain_ids(100)
     assert len(set(ids)) == 100 and all(1 <= i <= 100 for i in ids)

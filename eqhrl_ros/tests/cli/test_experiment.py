@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 from eqhrl_ros.cli import experiment, report
+from eqhrl_ros.experiments import gather, progress, seed_runs
+from eqhrl_ros.experiments.settings import load_settings
 
 
 def read(path):
@@ -48,7 +50,7 @@ def tiny_run(output, *extra):
 def test_runner_writes_the_documented_columns_and_resume_skips_finished_runs(tmp_path, capsys):
     assert tiny_run(tmp_path) == 0
     rows = read(tmp_path / 'episodes.csv')
-    assert tuple(rows[0].keys()) == experiment.COLUMNS
+    assert tuple(rows[0].keys()) == gather.COLUMNS
     assert len(rows) == 2 * 2 * 2
     assert {(r['algorithm'], r['seed']) for r in rows} == {('sac', '0'), ('sac', '1'), ('eqsac', '0'), ('eqsac', '1')}
     assert all(int(r['length']) == 15 for r in rows)
@@ -56,7 +58,7 @@ def test_runner_writes_the_documented_columns_and_resume_skips_finished_runs(tmp
     # The advice-free evaluation, by default after every 10th and the last episode: here after
     # episode 2, from the same 10 start states for every run.
     evals = read(tmp_path / 'eval.csv')
-    assert tuple(evals[0].keys()) == experiment.EVAL_COLUMNS
+    assert tuple(evals[0].keys()) == gather.EVAL_COLUMNS
     assert len(evals) == 4 * 10 and {r['episode'] for r in evals} == {'2'}
     starts = {(r['algorithm'], r['seed']): [] for r in evals}
     for r in evals:
@@ -81,7 +83,7 @@ def write_synthetic(folder):
     (folder / 'settings.yaml').write_text('env_id: Pendulum-v1\n')
     with open(folder / 'episodes.csv', 'w', newline='') as f:
         writer = csv.writer(f)
-        writer.writerow(experiment.COLUMNS)
+        writer.writerow(gather.COLUMNS)
         for seed, level in ((0, -100.0), (1, -300.0)):
             for episode in range(40):
                 writer.writerow(['sac', seed, episode, level, 100, 0, 0, 0])
@@ -125,7 +127,7 @@ def test_report_reads_the_advice_free_evaluation(tmp_path):
     write_synthetic(tmp_path / 'runs')
     with open(tmp_path / 'runs' / 'eval.csv', 'w', newline='') as f:
         writer = csv.writer(f)
-        writer.writerow(experiment.EVAL_COLUMNS)
+        writer.writerow(gather.EVAL_COLUMNS)
         for algorithm, base in (('sac', -400.0), ('eqsac', -300.0)):
             for seed in (0, 1):
                 for episode in (10, 20):
@@ -189,9 +191,7 @@ def test_seeds_together_write_what_seeds_apart_write(tmp_path, capsys):
         '    max_episodes: 3\n'
     )
     common = ['--params', str(params_file), '--algorithms', 'eqsac', '--seeds', '0', '1', '2', '--eval-every', '2']
-    assert experiment.seeds_together_by_default(
-        experiment.load_settings(experiment.parse_args(common + ['--output', 'x']))
-    )
+    assert seed_runs.seeds_together_by_default(load_settings(experiment.parse_args(common + ['--output', 'x'])))
     assert experiment.main([*common, '--jobs', '1', '--output', str(tmp_path / 'together')]) == 0
     assert 'seeds together' in capsys.readouterr().out
     assert experiment.main([*common, '--jobs', '2', '--seeds-apart', '--output', str(tmp_path / 'apart')]) == 0
@@ -218,15 +218,15 @@ def test_seeds_together_that_cannot_be_had_are_refused_before_anything_runs(tmp_
     assert message in capsys.readouterr().err
     assert not (tmp_path / 'o').exists()
     if '--through-ros' not in extra:  # by default such settings simply run apart
-        settings = experiment.load_settings(experiment.parse_args(['--params', str(params), '--output', 'x']))
-        assert not experiment.seeds_together_by_default(settings)
+        settings = load_settings(experiment.parse_args(['--params', str(params), '--output', 'x']))
+        assert not seed_runs.seeds_together_by_default(settings)
 
 
 def test_table_1_networks_run_seeds_apart_by_default():
-    settings = experiment.load_settings(experiment.parse_args(['--params', 'pendulum', '--output', 'x']))
-    assert not experiment.seeds_together_by_default(settings)
-    settings = experiment.load_settings(experiment.parse_args(['--params', 'demo', '--output', 'x']))
-    assert experiment.seeds_together_by_default(settings)
+    settings = load_settings(experiment.parse_args(['--params', 'pendulum', '--output', 'x']))
+    assert not seed_runs.seeds_together_by_default(settings)
+    settings = load_settings(experiment.parse_args(['--params', 'demo', '--output', 'x']))
+    assert seed_runs.seeds_together_by_default(settings)
 
 
 # ------------------------------------------------------------------ one reading path for params files
@@ -283,7 +283,7 @@ def test_an_interrupted_run_continues_from_its_last_save_and_writes_what_an_unin
         '    max_episodes: 6\n'
     )
     args = experiment.parse_args(['--params', str(params_file), '--eval-every', '2', '--output', 'x'])
-    settings = experiment.load_settings(args)
+    settings = load_settings(args)
     settings.save_every_s = 1e-9  # after every episode
     settings.gate_trace = True
     settings.expert_options = {'human': {'action_noise': 0.3, 'miss_probability': 0.3}}
@@ -292,13 +292,13 @@ def test_an_interrupted_run_continues_from_its_last_save_and_writes_what_an_unin
         whole, cut = tmp_path / 'whole', tmp_path / 'cut'
         for folder in (whole, cut):
             folder.mkdir()
-        experiment.run_in_process(settings, 'eqsac', 3, whole, _Progress())
+        seed_runs.run_in_process(settings, 'eqsac', 3, whole, _Progress())
 
         with pytest.raises(_Interrupt):
-            experiment.run_in_process(settings, 'eqsac', 3, cut, _Progress(stop_at=3))
+            seed_runs.run_in_process(settings, 'eqsac', 3, cut, _Progress(stop_at=3))
         assert (cut / 'resume.pt').exists() and (cut / 'resume-replay.pt').exists()
         progress = _Progress()
-        experiment.run_in_process(settings, 'eqsac', 3, cut, progress)
+        seed_runs.run_in_process(settings, 'eqsac', 3, cut, progress)
     finally:
         torch.set_num_threads(threads)
     assert progress.episodes == [3, 4, 5]  # episodes 0-2 were not run again
@@ -309,7 +309,7 @@ def test_an_interrupted_run_continues_from_its_last_save_and_writes_what_an_unin
 
 
 def test_the_progress_line_counts_a_resumed_runs_earlier_episodes_as_done_and_times_only_this_process():
-    count = experiment.EpisodeCount(total=20)  # two runs of 10 episodes
+    count = progress.EpisodeCount(total=20)  # two runs of 10 episodes
     for message in [('eqsac', 0, 6, -1.0), ('sac', 0, 0, -2.0), ('eqsac', 0, 7, -1.0), ('sac', 0, 1, -2.0)]:
         count.add(message)  # eqsac seed 0 resumed after episode 6; sac seed 0 fresh
     assert count.done == 10
@@ -324,16 +324,16 @@ def test_a_save_of_another_run_is_not_resumed(tmp_path, capsys):
     from eqhrl_ros.core.runs.resume_point import CHECKPOINT
 
     args = experiment.parse_args(['--params', 'demo', '--episodes', '3', '--max-steps', '15', '--output', 'x'])
-    settings = experiment.load_settings(args)
+    settings = load_settings(args)
     settings.save_every_s = 1e-9
     threads = torch.get_num_threads()
     try:
         with pytest.raises(_Interrupt):
-            experiment.run_in_process(settings, 'sac', 0, tmp_path, _Progress(stop_at=1))
+            seed_runs.run_in_process(settings, 'sac', 0, tmp_path, _Progress(stop_at=1))
         assert (tmp_path / CHECKPOINT).exists()
         settings.episodes = 4  # another run's settings in the same folder
         progress = _Progress()
-        experiment.run_in_process(settings, 'sac', 0, tmp_path, progress)
+        seed_runs.run_in_process(settings, 'sac', 0, tmp_path, progress)
     finally:
         torch.set_num_threads(threads)
     assert 'not resumed (it was saved by a run with other settings); the run starts over' in capsys.readouterr().out
@@ -358,12 +358,12 @@ def test_a_resume_point_that_cannot_be_written_costs_the_save_not_the_run(tmp_pa
 
     monkeypatch.setattr(resume_point, 'save_checkpoint', full_disk)
     args = experiment.parse_args(['--params', 'demo', '--episodes', '3', '--max-steps', '15', '--output', 'x'])
-    settings = experiment.load_settings(args)
+    settings = load_settings(args)
     settings.save_every_s = 1e-9
     threads = torch.get_num_threads()
     progress = _Progress()
     try:
-        experiment.run_in_process(settings, 'sac', 0, tmp_path, progress)
+        seed_runs.run_in_process(settings, 'sac', 0, tmp_path, progress)
     finally:
         torch.set_num_threads(threads)
     assert progress.episodes == [0, 1, 2]

@@ -1,0 +1,9 @@
+"""The library under eqhrl-experiment and eqhrl-study (their cli/ mains parse and print; this runs):
+
+- settings.py   a params file's sections and the command line's overrides; a run's learner and expert
+- seed_runs.py  one seed's run in this process (resumable), or an algorithm's seeds together
+- ros_runs.py   one seed's run through the ROS nodes, in a private domain
+- run_pool.py   the pool that runs them: local processes, or a Dask cluster (--cluster)
+- progress.py   episodes done and time left
+- gather.py     the finished runs' CSVs in one table
+"""

@@ -1,0 +1,136 @@
+"""An experiment's settings: a params file's sections checked as the nodes would check them, with the
+command line's overrides; the learner configuration and the expert of one run. No ROS here."""
+
+from __future__ import annotations
+
+import math
+import shlex
+import shutil
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..paths import params_file
+from ..yaml_files import load_mapping
+
+DEFAULT_EPISODES = 200  # --episodes where neither it nor the params file's max_episodes is set
+
+
+@dataclass
+class Settings:
+    env_id: str
+    learner: dict  # learner node parameters from the params file
+    max_episode_steps: int
+    episodes: int
+    expert_backend: str = 'heuristic'
+    policy_path: str = ''
+    params_path: str = ''
+    env_node: str = ''  # a command that starts the user's env node (--env-node), or ''
+    eval_every: int = 0  # advice-free evaluation every N episodes (in-process runs; 0: none)
+    eval_starts: int = 10  # fixed start states of each evaluation
+    # An imperfect expert (in-process runs; eqhrl-study): 'human' (simulated_human.HumanLimits
+    # fields, the expert backend then simulated_human), 'delay_steps', 'gain' (imperfect_experts).
+    expert_options: dict = field(default_factory=dict)
+    gate_trace: bool = False  # write <run>/gates.csv: D(s), E(s) and thresholds inside the budget
+    # A lone in-process run saves its state between episodes this often (seconds; 0: never),
+    # and an interrupted one continues from there (core/runs/resume_point.py). --save-every.
+    save_every_s: float = 300.0
+
+
+def load_settings(args) -> Settings:
+    """The params file's sections, refused as the nodes would refuse them (a typo included)."""
+    from ..parameters import (
+        EXPERT_PARAMS,
+        GYM_ENV_PARAMS,
+        LEARNER_CONFIG_PARAMS,
+        LEARNER_NODE_PARAMS,
+        check_section,
+        default_of,
+        file_section,
+    )
+
+    path = params_file(args.params)
+    data = load_mapping(path, 'params file')
+    learner = file_section(data, 'learner')
+    env = file_section(data, 'gym_env')
+    expert = file_section(data, 'expert')
+    check_section('learner', learner, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS)
+    check_section('gym_env', env, GYM_ENV_PARAMS)
+    check_section('expert', expert, EXPERT_PARAMS)
+    if args.budget is not None:
+        learner['advising_budget'] = args.budget
+    save_every = getattr(args, 'save_every', None)
+    if save_every is not None and not (save_every >= 0 and math.isfinite(save_every)):
+        raise ValueError(f'--save-every must be >= 0 minutes (0: never), got {save_every}')
+    if args.eval_every < 0 or args.eval_starts < 1:
+        raise ValueError(
+            f'--eval-every must be >= 0 and --eval-starts >= 1 (got {args.eval_every}, {args.eval_starts})'
+        )
+    if args.env_node:
+        if not args.through_ros:
+            raise ValueError('--env-node runs an env node, so it needs --through-ros')
+        env_node_command(args.env_node, 0, 1)  # refuses an empty command or a program not found
+    settings = Settings(
+        env_id=args.env
+        or learner.get('env_id')
+        or env.get('env_id')
+        or ('' if args.env_node else default_of(GYM_ENV_PARAMS, 'env_id')),
+        learner=learner,
+        max_episode_steps=args.max_steps
+        or int(env.get('max_episode_steps', default_of(GYM_ENV_PARAMS, 'max_episode_steps'))),
+        # A learner node's max_episodes of 0 means "never stop"; a run of experiments needs an end.
+        episodes=args.episodes or int(learner.get('max_episodes', 0)) or DEFAULT_EPISODES,
+        expert_backend=args.expert or expert.get('backend', default_of(EXPERT_PARAMS, 'backend')),
+        policy_path=args.policy_path or expert.get('policy_path', default_of(EXPERT_PARAMS, 'policy_path')),
+        params_path=str(path),
+        env_node=args.env_node or '',
+        eval_every=0 if args.through_ros else args.eval_every,
+        eval_starts=args.eval_starts,
+    )
+    if save_every is not None:
+        settings.save_every_s = 60.0 * save_every
+    return settings
+
+
+def learner_config(settings: Settings, algorithm: str, seed: int):
+    from ..core import LearnerConfig
+    from ..parameters import LEARNER_NODE_PARAMS
+
+    return LearnerConfig.from_params(
+        settings.learner, node_keys=[p.name for p in LEARNER_NODE_PARAMS], mode=algorithm, seed=seed
+    )
+
+
+def make_expert(settings: Settings, seed: int = 0):
+    """The run's expert: the backend of the settings, made imperfect by expert_options."""
+    from ..core.experts.factory import make_expert as expert_for
+    from ..core.experts.imperfect import DelayedExpert, WeakExpert
+    from ..core.experts.simulated_human import HumanLimits
+
+    if settings.expert_backend == 'none':
+        return None
+    options = dict(settings.expert_options)
+    unknown = sorted(set(options) - {'human', 'delay_steps', 'gain'})
+    if unknown:
+        raise ValueError(f'unknown expert option(s) {unknown}; known: human, delay_steps, gain')
+    backend = 'simulated_human' if 'human' in options else settings.expert_backend
+    limits = HumanLimits(**options['human']) if 'human' in options else None
+    # The person's own random stream: one per seed, apart from the learner's.
+    expert = expert_for(backend, settings.env_id, settings.policy_path, limits, seed=10_000 + seed)
+    if options.get('gain', 1.0) != 1.0:
+        expert = WeakExpert(expert, options['gain'])
+    if options.get('delay_steps', 0):
+        expert = DelayedExpert(expert, options['delay_steps'])
+    return expert
+
+
+def env_node_command(template: str, seed: int, max_steps: int) -> list:
+    """The user's env node command with {seed} and {max_steps} filled in. A program that is not
+    on PATH but in this environment's bin (the package's own nodes, in a venv) is found there."""
+    words = shlex.split(template.format(seed=seed, max_steps=max_steps))
+    if not words:
+        raise ValueError('--env-node is empty')
+    found = shutil.which(words[0]) or shutil.which(words[0], path=str(Path(sys.prefix) / 'bin'))
+    if found is None:
+        raise ValueError(f'--env-node: {words[0]!r} is neither on PATH nor in {Path(sys.prefix) / "bin"}')
+    return [found, *words[1:]]
