@@ -253,8 +253,14 @@ def matched_rate(run: Path, budget: int) -> tuple[float, int, int]:
 
 
 def run_minutes(run: Path):
-    """How long a finished run took: from its STARTED mark (written when it was handed to a
-    worker; a resumed run's last start) to its DONE mark; None if either is missing."""
+    """How long a finished run took: the seconds its DONE mark holds (a lone run's own time,
+    earlier processes included), which survive a copy or a clone of the folder; for a mark
+    without them, from its STARTED mark (a resumed run's last start) to DONE's time. None if
+    neither tells."""
+    try:
+        return max(0.0, float((run / 'DONE').read_text().strip()) / 60)
+    except (OSError, ValueError):
+        pass
     try:
         return max(0.0, ((run / 'DONE').stat().st_mtime - (run / 'STARTED').stat().st_mtime) / 60)
     except OSError:
@@ -361,7 +367,7 @@ def main(argv=None) -> int:
         left = per_run * len(todo) / max(1, min(args.jobs, len(todo)))
         estimate = f'; about {left:.0f} min ({per_run:.1f} min a run so far)'
     else:
-        estimate = '; no time estimate yet (no finished run here has its STARTED mark)'
+        estimate = '; no time estimate yet (no finished run here says how long it took)'
     print(
         f'study {plan.name} ({plan.path}): {len(runs)} runs, {len(done)} finished, {len(todo)} to do '
         f'(at most {steps:,} env steps), {args.jobs} in parallel{estimate}',

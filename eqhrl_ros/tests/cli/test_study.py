@@ -238,9 +238,17 @@ def test_a_finished_runs_time_gives_the_lists_estimate(tmp_path):
     run.mkdir(parents=True)
     (run / 'STARTED').touch()
     os.utime(run / 'STARTED', (time.time() - 120, time.time() - 120))
-    (run / 'DONE').touch()
+    (run / 'DONE').touch()  # a mark without its seconds: the marks' times
     assert study.run_minutes(run) == pytest.approx(2.0, abs=0.05)
     assert study.run_minutes(tmp_path / 'missing') is None
+
+
+def test_a_cloned_runs_time_comes_from_its_done_mark_not_the_files_times(tmp_path):
+    run = tmp_path / 'arm' / 'seed0'
+    run.mkdir(parents=True)
+    (run / 'STARTED').touch()  # a clone or a copy: both marks written at the same moment
+    (run / 'DONE').write_text('90.0\n')  # as run_worker writes it: the run's seconds
+    assert study.run_minutes(run) == pytest.approx(1.5)
 
 
 def test_the_effort_frontier_places_each_gate_against_chance_at_its_request_count(tmp_path):
