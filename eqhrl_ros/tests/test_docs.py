@@ -68,3 +68,19 @@ def test_the_readme_states_where_seeds_learn_together():
     text = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
     width, _, batch = re.search(r'hidden width² × batch size ≤ (\d+) × (\d+) × (\d+)', text).groups()[0:3]
     assert int(width) ** 2 * int(batch) == seed_runs.TOGETHER_MAX_WORK
+
+
+def test_the_results_pages_tables_are_the_committed_reports():
+    """docs/results.md's spliced tables equal those of the committed table.md (itself made from the
+    committed CSVs by eqhrl-study-report): splicing again changes nothing."""
+    import importlib.util
+
+    root = Path(__file__).resolve().parents[2]
+    spec = importlib.util.spec_from_file_location('splice', root / 'tools' / 'splice_study_tables.py')
+    splice = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(splice)
+    page = (root / 'docs' / 'results.md').read_text()
+    report = (root / 'docs' / 'results' / 'study_pendulum_decisive' / 'table.md').read_text()
+    again, spliced = splice.splice(page, report)
+    assert spliced == ['TESTS', 'ARMS', 'FRONTIER', 'TIMING']
+    assert again == page
