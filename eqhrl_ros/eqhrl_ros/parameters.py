@@ -459,6 +459,15 @@ TELEOP_EXPERT_PARAMS = (
     Param('stale_after_s', 0.5, 'Decline when the latest command is older than this', (0.01, 3600.0), dynamic=True),
 )
 
+# A person's key press: keyboard_teleop's `step` and the page's (advice_console's `step`), one default.
+KEY_STEP = Param(
+    'step',
+    0.25,
+    "Change of the command per key press, in [-1, 1] units; a press against the command's sign goes to 0 "
+    'first, so full scale reverses in 1 + 1/step presses',
+    (0.01, 1.0),
+)
+
 KEYBOARD_PARAMS = (
     *ENV_PARAMS,
     Param(
@@ -468,13 +477,14 @@ KEYBOARD_PARAMS = (
         'at most 2)',
         (0, 2),
     ),
-    Param('step', 0.25, 'Change per key press, in [-1, 1] units', (0.01, 1.0)),
+    KEY_STEP,
     Param('rate_hz', 10.0, 'Publishing rate of teleop_command', (0.5, 100.0)),
     KEY_FILE,
 )
 
 CONSOLE_PARAMS = (
     *ENV_PARAMS,
+    KEY_STEP,
     Param(
         'host',
         '127.0.0.1',

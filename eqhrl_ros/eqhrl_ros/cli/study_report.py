@@ -78,6 +78,8 @@ class RunScores:
     curve: dict  # {episode: mean evaluation return}
     success_final: float = math.nan  # share of the last evaluation's start states that succeeded
     success_mean: float = math.nan  # the same over every evaluation
+    taken_over: int = 0  # steps a (simulated) person took over unasked
+    person_s: float = 0.0  # the person's seconds: answering requests and taking over
 
 
 def read_csv(path: Path) -> list[dict]:
@@ -120,6 +122,8 @@ def score_runs(folder: Path, threshold: float, budget: dict) -> dict:
             curve=dict(zip(episodes, means)),
             success_final=float(np.mean(successes[key][episodes[-1]])) if successes[key] else math.nan,
             success_mean=float(np.mean([np.mean(v) for v in successes[key].values()])) if successes[key] else math.nan,
+            taken_over=sum(int(r.get('takeover_steps') or 0) for r in rows),
+            person_s=sum(float(r.get('human_time_s') or 0) + float(r.get('takeover_s') or 0) for r in rows),
         )
     return scores
 
@@ -297,6 +301,32 @@ def comparison_table(arms: list, scores: dict) -> str:
             f'| {auc_wins}/{n} | {asked.value:+.0f} |'
         )
     return '\n'.join(lines)
+
+
+def person_table(arms: list, scores: dict) -> str:
+    """What each arm cost the person, measured (requests answered and steps taken over, in their
+    seconds), beside what it bought; '' when no arm had a person."""
+    rows = []
+    for arm in arms:
+        person = list(per_seed(scores, arm.name, 'person_s').values())
+        if not person:
+            continue
+        rows.append(
+            f'| {arm.label} | {len(person)} | {np.mean(list(per_seed(scores, arm.name, "asked").values())):.0f} '
+            f'| {np.mean(list(per_seed(scores, arm.name, "taken_over").values())):.0f} '
+            f'| {np.mean(person):.1f} [{min(person):.1f}, {max(person):.1f}] '
+            f'| {iqm_estimate(list(per_seed(scores, arm.name, "auc").values())).text()} |'
+        )
+    if not any(np.mean(list(per_seed(scores, a.name, 'person_s').values()) or [0]) > 0 for a in arms):
+        return ''
+    return '\n'.join(
+        [
+            '| arm | seeds | requests (mean) | steps taken over (mean) '
+            "| the person's seconds, measured (mean [min, max]) | eval AUC (IQM [95% CI]) |",
+            '|---|---|---|---|---|---|',
+            *rows,
+        ]
+    )
 
 
 def budget_table(arms: list, scores: dict) -> str:
@@ -654,7 +684,7 @@ def main(argv=None) -> int:
             print(f'eqhrl-study-report: {folder / name} is missing (run eqhrl-study first)', file=sys.stderr)
             return 2
     plan = load_mapping(folder / 'plan.yaml', 'study plan')
-    from .experiment import learner_config
+    from ..experiments.settings import learner_config
     from .study import arm_settings, budget_of, load_plan
 
     loaded = load_plan(str(folder / 'plan.yaml'))
@@ -704,6 +734,9 @@ def main(argv=None) -> int:
         '',
         timing_table(folder, arms, updates_from, budget),
     ]
+    person = person_table(arms, scores)
+    if person:
+        sections += ['', '## What the person spent, measured: answering requests and taking over', '', person]
     placed = frontier_table(arms, scores)
     if placed:
         sections += ['', '## The effort frontier: each gate against random requests at the same count', '', placed]

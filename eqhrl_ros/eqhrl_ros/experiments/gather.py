@@ -7,7 +7,19 @@ from pathlib import Path
 
 from .seed_runs import run_dir
 
-COLUMNS = ('algorithm', 'seed', 'episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')
+COLUMNS = (
+    'algorithm',
+    'seed',
+    'episode',
+    'return',
+    'length',
+    'advice_asked',
+    'advice_given',
+    'success',
+    'human_time_s',
+    'takeover_steps',
+    'takeover_s',
+)
 
 
 EVAL_COLUMNS = ('algorithm', 'seed', 'episode', 'start', 'return', 'length', 'success')
@@ -28,19 +40,9 @@ def gather(output: Path, algorithms, seeds, label: str = 'algorithm') -> Path:
                 if not (directory / 'DONE').exists():
                     continue
                 with (directory / 'episodes.csv').open(newline='') as run_csv:
+                    # A column a run's record lacks (written before the column existed) was 0 then.
                     for row in csv.DictReader(run_csv):
-                        writer.writerow(
-                            [
-                                algorithm,
-                                seed,
-                                row['episode'],
-                                row['return'],
-                                row['length'],
-                                row['advice_asked'],
-                                row['advice_given'],
-                                row['success'],
-                            ]
-                        )
+                        writer.writerow([algorithm, seed, *(row.get(c, '0') for c in COLUMNS[2:])])
     return path
 
 

@@ -102,21 +102,27 @@ def learner_config(settings: Settings, algorithm: str, seed: int):
 
 
 def make_expert(settings: Settings, seed: int = 0):
-    """The run's expert: the backend of the settings, made imperfect by expert_options."""
+    """The run's expert: the backend of the settings, made imperfect by expert_options: 'human'
+    (HumanLimits fields: a simulated person), 'takeover' (TakeoverRule fields: that person also
+    takes over unasked), 'gain', 'delay_steps'."""
     from ..core.experts.factory import make_expert as expert_for
     from ..core.experts.imperfect import DelayedExpert, WeakExpert
-    from ..core.experts.simulated_human import HumanLimits
+    from ..core.experts.simulated_human import HumanLimits, TakeoverRule
 
     if settings.expert_backend == 'none':
         return None
     options = dict(settings.expert_options)
-    unknown = sorted(set(options) - {'human', 'delay_steps', 'gain'})
+    unknown = sorted(set(options) - {'human', 'takeover', 'delay_steps', 'gain'})
     if unknown:
-        raise ValueError(f'unknown expert option(s) {unknown}; known: human, delay_steps, gain')
-    backend = 'simulated_human' if 'human' in options else settings.expert_backend
-    limits = HumanLimits(**options['human']) if 'human' in options else None
+        raise ValueError(f'unknown expert option(s) {unknown}; known: human, takeover, delay_steps, gain')
+    person = 'human' in options or 'takeover' in options
+    backend = 'simulated_human' if person else settings.expert_backend
+    limits = _built(HumanLimits, 'human', options.get('human', {})) if person else None
+    takeover = _built(TakeoverRule, 'takeover', options['takeover']) if 'takeover' in options else None
+    if takeover is not None and (options.get('gain', 1.0) != 1.0 or options.get('delay_steps', 0)):
+        raise ValueError("expert option 'takeover' goes with a simulated person alone (no gain or delay_steps)")
     # The person's own random stream: one per seed, apart from the learner's.
-    expert = expert_for(backend, settings.env_id, settings.policy_path, limits, seed=10_000 + seed)
+    expert = expert_for(backend, settings.env_id, settings.policy_path, limits, seed=10_000 + seed, takeover=takeover)
     if options.get('gain', 1.0) != 1.0:
         expert = WeakExpert(expert, options['gain'])
     if options.get('delay_steps', 0):
@@ -134,3 +140,13 @@ def env_node_command(template: str, seed: int, max_steps: int) -> list:
     if found is None:
         raise ValueError(f'--env-node: {words[0]!r} is neither on PATH nor in {Path(sys.prefix) / "bin"}')
     return [found, *words[1:]]
+
+
+def _built(kind, option: str, values):
+    """``kind(**values)`` for expert option ``option``, or a ValueError that names it."""
+    if not isinstance(values, dict):
+        raise ValueError(f"expert option '{option}' must be a mapping of {kind.__name__} fields, got {values!r}")
+    try:
+        return kind(**values)
+    except TypeError as error:
+        raise ValueError(f"expert option '{option}': {error}") from error

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float32MultiArray
+from std_msgs.msg import Bool, Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 from eqhrl_interfaces.srv import Advise
@@ -109,6 +109,10 @@ class ActingNode(Node):
         self.create_subscription(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, self._on_person_command, 10)
         self._person: Optional[tuple] = None  # (action, deadman, take_over, time.monotonic())
         self._taking_over_since: Optional[float] = None  # time.monotonic() of the last step taken over
+        # The person's STOP holds the env: the episode is paused (not abandoned), and its record
+        # says for how long (EpisodeSummary.stops, stopped_s).
+        self.create_subscription(Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS)
+        self._stopped_since: Optional[float] = None  # time.monotonic() when the current stop began
         self.early_observations = 0  # observations before the spaces were known (ignored)
         self.advice_client = self.create_client(Advise, 'advise')
 
@@ -176,7 +180,9 @@ class ActingNode(Node):
             expert = Check('expert', WARN, f'{timeouts} of {asked} requests timed out', values)
         else:
             expert = Check('expert', OK, f'{servers} expert(s) reachable', values)
-        if stalled is not None:
+        if self._stopped_since is not None:
+            env = Check('env', WARN, f'STOPPED by the person for {time.monotonic() - self._stopped_since:.1f} s')
+        elif stalled is not None:
             env = Check(
                 'env', WARN, f'no observation for {time.monotonic() - stalled:.1f} s (paused, stopped or starved)'
             )
@@ -541,7 +547,13 @@ class ActingNode(Node):
         of the same episode, which then simply continues; an env that restarted comes back
         with step 0, which abandons the unfinished episode (see _start_from)."""
         with self._lock:
-            if self.done or self._state is None or self._pending is not None or self._stalled_since is not None:
+            if (
+                self.done
+                or self._state is None
+                or self._pending is not None
+                or self._stalled_since is not None
+                or self._stopped_since is not None  # the person's STOP: a pause, not a stall
+            ):
                 return
             silent = time.monotonic() - self._last_observation_time
             if silent < self.params['stall_timeout_s']:
@@ -553,6 +565,22 @@ class ActingNode(Node):
                 f'{self.learner.episode_step}): waiting for the env; the episode continues if its next '
                 'step comes, and is abandoned if the env starts a new one'
             )
+
+    def _on_stop(self, msg: Bool) -> None:
+        """The person's STOP pressed or released: the episode current at the release is paused for
+        as long as it held (a stop latched before the env's spaces were known counts when released)."""
+        with self._lock:
+            now = time.monotonic()
+            if bool(msg.data) and self._stopped_since is None:
+                self._stopped_since = now
+                if self.learner is not None:
+                    self.get_logger().warn(f'STOPPED by the person: episode {self.learner.episode} paused')
+            elif not msg.data and self._stopped_since is not None:
+                held, self._stopped_since = now - self._stopped_since, None
+                self._last_observation_time = now  # the env steps again from now: no stall before
+                if self.learner is not None:
+                    self.learner.note_stopped(held, starts=True)
+                    self.get_logger().info(f'stop released after {held:.1f} s: episode {self.learner.episode} goes on')
 
     # ------------------------------------------------------------------ episodes
 
@@ -573,6 +601,7 @@ class ActingNode(Node):
             if summary.takeover_steps
             else ''
         )
+        stopped = f'  stopped {summary.stops}x ({summary.stopped_s:.1f} s)' if summary.stops else ''
         self.experts_heard.clear()
         self.get_logger().info(
             f'episode {summary.episode:4d}  return {summary.episode_return:9.2f}  len {summary.length:4d}  '
@@ -584,6 +613,7 @@ class ActingNode(Node):
             f'{"  INTERRUPTED (not seen whole)" if summary.interrupted else ""}'
             f'{person}'
             f'{taken}'
+            f'{stopped}'
             f'{"  answered by: " + experts if experts else ""}'
         )
         self._after_episode(summary)

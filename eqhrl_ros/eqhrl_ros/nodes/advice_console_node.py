@@ -154,6 +154,7 @@ class AdviceConsole(Node):
         self.request: Optional[dict] = None
         self.request_seen = 0.0
         self.episodes: list[dict] = []
+        self.person_s_open: dict = {}  # (episode, step) -> the person's seconds on a request, not yet in stats
         self.learner_params: dict = {}
         self.frame: Optional[Image] = None
         self.frame_number = 0
@@ -224,6 +225,11 @@ class AdviceConsole(Node):
                 'given_action': [float(v) for v in msg.given_action],
             }
             self.request_seen = time.monotonic()
+            done = msg.outcome != AdviceRequest.PENDING
+            if done and msg.human and math.isfinite(msg.response_time_s) and msg.response_time_s >= 0:
+                # The person's seconds on this request, until its episode's statistics count them:
+                # the page's budget in seconds runs down request by request, not episode by episode.
+                self.person_s_open[(msg.episode, msg.step)] = float(msg.response_time_s)
             self._bump()
 
     def _on_stats(self, msg: EpisodeStats) -> None:
@@ -241,6 +247,7 @@ class AdviceConsole(Node):
                 }
             )
             del self.episodes[:-EPISODES_KEPT]
+            self.person_s_open = {k: s for k, s in self.person_s_open.items() if k[0] > msg.episode}
             self._bump()
 
     def _on_frame(self, msg: Image) -> None:
@@ -386,9 +393,12 @@ class AdviceConsole(Node):
             'learner': self.learner_params,
             'require_deadman': self.params['require_deadman'],
             'stopped': self.stopped,
+            # The person's seconds on requests of episodes whose statistics have not come yet.
+            'person_s_open': sum(self.person_s_open.values()),
             # The page counts down this window and draws each action as teleop_expert maps it.
             'teleop': dict(self.teleop, answer_margin_s=ANSWER_MARGIN_S) if self.teleop else None,
             'command': list(self.input.command),
+            'key_step': self.params['step'],
         }
 
     def set_learner_parameter(self, name: str, value) -> tuple[bool, str]:

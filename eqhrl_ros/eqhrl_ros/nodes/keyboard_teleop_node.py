@@ -100,7 +100,8 @@ class KeyboardTeleop(Node):
         key = key.lower()
         if key in KEYS and KEYS[key][0] < len(self.command):
             index, sign = KEYS[key]
-            self.command[index] = np.clip(self.command[index] + sign * self.params['step'], -1.0, 1.0)
+            now = self.command[index]  # against the command's sign: to 0 first (a quick reversal)
+            self.command[index] = 0.0 if now * sign < 0 else np.clip(now + sign * self.params['step'], -1.0, 1.0)
         elif key == ' ':
             self.command[:] = 0.0
         elif key == 'p':

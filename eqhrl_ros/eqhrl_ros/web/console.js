@@ -2,7 +2,7 @@
 // One websocket to the advice_console node (same origin); see nodes/advice_console_node.py.
 'use strict';
 
-const STEP = 0.1;           // change of the command per key press, in [-1, 1] units
+let STEP = 0.25;            // change of the command per key press, in [-1, 1] units (the console's key_step)
 const DEADZONE = 0.08;      // gamepad stick values below this read as 0
 const GAMEPAD_DEADMAN = 4;  // LB on the standard mapping
 const GAMEPAD_ANSWER = 0;   // A
@@ -57,6 +57,7 @@ function showFrame(blob) {
 
 function onState(message) {
   Object.assign(state, message);
+  if (state.key_step) STEP = state.key_step;
   if (state.env && input.command.length !== state.env.action_low.length) {
     input.command = state.env.action_low.map(() => 0);
   }
@@ -82,7 +83,8 @@ function onState(message) {
     $('budget').value = learner.advising_budget;
   }
   const last = state.episodes[state.episodes.length - 1];
-  const spent = last ? last.human_time_total_s : 0;
+  // Finished episodes' seconds, and those of the requests answered since (the budget runs down now).
+  const spent = (last ? last.human_time_total_s : 0) + (state.person_s_open || 0);
   const budgetS = learner.advising_budget_s;
   $('person').textContent = `your time: ${spent.toFixed(1)} s over ${state.episodes.length} episodes` +
     (budgetS > 0 ? `; your budget ${budgetS.toFixed(0)} s: ${Math.max(0, budgetS - spent).toFixed(1)} s left` : '');
@@ -97,7 +99,7 @@ function showRequest() {
   const done = last ? last.episode + 1 : 0;  // episodes finished (the page keeps only the last 500)
   const over = learner.max_episodes > 0 && done >= learner.max_episodes;
   const spent = done >= (learner.advising_budget ?? Infinity) ||
-    (learner.advising_budget_s > 0 && last && last.human_time_total_s >= learner.advising_budget_s);
+    (learner.advising_budget_s > 0 && last && last.human_time_total_s >= learner.advising_budget_s);  // as the learner counts
   const ended = over ? `the run has finished (${done} episodes): nothing more will be asked`
     : (spent ? 'advice is over: the advising budget is used up; the learner goes on alone' : '');
   $('run-state').textContent = ended;
@@ -234,9 +236,12 @@ function sendInput(extra) {
   drawBars();
 }
 
+// A press against the command's sign goes to 0 first: reversing full scale takes 1 + 1/STEP presses.
 function nudge(index, sign) {
   if (index >= input.command.length) return;
-  input.command[index] = Math.max(-1, Math.min(1, Math.round((input.command[index] + sign * STEP) * 100) / 100));
+  const now = input.command[index];
+  const next = now * sign < 0 ? 0 : now + sign * STEP;
+  input.command[index] = Math.max(-1, Math.min(1, Math.round(next * 100) / 100));
 }
 
 const KEYS = {

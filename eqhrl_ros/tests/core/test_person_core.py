@@ -255,3 +255,71 @@ def test_the_expected_seconds_per_request_is_the_simulated_persons_mean_time(lim
     times = [person.outcome(person.plan(request())).response_time_s for _ in range(40_000)]
     mean, standard_error = float(np.mean(times)), float(np.std(times)) / math.sqrt(len(times))
     assert abs(expected_seconds_per_request(limits) - mean) < 4 * standard_error
+
+
+class ConstantExpert:
+    """A person's model that always wants ``value`` (env units)."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def __call__(self, req):
+        return Advice(np.full(len(req.action_low), self.value, np.float32))
+
+
+def takeover_request(learner_action):
+    return AdviceRequest(
+        np.zeros(3, np.float32), np.array([learner_action], np.float32), np.array([-2.0], np.float32),
+        np.array([2.0], np.float32), math.nan, math.nan, 0, 0,
+    )  # fmt: skip
+
+
+def test_a_simulated_person_takes_over_after_reacting_to_a_departure_and_hands_back_once_close():
+    from eqhrl_ros.core.experts.simulated_human import TakeoverRule
+
+    limits = HumanLimits(reaction_median_s=0.2, reaction_sigma=0.0, action_noise=0.0)
+    person = SimulatedHuman(ConstantExpert(1.0), limits, takeover=TakeoverRule(delta=0.5, step_s=0.05))
+    assert person.intervene(takeover_request(0.9), new_episode=True) is None  # 0.05 apart: within delta
+    # 1.0 apart in [-1, 1] units (2.0 in env units): noticed, and taken over after 0.2 s = 4 steps.
+    seen = [person.intervene(takeover_request(-1.0)) for _ in range(4)]
+    assert seen[:3] == [None, None, None]
+    action, seconds, starts = seen[3]
+    assert action.tolist() == [1.0] and seconds == 0.05 and starts
+    action, _, starts = person.intervene(takeover_request(0.0))  # 0.5 apart: above delta / 2, still theirs
+    assert not starts
+    assert person.intervene(takeover_request(0.6)) is None  # 0.2 apart: handed back
+    # A departure shorter than their reaction is let pass.
+    assert [person.intervene(takeover_request(-1.0)) for _ in range(2)] == [None, None]
+    assert person.intervene(takeover_request(1.0)) is None
+    assert [person.intervene(takeover_request(-1.0)) for _ in range(3)] == [None, None, None]
+    assert SimulatedHuman(ConstantExpert(1.0), limits).intervene(takeover_request(-1.0)) is None  # no rule
+
+
+def test_a_run_with_a_simulated_takeover_counts_it_apart_and_only_inside_the_budget():
+    from eqhrl_ros.core.envs.gymnasium_envs import make_env
+    from eqhrl_ros.core.experts.simulated_human import TakeoverRule
+    from eqhrl_ros.core.runs.in_process import train
+
+    def run(mode, rate=0.0):
+        env = make_env('Pendulum-v1', 50)
+        config = LearnerConfig(
+            mode=mode, hidden=(16, 16), batch_size=16, learning_starts=10**6, advising_budget=2, random_ask_rate=rate
+        )
+        learner = EQSACLearner(3, env.action_space.low, env.action_space.high, config)
+        person = make_expert(
+            'simulated_human', 'Pendulum-v1', human_limits=HumanLimits(reaction_median_s=0.1, miss_probability=0.0),
+            takeover=TakeoverRule(delta=0.5),
+        )  # fmt: skip
+        return learner, train(env, learner, 4, person, seed=0)
+
+    learner, summaries = run('random')  # rate 0: no request ever, takeover alone
+    assert all(s.advice_asked == 0 for s in summaries)
+    assert summaries[0].takeovers >= 1 and summaries[0].takeover_steps >= summaries[0].takeovers
+    assert summaries[0].takeover_s == pytest.approx(0.05 * summaries[0].takeover_steps)
+    assert all(s.takeover_steps == 0 for s in summaries[2:])  # outside the two-episode budget
+    taken = sum(s.takeover_steps for s in summaries)
+    assert len(learner.advice_replay) == taken  # stored as advice, into D_advising
+    _, plain = run('sac')  # SAC keeps no advice: nobody takes over
+    assert all(s.takeover_steps == 0 for s in plain)
+    with pytest.raises(ValueError, match='only a simulated person takes over'):
+        make_expert('heuristic', 'Pendulum-v1', takeover=TakeoverRule(delta=0.5))

@@ -343,10 +343,14 @@ def test_the_page_counts_down_the_persons_window_and_draws_the_mapped_action(bro
             lambda: browser.execute_script("return document.getElementById('key1').textContent").startswith('main')
         )
         assert browser.execute_script("return document.getElementById('key0').textContent").startswith('side')
-        ActionChains(browser).send_keys('www').perform()  # command[1] = 0.3: the main engine
+        ActionChains(browser).send_keys('www').perform()  # command[1] = 0.75 (step 0.25): the main engine
         shown = 'return document.querySelector(\'[data-action="0"]\').textContent'
-        wait_for(lambda: browser.execute_script(shown) == '+0.30', what='action[0] at +0.30')
+        wait_for(lambda: browser.execute_script(shown) == '+0.75', what='action[0] at +0.75')
         assert browser.execute_script('return document.querySelector(\'[data-action="1"]\').textContent') == '+0.00'
+        ActionChains(browser).send_keys('s').perform()  # against the sign: to 0 first, a quick reversal
+        wait_for(lambda: browser.execute_script(shown) == '+0.00', what='action[0] back at 0 in one press')
+        ActionChains(browser).send_keys('ssss').perform()
+        wait_for(lambda: browser.execute_script(shown) == '-1.00', what='full scale reversed in 5 presses')
         requests.publish(
             AdviceRequest(outcome=AdviceRequest.PENDING, episode=0, step=3, timeout_s=5.0, proposed_action=[0.0, 0.0])
         )
@@ -388,5 +392,48 @@ def test_the_page_says_when_advice_is_over_and_when_the_run_has_finished(browser
         stats.publish(EpisodeStats(episode=1, length=10))
         stats.publish(EpisodeStats(episode=2, length=10))
         wait_for(lambda: 'the run has finished (3 episodes)' in browser.execute_script(state), what='run finished')
+    finally:
+        graph.close()
+
+
+def test_the_page_runs_the_persons_budget_in_seconds_down_request_by_request(browser, ros_context):
+    """A stand-in learner with a budget of 60 of the person's seconds: each answered request takes
+    its reaction time off the seconds left at once, before its episode's statistics come."""
+    import rclpy
+
+    from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
+    from eqhrl_ros.nodes import messages
+
+    learner = rclpy.create_node('learner', context=ros_context)
+    for name, value in (
+        ('advice_enabled', True),
+        ('advising_budget', 30),
+        ('advising_budget_s', 60.0),
+        ('max_episodes', 0),
+    ):
+        learner.declare_parameter(name, value)
+    stats = learner.create_publisher(EpisodeStats, 'learner/episode_stats', 100)
+    requests = learner.create_publisher(AdviceRequest, 'learner/advice_request', messages.LATCHED_QOS)
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    graph = Graph(ros_context, [learner, console])
+    person = "return document.getElementById('person').textContent"
+    try:
+        wait_for(lambda: console.learner_params.get('advising_budget_s') == 60.0, what="the learner's budget read")
+        browser.get(console.url)
+        wait_for(lambda: '60.0 s left' in browser.execute_script(person), what='the whole budget shown')
+        for step, seconds in ((4, 2.5), (9, 1.5)):
+            requests.publish(
+                AdviceRequest(
+                    outcome=AdviceRequest.GIVEN, episode=0, step=step, timeout_s=5.0, human=True,
+                    response_time_s=seconds, proposed_action=[0.0], given_action=[1.0],
+                )
+            )  # fmt: skip
+            if step == 4:
+                wait_for(lambda: '57.5 s left' in browser.execute_script(person), what='2.5 s spent on the first')
+        wait_for(lambda: '56.0 s left' in browser.execute_script(person), what='4.0 s spent within the episode')
+        # The episode's statistics now hold those seconds: counted once, not twice.
+        stats.publish(EpisodeStats(episode=0, length=10, human_time_s=4.0, human_time_total_s=4.0))
+        wait_for(lambda: 'your time: 4.0 s over 1 episodes' in browser.execute_script(person), what='the episode')
+        assert '56.0 s left' in browser.execute_script(person)
     finally:
         graph.close()

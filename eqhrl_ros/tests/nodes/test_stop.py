@@ -111,3 +111,39 @@ def test_one_stop_reaches_an_env_in_an_actors_namespace(harness, ros_context):
     stop = stopper(harness)  # in the root namespace, as the console is
     stop.publish(Bool(data=True))
     assert harness.spin_until(lambda: env.stopped, timeout=10)
+
+
+def test_a_stop_pauses_the_learners_episode_and_its_record_says_how_long(harness, ros_context, tmp_path):
+    """The learner does not take a stop for a stall: the same episode goes on once released, and its
+    row in episodes.csv (and EpisodeStats) counts the stop and the seconds it held."""
+    import csv
+
+    from eqhrl_ros.nodes.learner_node import LearnerNode
+
+    from ros_helpers import small_learner_params
+
+    env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=60)))
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=small_learner_params(
+                tmp_path, mode='sac', max_episodes=2, stall_timeout_s=0.3, learning_starts=10**6
+            ),
+        )
+    )
+    stop = stopper(harness)
+    assert harness.spin_until(lambda: env.steps_taken >= 20, timeout=20)
+    stop.publish(Bool(data=True))
+    assert harness.spin_until(lambda: env.stopped and learner._stopped_since is not None)
+    harness.spin_until(lambda: False, timeout=1.0)  # past stall_timeout_s: still no stall
+    assert learner.stalls == 0 and learner.learner.episode == 0
+    stop.publish(Bool(data=False))
+    assert harness.spin_until(lambda: len(learner.summaries) >= 1, timeout=20)
+    first = learner.summaries[0]
+    assert first.episode == 0 and first.length == 60 and not first.interrupted
+    assert first.stops == 1 and 1.0 <= first.stopped_s < 5.0
+    assert harness.spin_until(lambda: len(learner.summaries) >= 2, timeout=20)
+    assert learner.summaries[1].stops == 0 and learner.summaries[1].stopped_s == 0.0
+    with (tmp_path / 'episodes.csv').open(newline='') as f:
+        rows = list(csv.DictReader(f))
+    assert rows[0]['stops'] == '1' and float(rows[0]['stopped_s']) >= 1.0

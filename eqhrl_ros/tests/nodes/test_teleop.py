@@ -322,8 +322,12 @@ def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
         tmux.send('d', 'd', 'w')
         assert harness.spin_until(lambda: command() == [0.5, 0.25])
         assert tmux.wait_for('command: [+0.50, +0.25]'), tmux.screen()
-        tmux.send('a', 'a', 'a', 'a', 'a', 'a')  # clipped at -1
+        tmux.send('a', 'a', 'a', 'a', 'a', 'a')  # to 0 first (against the sign), then steps, clipped at -1
         assert harness.spin_until(lambda: command() == [-1.0, 0.25])
+        tmux.send('d')  # a reversal starts at 0: full scale reverses in 1 + 1/step presses
+        assert harness.spin_until(lambda: command() == [0.0, 0.25])
+        tmux.send('d', 'd', 'd', 'd')
+        assert harness.spin_until(lambda: command() == [1.0, 0.25])
         tmux.send('Space')
         assert harness.spin_until(lambda: command() == [0.0, 0.0])
         # Enter and x are presses of the answer and skip buttons: held in one message.

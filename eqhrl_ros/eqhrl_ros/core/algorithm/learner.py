@@ -620,6 +620,7 @@ class EQSACLearner:
         self.episode_interrupted = False
         self._episode_return = 0.0
         self._episode_advice = AdviceCounts()
+        self._episode_stops, self._episode_stopped_s = 0, 0.0
         self._reported_success: Optional[bool] = None
         self.success.reset()
 
@@ -647,6 +648,8 @@ class EQSACLearner:
             takeovers=counts.takeovers,
             takeover_steps=counts.takeover_steps,
             takeover_s=counts.takeover_s,
+            stops=self._episode_stops,
+            stopped_s=self._episode_stopped_s,
         )
         self.advice_total.add(counts)
         self.episode += 1
@@ -665,6 +668,12 @@ class EQSACLearner:
         """The caller did not see all of the current episode (a lost step, a mid-episode start):
         its summary will say so, and never count it as a success."""
         self.episode_interrupted = True
+
+    def note_stopped(self, seconds: float, starts: bool = True) -> None:
+        """The person's STOP held the current episode for ``seconds`` (``starts``: one more press).
+        The episode is paused, not abandoned: its summary says how long."""
+        self._episode_stops += int(starts)
+        self._episode_stopped_s += max(0.0, float(seconds))
 
     @property
     def episode_advice(self) -> AdviceCounts:

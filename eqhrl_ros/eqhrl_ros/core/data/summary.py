@@ -42,6 +42,10 @@ class EpisodeSummary:
     takeovers: int = 0
     takeover_steps: int = 0
     takeover_s: float = field(default=0.0, metadata=_column('.3f'))
+    # The person's STOP held this episode: how many times, and for how many seconds (the env took
+    # no step meanwhile; the episode went on from the same state once released).
+    stops: int = 0
+    stopped_s: float = field(default=0.0, metadata=_column('.3f'))
 
     def csv_row(self) -> list:
         """This episode as a row of episodes.csv (CSV_FIELDS)."""

@@ -65,6 +65,22 @@ def expected_seconds_per_request(limits: Optional[HumanLimits] = None) -> float:
 
 
 @dataclass(frozen=True)
+class TakeoverRule:
+    """When a simulated person takes over unasked (mixed initiative), by the HG-DAgger rule: once the
+    learner's action departs from their own by more than ``delta`` ([-1, 1] units, any dimension)
+    for as long as their reaction time, they steer until it is back within ``delta / 2``."""
+
+    delta: float
+    step_s: float = 0.05  # seconds per env step: a reaction time in steps, a step's share of their time
+
+    def __post_init__(self):
+        if not (0.0 < self.delta <= 2.0 and math.isfinite(self.delta)):
+            raise ValueError(f'TakeoverRule.delta must be in (0, 2], got {self.delta!r}')
+        if not (0.0 < self.step_s <= 60.0 and math.isfinite(self.step_s)):
+            raise ValueError(f'TakeoverRule.step_s must be in (0, 60] seconds, got {self.step_s!r}')
+
+
+@dataclass(frozen=True)
 class HumanPlan:
     """What the simulated person will do about one request, and after how many seconds."""
 
@@ -82,21 +98,36 @@ class SimulatedHuman:
 
     human = True
 
-    def __init__(self, expert, limits: Optional[HumanLimits] = None, seed: int = 0, name: str = ''):
+    def __init__(
+        self,
+        expert,
+        limits: Optional[HumanLimits] = None,
+        seed: int = 0,
+        name: str = '',
+        takeover: Optional[TakeoverRule] = None,
+    ):
         self.expert = expert
         self.limits = limits or HumanLimits()
         self.rng = np.random.default_rng(seed)
+        self.takeover = takeover
+        self._taking_over = False
+        self._reacting_steps: Optional[int] = None  # steps left before they react to a departure
         self.name = name or f'simulated_human({getattr(expert, "name", type(expert).__name__)})'
         # The spaces it answers for are its expert's (checked against the env's).
         self.observation_size = getattr(expert, 'observation_size', None)
         self.action_size = getattr(expert, 'action_size', None)
+
+    def _reaction_s(self) -> float:
+        """One reaction time, seconds: log-normal around reaction_median_s."""
+        limits = self.limits
+        return float(limits.reaction_median_s * math.exp(limits.reaction_sigma * self.rng.standard_normal()))
 
     def plan(self, request: AdviceRequest) -> HumanPlan:
         """Draw what the person does about ``request``: one uniform draw picks miss, skip or
         answer; a log-normal draw gives the reaction time; Gaussian noise perturbs the action."""
         limits = self.limits
         draw = self.rng.random()
-        delay = float(limits.reaction_median_s * math.exp(limits.reaction_sigma * self.rng.standard_normal()))
+        delay = self._reaction_s()
         if draw < limits.miss_probability:
             return HumanPlan('miss', math.inf)
         if draw < limits.miss_probability + limits.skip_probability:
@@ -121,3 +152,45 @@ class SimulatedHuman:
 
     def __call__(self, request: AdviceRequest) -> Advice:
         return self.outcome(self.plan(request))
+
+    def intervene(self, request: AdviceRequest, new_episode: bool = False):
+        """Mixed initiative (with a TakeoverRule; None otherwise): ``(action, seconds, starts)`` when
+        the person takes this step over, else None. ``request`` carries the state and the learner's
+        own action (proposed_action). The person's own action is their model's, with their steering
+        noise; a step taken over costs them ``step_s`` seconds. Their reaction time is drawn once per
+        departure, in steps; a departure that ends before they react is let pass."""
+        rule = self.takeover
+        if rule is None:
+            return None
+        if new_episode:
+            self._taking_over, self._reacting_steps = False, None
+        advice = self.expert(request)
+        if not advice.advised:
+            self._taking_over, self._reacting_steps = False, None
+            return None
+        low = np.asarray(request.action_low, dtype=np.float32)
+        high = np.asarray(request.action_high, dtype=np.float32)
+        half = (high - low) / 2.0
+        own = np.asarray(advice.action, dtype=np.float32)
+        apart = float(np.max(np.abs(own - np.asarray(request.proposed_action, dtype=np.float32)) / half))
+        starts = False
+        if self._taking_over:
+            if apart <= rule.delta / 2.0:  # back where the learner can be trusted: hand back
+                self._taking_over = False
+                return None
+        elif apart > rule.delta:
+            if self._reacting_steps is None:
+                reaction = self.limits.reaction_median_s * math.exp(
+                    self.limits.reaction_sigma * self.rng.standard_normal()
+                )
+                self._reacting_steps = max(1, math.ceil(reaction / rule.step_s))
+            self._reacting_steps -= 1
+            if self._reacting_steps > 0:
+                return None
+            self._taking_over, self._reacting_steps, starts = True, None, True
+        else:
+            self._reacting_steps = None
+            return None
+        noise = self.rng.standard_normal(low.shape[0]) * self.limits.action_noise * half
+        action = np.clip(own + noise.astype(np.float32), low, high)
+        return action, rule.step_s, starts

@@ -9,7 +9,9 @@ import gymnasium as gym
 
 from .evaluation import evaluate
 from ..data.advice import Expert
+from ..algorithm.config import asks_for_advice
 from ..algorithm.learner import EpisodeSummary, EQSACLearner, Resolution
+from ..data.advice import AdviceRequest
 
 
 def ask_expert(learner: EQSACLearner, proposal, expert: Optional[Expert]) -> Resolution:
@@ -29,6 +31,8 @@ class _Acting:
     def __init__(self, env: gym.Env, learner: EQSACLearner, expert: Optional[Expert], on_proposal=None):
         self.env, self.learner, self.expert, self.on_proposal = env, learner, expert, on_proposal
         self.observe = getattr(expert, 'observe', None)
+        # An expert that takes over unasked (simulated_human.SimulatedHuman with a TakeoverRule).
+        self.intervene = getattr(expert, 'intervene', None) if getattr(expert, 'takeover', None) else None
         self.obs = None
         self.new_episode = True
 
@@ -38,20 +42,39 @@ class _Acting:
 
     def act(self) -> tuple:
         """(obs, action, reward, next_obs, terminated, truncated, advised) of one env step."""
-        learner, obs = self.learner, self.obs
+        learner, obs, new_episode = self.learner, self.obs, self.new_episode
+        self.new_episode = False
         if self.observe is not None:
-            self.observe(obs, self.new_episode)
-            self.new_episode = False
+            self.observe(obs, new_episode)
         proposal = learner.propose(obs)
         if self.on_proposal is not None:
             self.on_proposal(learner, proposal)
-        if proposal.decision.fire:
+        taken = self._taken_over(proposal, new_episode) if self.intervene is not None else None
+        if taken is not None:  # the person steers this step: no request, their action goes
+            action, advised = learner.take_over(proposal, *taken).action_and_advised()
+        elif proposal.decision.fire:
             action, advised = ask_expert(learner, proposal, self.expert).action_and_advised()
         else:
             action, advised = proposal.action, False
         next_obs, reward, terminated, truncated, _ = self.env.step(action)
         self.obs = next_obs
         return obs, action, reward, next_obs, terminated, truncated, advised
+
+    def _taken_over(self, proposal, new_episode: bool):
+        """The simulated person's takeover of this step, inside the advising budget (the episodes and
+        the person's seconds) of a mode that keeps advice, or None."""
+        learner = self.learner
+        if not (
+            asks_for_advice(learner.mode)
+            and learner.episode < learner.config.advising_budget
+            and learner.person_budget_left_s > 0
+        ):
+            return None
+        low, high = learner.scaler.low, learner.scaler.high
+        request = AdviceRequest(
+            self.obs, proposal.action, low, high, float('nan'), float('nan'), learner.episode, learner.episode_step
+        )
+        return self.intervene(request, new_episode)
 
 
 def run_episode(

@@ -212,6 +212,7 @@ def _check_episode(summary: EpisodeSummary) -> None:
         s.advice_failed,
         s.takeovers,
         s.takeover_steps,
+        s.stops,
     )
     if any(not 0 <= c <= INT32_MAX for c in counts):
         raise ValueError(f'episode statistics out of range: {counts}')
@@ -226,6 +227,9 @@ def _check_episode(summary: EpisodeSummary) -> None:
             f'failed {s.advice_failed} of {s.advice_asked} asked'
         )
     if not (
-        math.isfinite(s.episode_return) and all(math.isfinite(t) and t >= 0 for t in (s.human_time_s, s.takeover_s))
+        math.isfinite(s.episode_return)
+        and all(math.isfinite(t) and t >= 0 for t in (s.human_time_s, s.takeover_s, s.stopped_s))
     ):
-        raise ValueError(f"return {s.episode_return} or a person's time {s.human_time_s} s that cannot be")
+        raise ValueError(
+            f"return {s.episode_return}, a person's time {s.human_time_s} s or {s.stopped_s} s stopped that cannot be"
+        )
