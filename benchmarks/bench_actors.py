@@ -125,8 +125,17 @@ def run_learner(folder: Path, seconds: float, env_args=(), extra=(), threads: in
 def run_split(folder: Path, actors: int, env_args=(), extra=(), seed: int = 42, actor_args=()):
     """``extra``: for the trainer and the actors (the algorithm's); ``actor_args``: the actors' only."""
     graph = Graph(folder)
+    names = ', '.join(f'/actor{i}/actor' for i in range(actors))
     trainer = graph.start(
-        'trainer', *algorithm(seed), '-p', f'output_dir:={folder / "trainer"}', '-p', 'report_period_s:=2.0', *extra
+        'trainer',
+        *algorithm(seed),
+        '-p',
+        f'output_dir:={folder / "trainer"}',
+        '-p',
+        'report_period_s:=2.0',
+        '-p',
+        f'actors:=[{names}]',
+        *extra,
     )
     envs, actor_processes = [], []
     for i in range(actors):

@@ -179,7 +179,8 @@ ACTOR_NODE_PARAMS = (
     Param(
         'outbox_limit',
         100_000,
-        'Transitions kept while no trainer listens; past it the oldest batch is dropped and counted',
+        "Transitions kept until the trainer's checkpoint holds them (also while no trainer listens); past it "
+        'the oldest batch goes, counted as lost when the trainer never had it',
         (1, INT_MAX),
     ),
     TORCH_THREADS,
@@ -216,9 +217,15 @@ TRAINER_PARAMS = (
     Param(
         'actors',
         None,
-        'The actor names whose transitions are taken (their node full names, or actor_name); unset: any actor '
-        'that sends well-formed batches. Others are refused and counted',
+        'The actor names whose transitions are taken (their node full names, or actor_name); others are '
+        'refused and counted. The trainer starts only with this, a key_file, or accept_any_actor',
         kind='string_array',
+    ),
+    Param(
+        'accept_any_actor',
+        False,
+        'Take transitions from any actor name that sends well-formed batches, with neither actors nor '
+        'key_file (a closed, trusted network only: anyone on the graph could write into D)',
     ),
     Param(
         'inbox_limit_mb',

@@ -11,6 +11,9 @@ machine), and to `<hostname>_actor` where it does not (a robot machine: two robo
 alike never share a name). actor_offset shifts the indices and the seeds alike.
 All actors send to /transitions and take /weights (transitions_topic:=, weights_topic:= remap
 both sides, for several trainers in one domain); resume:=true continues the trainer's run.
+The trainer takes transitions only from actors it knows: those started here, the full names in
+trainer_actors:= (actors on other machines), or any that signs with key_file:=. A node that exits
+with an error (a trainer refusing to start) stops the launch, which exits non-zero.
 One params file configures everything:
 its learner: section gives the algorithm to the actors and the trainer (and each the keys of
 its own table); gym_env: and expert: go to every actor's env and expert; /**: to all. Actor i
@@ -28,6 +31,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from eqhrl_ros.launching import fail_launch_on_error
 from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, TRAINER_PARAMS, learner_section_for
 
 
@@ -79,6 +83,12 @@ def _nodes(context):
     nodes = []
     if with_trainer == 'true':
         trainer = {**shared, **learner_section_for(learner, TRAINER_PARAMS), **key}
+        # Whom the trainer hears: the actors named, else those started here (with a key_file, also
+        # any actor that signs with it). Neither, and no key: it refuses to start, and says why.
+        named = [a.strip() for a in LaunchConfiguration('trainer_actors').perform(context).split(',') if a.strip()]
+        here = [f'/{prefix}{i}/actor' for i in range(offset, offset + actors)]
+        if named or here:
+            trainer['actors'] = named or here
         if resume == 'true':
             trainer['resume'] = True
         nodes.append(
@@ -114,7 +124,8 @@ def _nodes(context):
                 output='screen',
             )
         )
-    return nodes
+    # A node that refuses to start (or fails later) stops the launch, which then exits non-zero.
+    return [*nodes, *(fail_launch_on_error(node) for node in nodes)]
 
 
 def generate_launch_description():
@@ -138,6 +149,12 @@ def generate_launch_description():
                 'actor_offset', default_value='0', description='index of the first actor here (its seed follows)'
             ),
             DeclareLaunchArgument('resume', default_value='false', description="continue the trainer's run"),
+            DeclareLaunchArgument(
+                'trainer_actors',
+                default_value='',
+                description='actors the trainer takes transitions from, comma-separated full names '
+                '(/host_a_actor0/actor,...; default: those started here; with key_file, any that signs)',
+            ),
             DeclareLaunchArgument(
                 'key_file', default_value='', description="the deployment's shared key: signs weights and batches"
             ),

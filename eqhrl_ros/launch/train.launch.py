@@ -18,6 +18,8 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from eqhrl_ros.launching import fail_launch_on_error
+
 ENV_NODES = ('gym_env', 'double_integrator_env', 'none')
 # expert:=... -> the executable it starts (none: your own expert, started apart).
 EXPERT_NODES = {'expert': 'expert', 'teleop': 'teleop_expert', 'none': None}
@@ -67,20 +69,20 @@ def _nodes(context):
         if env_node != 'none'
         else []  # your own env node, started apart: the others take the spaces from its env_info
     )
-    return (
-        env
-        + experts
-        + [
-            Node(
-                package='eqhrl_ros',
-                executable='learner',
-                name='learner',
-                parameters=learner_params,
-                output='screen',
-                emulate_tty=True,
-            ),
-        ]
-    )
+    nodes = [
+        *env,
+        *experts,
+        Node(
+            package='eqhrl_ros',
+            executable='learner',
+            name='learner',
+            parameters=learner_params,
+            output='screen',
+            emulate_tty=True,
+        ),
+    ]
+    # A node that refuses to start (or fails later) stops the launch, which then exits non-zero.
+    return [*nodes, *(fail_launch_on_error(node) for node in nodes)]
 
 
 def generate_launch_description():

@@ -18,6 +18,8 @@ version above 0).
 
 from __future__ import annotations
 
+import os
+import socket
 import time
 from collections import deque
 from typing import Optional
@@ -25,7 +27,7 @@ from typing import Optional
 import numpy as np
 from rclpy.time import Time
 
-from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
+from eqhrl_interfaces.msg import PolicyWeights, TransitionAck, TransitionBatch
 
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner
 from ..core.data.signing import signer_from
@@ -36,6 +38,9 @@ from . import trainer_msgs
 from .acting_node import ActingNode
 from .health import OK, WARN, Check
 from .spinning import run_node
+
+# Sent batches the trainer has not stored, and no acknowledgement for this long: send them again.
+ACK_WAIT_S = 2.0
 
 
 class ActorNode(ActingNode):
@@ -54,6 +59,8 @@ class ActorNode(ActingNode):
         self._steps_on_weights = 0  # steps acted since the weights in use arrived
         self._deferred: Optional[tuple] = None  # (obs, key) held until newer weights arrive
         self.weights_waits = 0
+        # This process's run: a restarted actor numbers its batches from 0 again, under a new run.
+        self.actor_run = f'{socket.gethostname()}:{os.getpid()}:{time.time_ns() % 10**12}'
         super().__init__('actor', ACTOR_NODE_PARAMS, **kwargs)
         self.pin = TrainerPin(self.params['trainer_id'])
         self.signer = signer_from(self.params['key_file'])  # KeyFileError (a ValueError): refused at start-up
@@ -61,6 +68,17 @@ class ActorNode(ActingNode):
         self.transitions_pub = self.create_publisher(
             TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, trainer_msgs.TRANSITIONS_QOS
         )
+        # The trainer's acknowledgements: batches are kept until its checkpoint holds them.
+        self.create_subscription(
+            TransitionAck,
+            trainer_msgs.ack_topic(self.transitions_pub.topic_name),
+            self._on_ack,
+            trainer_msgs.ACK_QOS,
+        )
+        self.acks = 0
+        self.acks_refused = 0
+        self._rewound = (None, 0.0)  # (received_through, time.monotonic()) of the last resend
+        self._last_ack = time.monotonic()
         weights = self.create_subscription(
             PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, self._on_weights, trainer_msgs.WEIGHTS_QOS
         )
@@ -77,6 +95,7 @@ class ActorNode(ActingNode):
             learner.action_dim,
             min(p['batch_transitions'], p['outbox_limit']),
             p['outbox_limit'],
+            run=self.actor_run,
         )
 
     def _describe(self) -> str:
@@ -123,6 +142,7 @@ class ActorNode(ActingNode):
                 return
             if self.outbox.age() >= self.params['flush_period_s']:
                 self.outbox.seal()
+            self._resend_if_unanswered()
             self._send()
             if self._deferred is not None and self.transitions_pub.get_subscription_count() == 0:
                 self._act_on_deferred()  # the trainer went away: act with the weights we have
@@ -146,7 +166,7 @@ class ActorNode(ActingNode):
         if self._trainer_away_since is not None:
             self.get_logger().info(
                 f'a trainer listens on {self.transitions_pub.topic_name} after '
-                f'{time.monotonic() - self._trainer_away_since:.1f} s: sending {outbox.waiting} transitions'
+                f'{time.monotonic() - self._trainer_away_since:.1f} s: sending {outbox.unsent} transitions'
                 f'{"; %d dropped meanwhile" % outbox.dropped_transitions if outbox.dropped_transitions else ""}'
             )
             self._trainer_away_since = None
@@ -158,6 +178,48 @@ class ActorNode(ActingNode):
             self.transitions_pub.publish(trainer_msgs.sign_batch(msg, self.signer))
             self.sent_batches += 1
             self.sent_transitions += len(batch)
+
+    def _resend_if_unanswered(self) -> None:
+        """Batches sent that the trainer has not stored, and no word from it for ACK_WAIT_S: the last
+        ones went into a cut link, and no later batch came to show the gap. Send them again."""
+        outbox, now = self.outbox, time.monotonic()
+        through = outbox.received_through
+        if not outbox.unacked or outbox.unacked[-1].sequence <= through or now - self._last_ack < ACK_WAIT_S:
+            return
+        if self.transitions_pub.get_subscription_count() == 0 or now - self._rewound[1] < ACK_WAIT_S:
+            return
+        again = outbox.rewind(through)
+        if again:
+            self._rewound = (through, now)
+            self.get_logger().info(
+                f'no acknowledgement for {ACK_WAIT_S:g} s: sending {again} batches after {through} again',
+                throttle_duration_sec=5.0,
+            )
+
+    def _on_ack(self, msg: TransitionAck) -> None:
+        """The followed trainer's acknowledgement of this run's batches: let go of what its checkpoint
+        holds; send again, in order, what it lacks (at most once a second for one gap: batches
+        already on their way would each ask again)."""
+        with self._lock:
+            if self.outbox is None or msg.actor != self.actor_name or msg.actor_run != self.actor_run:
+                return
+            refusal = trainer_msgs.signature_refusal(msg, self.signer)
+            if refusal or msg.trainer_id != self.trainer_id or not self.trainer_id:
+                self.acks_refused += 1  # a stranger's (or a trainer's not followed) would make us drop batches
+                if refusal:
+                    self.get_logger().warn(f'acknowledgement refused: {refusal}', throttle_duration_sec=5.0)
+                return
+            self.acks += 1
+            through, now = int(msg.received_through), time.monotonic()
+            self._last_ack = now
+            rewind = bool(msg.rewind) and (self._rewound[0] != through or now - self._rewound[1] > 1.0)
+            again = self.outbox.acknowledge(through, int(msg.saved_through), rewind)
+            if again:
+                self._rewound = (through, now)
+                self.get_logger().info(
+                    f'the trainer lacks batches after {through}: sending {again} again', throttle_duration_sec=5.0
+                )
+            self._send()
 
     # ------------------------------------------------------------------ weights in
 
@@ -209,6 +271,9 @@ class ActorNode(ActingNode):
             return
         if new_trainer:
             self.get_logger().info(f"weights from trainer '{msg.trainer_id}' (v{msg.version})")
+            if self.outbox is not None and self.outbox.rewind(-1):
+                # Another trainer (a restart): it drops what it already holds, and asks for the rest.
+                self.get_logger().info(f'sending the {self.outbox.unsent} transitions kept to the new trainer')
         self.trainer_id, self.weights_version = msg.trainer_id, int(msg.version)
         self.pin.applied(msg.trainer_id, msg.version)
         self.weights_applied += 1
@@ -226,7 +291,8 @@ class ActorNode(ActingNode):
             'weights version': self.weights_version if self.weights_version is not None else '-',
             'weights applied': self.weights_applied,
             'weights refused': self.weights_refused,
-            'transitions waiting': outbox.waiting if outbox else 0,
+            'transitions kept (until the trainer saves them)': outbox.waiting if outbox else 0,
+            'transitions the trainer lacks': outbox.unsent if outbox else 0,
             'transitions dropped': outbox.dropped_transitions if outbox else 0,
         }
         if self.transitions_pub.get_subscription_count() == 0:
@@ -256,11 +322,13 @@ class ActorNode(ActingNode):
             latency = f' (latency p50 {np.percentile(ms, 50):.1f} ms, p99 {np.percentile(ms, 99):.1f} ms)'
         outbox = self.outbox
         dropped = outbox.dropped_transitions if outbox else 0
-        waiting = outbox.waiting if outbox else 0
+        unsent = outbox.unsent if outbox else 0
+        resent = outbox.resent_batches if outbox else 0
         steps = self.learner.total_steps if self.learner else 0
         return (
-            f'{steps} steps; sent {self.sent_batches} batches ({self.sent_transitions} transitions), '
-            f'{waiting} unsent, {dropped} dropped; weights applied {self.weights_applied}{latency}, '
+            f'{steps} steps; sent {self.sent_batches} batches ({self.sent_transitions} transitions, '
+            f'{resent} batches again), {unsent} not stored by the trainer, {dropped} dropped; '
+            f'weights applied {self.weights_applied}{latency}, '
             f'refused {self.weights_refused}; waited for weights {self.weights_waits} times'
         )
 

@@ -46,9 +46,18 @@ class RunFiles:
         with self._lock:
             if self.learner is None:
                 return  # the env's spaces never came: nothing learned, nothing to save
-            save_checkpoint(self.learner, self.checkpoint_path, self.replay_path)
+            extra = self._checkpoint_extra()
+            save_checkpoint(self.learner, self.checkpoint_path, self.replay_path, extra=extra)
             export_policy(self.learner, self.run_folder.policy)
             self.record.flush()
+            self._saved(extra)
+
+    def _checkpoint_extra(self):
+        """The node's own state saved with the learner's (plain values), or None."""
+        return None
+
+    def _saved(self, extra) -> None:
+        """A save with ``extra`` is on disk."""
 
     def save_or_log(self) -> bool:
         """A periodic save: a failure (a full disk, a read-only folder) is one log line and

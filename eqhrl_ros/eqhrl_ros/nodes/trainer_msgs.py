@@ -1,5 +1,6 @@
 """The actor nodes' and the trainer's topics: names, QoS, and conversions to and from the
-core's TransitionBatch and the networks' bytes (eqhrl_interfaces TransitionBatch, PolicyWeights).
+core's TransitionBatch and the networks' bytes (eqhrl_interfaces TransitionBatch, TransitionAck,
+PolicyWeights).
 
 Both topics are absolute (``/transitions``, ``/weights``): actors usually run in namespaces of
 their own (one env each) and all talk to one trainer. Remap them (``-r /weights:=/team/weights``)
@@ -16,7 +17,7 @@ from typing import Optional
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionBatch
+from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionAck, TransitionBatch
 
 from ..core.data.signing import Signer
 from ..core.data.summary import EpisodeSummary
@@ -31,6 +32,15 @@ TRANSITIONS_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliabi
 WEIGHTS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Batches an actor publishes per call: a backlog goes out over several calls, within the QoS depth.
 SEND_AT_ONCE = 20
+# The trainer's acknowledgements: on the (remapped) transitions topic's name with this suffix.
+ACK_SUFFIX = '_ack'
+ACK_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def ack_topic(transitions_topic: str) -> str:
+    """The acknowledgements' topic beside a resolved transitions topic (a remap moves both)."""
+    return transitions_topic + ACK_SUFFIX
+
 
 _STATS_FIELDS = tuple(f.name for f in dataclasses.fields(EpisodeSummary))
 
@@ -57,7 +67,8 @@ def _stats_bytes(stats) -> bytes:
 def batch_parts(msg: TransitionBatch) -> list:
     """The content of a batch, in bytes, as its signature covers it (everything but the signature)."""
     return [
-        struct.pack('<I', msg.observation_size),
+        msg.actor_run.encode(),
+        struct.pack('<QI', msg.oldest_kept, msg.observation_size),
         _f32(msg.action_low),
         _f32(msg.action_high),
         _f32(msg.observations),
@@ -81,6 +92,16 @@ def sign_batch(msg: TransitionBatch, signer: Optional[Signer]) -> TransitionBatc
     return msg
 
 
+def ack_parts(msg: TransitionAck) -> list:
+    return [msg.actor.encode(), msg.actor_run.encode(), struct.pack('<q?', msg.saved_through, msg.rewind)]
+
+
+def sign_ack(msg: TransitionAck, signer: Optional[Signer]) -> TransitionAck:
+    if signer is not None:
+        msg.signature = array.array('B', signer.sign('ack', msg.trainer_id, msg.received_through, ack_parts(msg)))
+    return msg
+
+
 def sign_weights(msg: PolicyWeights, signer: Optional[Signer]) -> PolicyWeights:
     if signer is not None:
         msg.signature = array.array('B', signer.sign('weights', msg.trainer_id, msg.version, weights_parts(msg)))
@@ -88,7 +109,7 @@ def sign_weights(msg: PolicyWeights, signer: Optional[Signer]) -> PolicyWeights:
 
 
 def signature_refusal(msg, signer: Optional[Signer]) -> str:
-    """'' when ``msg`` (a TransitionBatch or PolicyWeights) may be taken: no key is set, or its
+    """'' when ``msg`` (a TransitionBatch, TransitionAck or PolicyWeights) may be taken: no key is set, or its
     signature is this key's over its content; else why not."""
     if signer is None:
         return ''
@@ -97,6 +118,8 @@ def signature_refusal(msg, signer: Optional[Signer]) -> str:
         return 'it is unsigned and this node has a key_file'
     if isinstance(msg, PolicyWeights):
         ok = signer.verify(signature, 'weights', msg.trainer_id, msg.version, weights_parts(msg))
+    elif isinstance(msg, TransitionAck):
+        ok = signer.verify(signature, 'ack', msg.trainer_id, msg.received_through, ack_parts(msg))
     else:
         ok = signer.verify(signature, 'transitions', msg.actor, msg.sequence, batch_parts(msg))
     return '' if ok else 'its signature is not made with this key_file (another key, or altered on the way)'
@@ -106,6 +129,8 @@ def batch_msg(batch: Batch, action_low, action_high) -> TransitionBatch:
     return TransitionBatch(
         actor=batch.actor,
         sequence=int(batch.sequence),
+        actor_run=batch.run,
+        oldest_kept=int(batch.sequence if batch.oldest_kept is None else batch.oldest_kept),
         observation_size=int(batch.observations.shape[1]),
         action_low=_floats(action_low),
         action_high=_floats(action_high),
@@ -160,6 +185,8 @@ def batch_from_msg(msg: TransitionBatch) -> tuple[Batch, np.ndarray, np.ndarray]
         terminated=np.asarray(msg.terminated, dtype=bool),
         advised=np.asarray(msg.advised, dtype=bool),
         episodes=[EpisodeSummary(**{name: getattr(e, name) for name in _STATS_FIELDS}) for e in msg.episodes],
+        run=msg.actor_run,
+        oldest_kept=int(msg.oldest_kept),
     )
     return batch, np.asarray(msg.action_low, dtype=np.float32), np.asarray(msg.action_high, dtype=np.float32)
 
@@ -172,3 +199,16 @@ def weights_msg(trainer_id: str, version: int, episodes: int, stamp, tensors: by
         stamp=stamp,
         tensors=array.array('B', tensors),
     )
+
+
+def ack_msg(trainer_id: str, actor: str, state, rewind: bool, signer: Optional[Signer]) -> TransitionAck:
+    """The trainer's acknowledgement of an actor's stream (``state``: transitions.ActorSequence)."""
+    msg = TransitionAck(
+        trainer_id=trainer_id,
+        actor=actor,
+        actor_run=state.run,
+        received_through=int(state.received_through),
+        saved_through=int(state.saved_through),
+        rewind=bool(rewind),
+    )
+    return sign_ack(msg, signer)

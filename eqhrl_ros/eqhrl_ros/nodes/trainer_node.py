@@ -26,9 +26,10 @@ import torch
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionBatch
+from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionAck, TransitionBatch
 
 from ..core.algorithm.learner import EQSACLearner, LearnerConfig
+from ..core.data.errors import CheckpointError
 from ..core.data.signing import signer_from
 from ..core.data.summary import EpisodeSummary
 from ..core.data.weights import encode_weights
@@ -59,6 +60,13 @@ class TrainerNode(RunFiles, Node):
             torch.set_num_threads(p['torch_threads'])
         self.config = LearnerConfig.from_params(values)
         self.signer = signer_from(p['key_file'])  # KeyFileError (a ValueError): refused at start-up
+        if not (p['actors'] or self.signer or p['accept_any_actor']):
+            # Closed by default: otherwise a stranger on the graph, under a name of its own, writes into D.
+            raise ValueError(
+                'the trainer takes transitions only from actors it knows: name them (actors:=[/actor0/actor, ...]), '
+                'give the deployment key the actors sign with (key_file:=...), or on a closed, trusted network '
+                'accept_any_actor:=true'
+            )
         self._lock = threading.RLock()
         self._open_run_folder()
 
@@ -77,8 +85,12 @@ class TrainerNode(RunFiles, Node):
 
         self.weights_pub = self.create_publisher(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, trainer_msgs.WEIGHTS_QOS)
         self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', STATS_QOS)
-        self.create_subscription(
+        transitions = self.create_subscription(
             TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, self._on_batch, trainer_msgs.TRANSITIONS_QOS
+        )
+        # What it has stored and saved, after every batch: actors keep and resend until it is saved.
+        self.ack_pub = self.create_publisher(
+            TransitionAck, trainer_msgs.ack_topic(transitions.topic_name), trainer_msgs.ACK_QOS
         )
         self.create_timer(p['report_period_s'], self._report, clock=steady_clock())
         self._inbox: deque = deque()  # batches received, not stored yet (the learning thread's)
@@ -102,8 +114,9 @@ class TrainerNode(RunFiles, Node):
         """The learner for these spaces (with resume, from the checkpoint); weights go out at once."""
         learner = EQSACLearner(obs_dim, action_low, action_high, self.config)
         learner.log = self.get_logger()  # compile_update's one line
+        extra = None
         if self.params['resume']:
-            load_checkpoint(learner, self.checkpoint_path, self.replay_path)
+            extra = load_checkpoint(learner, self.checkpoint_path, self.replay_path)
             self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')
         p = self.params
         self.record = EpisodeRecord(
@@ -113,6 +126,17 @@ class TrainerNode(RunFiles, Node):
         self.spaces = (learner.obs_dim, learner.scaler.low.copy(), learner.scaler.high.copy())
         limits = BatchLimits(p['max_abs_observation'], p['max_abs_reward'])
         self.trainer = Trainer(learner, p['updates_per_transition'], p['weights_every_updates'], limits)
+        if extra and isinstance(extra.get('sequences'), dict):
+            # Where each actor's stream stood at the save: they send again what came after it.
+            try:
+                self.trainer.sequences.load_state_dict(extra['sequences'])
+            except (KeyError, TypeError, ValueError) as error:
+                why = f"{self.checkpoint_path}: its actors' sequences are unreadable ({error})"
+                raise CheckpointError(why) from error
+            self.get_logger().info(
+                f'resumed {len(self.trainer.sequences.actors)} actor stream(s): '
+                'each sends again what came after the save'
+            )
         self.get_logger().info(
             f'{self.config.mode} trainer {self.trainer_id}: obs {obs_dim}, action {learner.action_dim}, '
             f'{p["updates_per_transition"]:g} updates per transition from {self.config.learning_starts} on, '
@@ -156,6 +180,15 @@ class TrainerNode(RunFiles, Node):
                 return
             self._check_spaces(batch.observations.shape[1], low, high)
             verdict, rows = self.trainer.receive(batch)
+            self.ack_pub.publish(
+                trainer_msgs.ack_msg(
+                    self.trainer_id,
+                    batch.actor,
+                    self.trainer.sequences.actors[batch.actor],
+                    verdict == 'resend',
+                    self.signer,
+                )
+            )
         except ValueError as error:
             self.refused_batches += 1
             self.get_logger().error(
@@ -173,6 +206,12 @@ class TrainerNode(RunFiles, Node):
             )
         elif verdict == 'restart':
             self.get_logger().info(f'actor {actor} started again')
+        elif verdict == 'resend':
+            state = self.trainer.sequences.actors[batch.actor]
+            self.get_logger().info(
+                f'actor {actor}: batch {batch.sequence} came before batch {state.expected}: asked again from there',
+                throttle_duration_sec=5.0,
+            )
         if batch.actor in self._silent:
             self._silent.discard(batch.actor)
             self.get_logger().info(f'actor {actor} is sending again')
@@ -283,6 +322,14 @@ class TrainerNode(RunFiles, Node):
         finally:
             self._hold.clear()
 
+    def _checkpoint_extra(self):
+        """Each actor's stream as far as it is stored: a resumed trainer asks for what came after."""
+        return None if self.trainer is None else {'sequences': self.trainer.sequences.state_dict()}
+
+    def _saved(self, extra) -> None:
+        if self.trainer is not None and extra is not None:
+            self.trainer.sequences.saved(extra['sequences'])
+
     def stop_learning(self) -> None:
         """End the learning thread (after its current step); safe to call twice."""
         self._stopping.set()
@@ -351,7 +398,9 @@ class TrainerNode(RunFiles, Node):
             f'({(transitions - before_t) / seconds:.1f}/s), '
             f'{updates} updates ({(updates - before_u) / seconds:.1f}/s), {self.trainer.updates_owed()} owed, '
             f'weights v{updates} sent {self.weights_published} times, '
-            f'{self.trainer.sequences.lost} batches lost, {self.refused_batches} refused, '
+            f'{self.trainer.sequences.lost} batches lost, '
+            f'{sum(s.out_of_order for s in sequences.values())} asked again, '
+            f'{sum(s.duplicates for s in sequences.values())} received twice, {self.refused_batches} refused, '
             f'{self.dropped_batches} dropped (inbox full)'
         )
         limit = self.params['actor_silence_s']

@@ -38,6 +38,8 @@ def start_trainer(out, log_dir, *extra):
         'actor_silence_s:=1.5',
         '-p',
         'report_period_s:=0.5',
+        '-p',
+        'actors:=[/actor0/actor, /actor1/actor]',  # whom it hears (a stranger under another name: refused)
         *extra,
         log_dir=log_dir,
     )
@@ -90,9 +92,18 @@ def test_actors_outlive_their_trainer_and_take_the_weights_of_the_next(tmp_path)
         processes.append(restarted)
         assert wait_for(lambda: 'resumed from' in output(restarted), 60), output(restarted)
         assert wait_for(lambda: 'a trainer listens on /transitions' in output(actor), 30), output(actor)
+        assert wait_for(lambda: 'weights every' in output(restarted), 30), output(restarted)  # its id's line
         new_id = output(restarted).split(' trainer ', 1)[1].split(':', 1)[0]
         assert wait_for(lambda: f"weights from trainer '{new_id}" in output(actor), 30), output(actor)
         assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= saved_rows + 3, 60)
+        # Every episode the actor finished is in the record exactly once: those the killed trainer
+        # stored after its last checkpoint, and those made while no trainer listened, were kept
+        # by the actor until a checkpoint held them, and sent again to the resumed trainer.
+        stop(env)  # the robot stops: the actor finishes no more episodes, and sends what it keeps
+        finished = output(actor).count('] [actor0.actor]: episode ')
+        assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= finished, 60), (finished, output(restarted))
+        stored = len(rows_from(out, '/actor0/actor'))
+        assert stored == finished, (stored, finished)
     finally:
         logs = [stop(p) for p in processes]
     rows = read_rows(out / 'episodes.csv')

@@ -246,6 +246,7 @@ def test_two_eqhrl_train_runs_on_one_machine_do_not_hear_each_other(tmp_path):
 def test_ctrl_c_while_the_node_still_imports_ends_it_quietly(executable, tmp_path):
     """Before: a KeyboardInterrupt traceback and exit code -2 (torch was still importing)."""
     own = [] if executable == 'actor' else ['-p', f'output_dir:={tmp_path}']  # an actor writes no run folder
+    own += ['-p', 'accept_any_actor:=true'] if executable == 'trainer' else []  # else it refuses to start
     process = subprocess.Popen(
         [str(BIN / executable), '--ros-args', '-p', 'env_id:=Pendulum-v1', *own],
         stdout=subprocess.PIPE,

@@ -145,19 +145,91 @@ def test_outbox_seals_at_size_and_episode_end_and_drops_the_oldest_past_its_limi
         outbox.add([i, i], [0.0], 0.0, [i, i], False, False)
     assert [b.sequence for b in outbox.sealed] == [2, 3]  # 0 and 1 dropped, oldest first
     assert (outbox.dropped_batches, outbox.dropped_transitions, outbox.dropped_episodes) == (2, 5, 1)
-    assert outbox.pop_oldest().sequence == 2 and outbox.waiting == 3
+    assert outbox.pop_oldest().sequence == 2 and outbox.waiting == 6 and outbox.unsent == 6  # kept until saved
+    outbox.acknowledge(received_through=2, saved_through=1, rewind=False)
+    assert outbox.waiting == 6 and outbox.unsent == 3  # stored, not yet saved: still kept
+    outbox.acknowledge(received_through=2, saved_through=2, rewind=False)
+    assert outbox.waiting == 3 and outbox.unsent == 3
     with pytest.raises(ValueError):
         Outbox('a', 2, 1, batch_transitions=10, limit=5)
 
 
-def test_sequences_count_gaps_and_restarts():
+def test_sequences_store_each_batch_once_in_order_and_count_only_what_the_actor_let_go():
     tracker = SequenceTracker()
-    assert tracker.receive('a', 4) == 'first'  # a trainer that joins late starts where the stream is
-    assert tracker.receive('a', 5) == 'next'
-    assert tracker.receive('a', 9) == 'gap'
-    assert tracker.receive('b', 0) == 'first'
-    assert tracker.receive('a', 0) == 'restart'
-    assert tracker.lost == 3 and tracker.actors['a'].restarts == 1
+    # oldest_kept: the oldest batch the actor still holds (everything before it is gone).
+    assert tracker.receive('a', 4, oldest_kept=4) == 'first'  # a trainer that joins late starts there
+    assert tracker.receive('a', 5, oldest_kept=4) == 'next'
+    assert tracker.receive('a', 9, oldest_kept=4) == 'resend'  # 6-8 missing: not stored, asked again
+    assert tracker.receive('a', 6, oldest_kept=4) == 'next' and tracker.receive('a', 6, oldest_kept=4) == 'duplicate'
+    assert tracker.receive('a', 9, oldest_kept=8) == 'resend'  # the actor let 7 go (its bound): lost
+    assert tracker.actors['a'].expected == 8 and tracker.lost == 1
+    assert tracker.receive('a', 8, oldest_kept=8) == 'next'
+    assert tracker.receive('b', 3, run='b1', oldest_kept=0) == 'resend'  # a new actor's stream starts at 0
+    assert tracker.receive('b', 0, run='b1', oldest_kept=0) == 'first'
+    assert tracker.receive('a', 0, run='a2', oldest_kept=0) == 'restart'
+    assert tracker.lost == 1 and tracker.actors['a'].restarts == 1 and tracker.actors['a'].duplicates == 1
+    # A sender that says nothing of what it keeps keeps nothing: a gap is lost at once.
+    assert tracker.receive('c', 2) == 'first' and tracker.receive('c', 5) == 'gap' and tracker.lost == 3
+
+
+def _deliver(outbox, trainer, channel, rows):
+    """Send what the outbox has through ``channel`` (a batch -> bool: it arrives), and answer each
+    arrival as the trainer node does, keeping the record's rows in ``rows``."""
+    while (batch := outbox.pop_oldest()) is not None:
+        if not channel(batch):
+            continue
+        verdict, new_rows = trainer.receive(batch)
+        assert verdict != 'gap'  # nothing let go: the actor's bound is not reached here
+        rows += [row for row, _ in new_rows]
+        state = trainer.sequences.actors[batch.actor]
+        outbox.acknowledge(state.received_through, state.saved_through, verdict == 'resend')
+
+
+def test_every_batch_reaches_d_once_through_a_lossy_link_and_a_trainer_killed_and_resumed():
+    """The actor keeps each batch until a trainer's checkpoint holds it; a trainer stores batches in
+    order only and asks again for what it lacks. Through lost batches and a trainer that dies and
+    resumes from its last checkpoint, every transition reaches D exactly once, and every episode
+    the record exactly once."""
+    rng = np.random.default_rng(0)
+    outbox = Outbox('a', 3, 1, batch_transitions=5, limit=10_000, run='r1')
+    trainer = Trainer(pendulum_learner())
+    made = {'transitions': 0, 'episodes': 0}
+    rows = []
+
+    def run(steps, channel):
+        for _ in range(steps):
+            number = float(made['transitions'])  # each transition's own number, as its reward
+            made['transitions'] += 1
+            outbox.add([number, 0.0, 0.0], [0.0], number, [number, 0.0, 0.0], False, False)
+            if rng.random() < 0.05:  # an episode ends: its number travels in human_time_s
+                outbox.end_episode(EpisodeSummary(0, 0.0, 1, 0, 0, 0, 0, 0, False, 1, 0.2, False, made['episodes']))
+                made['episodes'] += 1
+        _deliver(outbox, trainer, channel, rows)
+
+    lossy = lambda batch: rng.random() > 0.3  # noqa: E731 - 30 % of batches lost on the way
+    whole = lambda batch: True  # noqa: E731
+    for _ in range(20):
+        run(10, lossy)
+    run(5, whole)  # the link is whole again: the next batch asks for the rest
+    # A checkpoint: the replay memory, the record and the streams, together.
+    saved, replay, saved_rows = trainer.sequences.state_dict(), trainer.learner.replay.state_dict(), list(rows)
+    trainer.sequences.saved(saved)
+    for _ in range(20):
+        run(10, lossy)  # stored after the checkpoint, then the trainer is killed (-9): all of it is gone
+    trainer = Trainer(pendulum_learner())  # resumed from the checkpoint
+    trainer.learner.replay.load_state_dict(replay)
+    trainer.sequences.load_state_dict(saved)
+    rows = saved_rows
+    outbox.rewind(-1)  # the actor takes the new trainer's weights: what it keeps goes out again
+    for _ in range(20):
+        run(10, lossy)
+    outbox.seal()  # the flush timer's part: the last transitions go too
+    run(5, whole)
+    replay = trainer.learner.replay
+    stored = sorted(replay.rows[: len(replay), :].numpy()[:, 0].tolist())  # each observation's first value
+    assert stored == [float(i) for i in range(made['transitions'])]  # every one, once
+    assert sorted(r.human_time_s for r in rows) == [float(i) for i in range(made['episodes'])]
+    assert trainer.sequences.lost == 0 and outbox.dropped_batches == 0 and outbox.resent_batches > 0
 
 
 def test_weights_travel_whole_or_not_at_all():

@@ -6,6 +6,7 @@ Each actor has its own env (and expert) in a namespace of its own; all send to o
 import array
 
 import numpy as np
+import pytest
 import rclpy
 
 from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
@@ -44,9 +45,21 @@ def add_actor(harness, ros_context, namespace, **extra):
 
 
 def add_trainer(harness, ros_context, tmp_path, **extra):
+    """A trainer for tests about learning, not trust: it hears any actor unless told whom (actors,
+    key_file); test_a_trainer_told_nobody_refuses_to_start checks the closed default."""
     values = dict(ALGORITHM, output_dir=str(tmp_path / 'trainer'), weights_every_updates=5, checkpoint_every_episodes=0)
+    if 'actors' not in extra and 'key_file' not in extra:
+        values['accept_any_actor'] = True
     values.update(extra)
     return harness.add(TrainerNode(context=ros_context, parameter_overrides=params(**values)))
+
+
+def test_a_trainer_told_nobody_refuses_to_start(ros_context, tmp_path):
+    """Closed by default: without actors, key_file or accept_any_actor, a stranger on the graph
+    could write into D, so the trainer does not start, and says what to give it."""
+    values = dict(ALGORITHM, output_dir=str(tmp_path / 'trainer'))
+    with pytest.raises(ValueError, match='takes transitions only from actors it knows'):
+        TrainerNode(context=ros_context, parameter_overrides=params(**values))
 
 
 def batch_message(actor: str, sequence: int = 0, n: int = 5, advised: bool = False) -> TransitionBatch:
@@ -186,7 +199,13 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
         monkeypatch.setitem(sys.modules, name, module)
 
     fake('launch', LaunchDescription=list)
-    fake('launch.actions', DeclareLaunchArgument=lambda *a, **k: None, OpaqueFunction=lambda **k: None)
+    fake(
+        'launch.actions',
+        DeclareLaunchArgument=lambda *a, **k: None,
+        OpaqueFunction=lambda **k: None,
+        RegisterEventHandler=lambda handler: ('on_exit', handler),
+    )
+    fake('launch.event_handlers', OnProcessExit=lambda **k: k)
     fake('launch.substitutions', LaunchConfiguration=Config)
     fake('launch_ros')
     fake('launch_ros.actions', Node=lambda **k: k)
@@ -202,10 +221,25 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
         'trainer': {p.name for p in (*LEARNER_CONFIG_PARAMS, *TRAINER_PARAMS)} | {'use_sim_time'},
     }
     defaults = dict(actor_prefix='', actor_offset='0', resume='false', transitions_topic='/transitions', key_file='')
-    arguments.update(defaults, weights_topic='/weights')
+    arguments.update(defaults, weights_topic='/weights', trainer_actors='')
+
+    def launched():
+        """The nodes, after checking that each has its handler: an error exit stops the launch."""
+        result = launch_file._nodes(None)
+        nodes = [n for n in result if isinstance(n, dict)]
+        handlers = [h for kind, h in (r for r in result if isinstance(r, tuple))]
+        assert [h['target_action'] for h in handlers] == nodes
+        with pytest.raises(RuntimeError, match='exited with code 1'):
+            handlers[0]['on_exit'](types.SimpleNamespace(process_name='trainer-1', returncode=1), None)
+        for normal in (0, -2, -15):  # an end, or the launch's own SIGINT and SIGTERM
+            handlers[0]['on_exit'](types.SimpleNamespace(process_name='trainer-1', returncode=normal), None)
+        return nodes
+
     for env in ('pendulum', 'lunar_lander', 'demo'):
         arguments.update(env=env, params_file='', actors='3', trainer='true', expert='true')
-        nodes = launch_file._nodes(None)
+        nodes = launched()
+        # The trainer hears the actors started here, and no one else.
+        assert nodes[0]['parameters'][0]['actors'] == ['/actor0/actor', '/actor1/actor', '/actor2/actor']
         names = [(n.get('namespace', ''), n['executable']) for n in nodes]
         assert names[0] == ('', 'trainer')
         assert sorted(names[1:]) == sorted((f'actor{i}', e) for i in range(3) for e in ('gym_env', 'expert', 'actor'))
@@ -222,7 +256,7 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
         seeds = [n['parameters'][0]['seed'] for n in nodes if n['executable'] == 'actor']
         assert len(set(seeds)) == 3  # each actor its own noise; the env seeds differ likewise
     arguments.update(actors='2', trainer='false', expert='false')
-    robot = launch_file._nodes(None)
+    robot = launched()
     assert [n['executable'] for n in robot] == ['gym_env', 'actor', 'gym_env', 'actor']
     # A robot machine (no trainer here): names from its host, so two robots launched alike differ.
     import socket
@@ -233,7 +267,7 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
     # A second robot with an offset: other indices and seeds; remaps and resume reach the nodes.
     arguments.update(actor_prefix='team_b_', actor_offset='2', transitions_topic='/b/transitions', trainer='true')
     arguments.update(resume='true', key_file='/keys/deployment.key')
-    second = launch_file._nodes(None)
+    second = launched()
     assert {n['parameters'][0]['key_file'] for n in second if n['executable'] in ('actor', 'trainer')} == {
         '/keys/deployment.key'
     }
@@ -241,6 +275,13 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
     assert [n['namespace'] for n in second if n['executable'] == 'actor'] == ['team_b_2', 'team_b_3']
     assert [n['parameters'][0]['seed'] for n in second if n['executable'] == 'actor'] == [44, 45]
     assert all(('/transitions', '/b/transitions') in n['remappings'] for n in second if n['executable'] != 'gym_env')
+    # A trainer alone, told its actors on other machines by name.
+    arguments.update(actors='0', trainer_actors='/host_a_actor0/actor, /host_b_actor0/actor', key_file='')
+    (alone,) = launched()
+    assert alone['parameters'][0]['actors'] == ['/host_a_actor0/actor', '/host_b_actor0/actor']
+    arguments.update(trainer_actors='')
+    (alone,) = launched()
+    assert 'actors' not in alone['parameters'][0]  # so it refuses to start, and the launch exits non-zero
 
 
 def test_weights_wait_steps_keeps_a_lock_step_actor_within_reach_of_the_trainer(harness, ros_context, tmp_path):

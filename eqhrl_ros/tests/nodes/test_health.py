@@ -68,7 +68,11 @@ def test_the_trainer_warns_of_a_silent_actor_and_the_actor_of_a_missing_trainer(
         TrainerNode(
             context=ros_context,
             parameter_overrides=params(
-                **algorithm, output_dir=str(tmp_path / 't'), actor_silence_s=1.0, checkpoint_every_episodes=0
+                **algorithm,
+                output_dir=str(tmp_path / 't'),
+                actor_silence_s=1.0,
+                checkpoint_every_episodes=0,
+                actors=['/a0/actor'],
             ),
         )
     )

@@ -1,10 +1,14 @@
 """Transitions on their way from an actor node to the trainer: batches, the actor's outbox,
-and the trainer's count of what was lost. No ROS here (nodes/messages.py converts).
+and the trainer's view of each actor's stream. No ROS here (nodes/trainer_msgs.py converts).
 
-An actor keeps what it could not send yet (the trainer is away: not started, restarting, or
-gone) in its outbox, up to a bound; past it, the oldest batch is dropped and counted. Each
-batch carries a sequence number per actor run, so the trainer counts the batches it never
-received, whatever the reason.
+Nothing is lost in an ordinary fault (a cut link, a trainer killed and resumed): each batch
+carries its actor run and a sequence number; the trainer stores an actor's batches in order
+only (a later one is not stored, and its acknowledgement asks for what it lacks: go-back-N),
+drops the ones it already has, and acknowledges both what it has stored (``received``) and
+what its last checkpoint holds (``saved``). The actor keeps every batch until a checkpoint holds
+it, so a trainer resumed from that checkpoint asks for, and gets, everything after it. What an
+actor may keep is bounded (``limit`` transitions); past it the oldest batch goes, counted as
+lost when the trainer never had it.
 """
 
 from __future__ import annotations
@@ -31,30 +35,38 @@ class TransitionBatch:
     terminated: np.ndarray  # (n,) bool
     advised: np.ndarray  # (n,) bool
     episodes: list = field(default_factory=list)  # EpisodeSummary, as the actor counted them
+    run: str = ''  # the actor process's run (a restarted actor numbers its batches from 0 again)
+    # The oldest sequence this actor still holds (anything before it is gone); None: unknown, this one.
+    oldest_kept: int | None = None
 
     def __len__(self) -> int:
         return len(self.rewards)
 
 
 class Outbox:
-    """What an actor has to send: the batch being filled, and sealed batches not sent yet.
+    """What an actor has to send: the batch being filled, sealed batches not sent yet, and sent
+    batches not yet held by the trainer's checkpoint (``unacked``).
 
     A batch is sealed when it holds ``batch_transitions``, when an episode ends (so that the
     episode's statistics travel with its last transitions), or when the node's flush timer
-    says so. At most ``limit`` transitions wait; past it the oldest sealed batch is dropped.
+    says so. At most ``limit`` transitions are kept; past it the oldest batch is dropped.
     """
 
-    def __init__(self, actor: str, obs_dim: int, action_dim: int, batch_transitions: int, limit: int):
+    def __init__(self, actor: str, obs_dim: int, action_dim: int, batch_transitions: int, limit: int, run: str = ''):
         if batch_transitions < 1 or limit < batch_transitions:
             raise ValueError(f'need 1 <= batch_transitions ({batch_transitions}) <= limit ({limit})')
-        self.actor = actor
+        self.actor, self.run = actor, run
         self.obs_dim, self.action_dim = obs_dim, action_dim
         self.batch_transitions, self.limit = batch_transitions, limit
-        self.sealed: deque[TransitionBatch] = deque()
+        self.sealed: deque[TransitionBatch] = deque()  # to send, oldest first
+        self.unacked: deque[TransitionBatch] = deque()  # sent, not in a trainer's checkpoint yet
         self.next_sequence = 0
-        self.dropped_batches = 0
+        self.received_through = -1  # the trainer has stored every batch up to this one
+        self.dropped_batches = 0  # dropped at the bound before the trainer had them: lost
         self.dropped_transitions = 0
         self.dropped_episodes = 0
+        self.released_unsaved = 0  # dropped at the bound after the trainer stored them (not yet saved)
+        self.resent_batches = 0
         self._open()
 
     def _open(self) -> None:
@@ -64,8 +76,19 @@ class Outbox:
 
     @property
     def waiting(self) -> int:
-        """Transitions not sent yet (sealed and open)."""
-        return sum(len(b) for b in self.sealed) + len(self._rows)
+        """Transitions kept: not sent, or sent and not yet in a trainer's checkpoint."""
+        return sum(len(b) for b in self.unacked) + sum(len(b) for b in self.sealed) + len(self._rows)
+
+    @property
+    def unsent(self) -> int:
+        """Transitions the trainer has not stored yet, as far as this actor knows."""
+        kept = (*self.unacked, *self.sealed)
+        return sum(len(b) for b in kept if b.sequence > self.received_through) + len(self._rows)
+
+    @property
+    def oldest_kept(self) -> int:
+        kept = self.unacked or self.sealed
+        return kept[0].sequence if kept else self.next_sequence
 
     def add(self, obs, normalized_action, reward: float, next_obs, terminated: bool, advised: bool) -> None:
         if self._since is None:
@@ -97,54 +120,124 @@ class Outbox:
             np.asarray([r[4] for r in rows], dtype=bool),
             np.asarray([r[5] for r in rows], dtype=bool),
             list(self._episodes),
+            run=self.run,
         )
         self.next_sequence += 1
         self.sealed.append(batch)
         self._open()
-        while self.waiting > self.limit and len(self.sealed) > 1:
-            dropped = self.sealed.popleft()
+        while self.waiting > self.limit and len(self.unacked) + len(self.sealed) > 1:
+            dropped = (self.unacked or self.sealed).popleft()
+            if dropped.sequence <= self.received_through:
+                self.released_unsaved += 1  # the trainer has it; only a crash before its next save loses it
+                continue
             self.dropped_batches += 1
             self.dropped_transitions += len(dropped)
             self.dropped_episodes += len(dropped.episodes)
 
     def pop_oldest(self) -> TransitionBatch | None:
-        """The oldest sealed batch, to send now (None when there is none)."""
-        return self.sealed.popleft() if self.sealed else None
+        """The oldest sealed batch, to send now (None when there is none); kept until acknowledged."""
+        if not self.sealed:
+            return None
+        batch = self.sealed.popleft()
+        batch.oldest_kept = self.oldest_kept if self.unacked else batch.sequence
+        self.unacked.append(batch)
+        return batch
+
+    def acknowledge(self, received_through: int, saved_through: int, rewind: bool) -> int:
+        """A trainer's acknowledgement: batches its checkpoint holds are let go; with ``rewind``
+        (it lacks a batch sent since ``received_through``), the sent batches after it go out again,
+        in order. Returns how many are sent again."""
+        self.received_through = received_through
+        while self.unacked and self.unacked[0].sequence <= saved_through:
+            self.unacked.popleft()
+        return self.rewind(received_through) if rewind else 0
+
+    def rewind(self, after: int) -> int:
+        """Send again every sent batch numbered after ``after`` (a trainer lacks them)."""
+        again = [b for b in self.unacked if b.sequence > after]
+        if not again:
+            return 0
+        self.unacked = deque(b for b in self.unacked if b.sequence <= after)
+        self.sealed.extendleft(reversed(again))
+        self.resent_batches += len(again)
+        return len(again)
 
 
 @dataclass
 class ActorSequence:
-    expected: int = 0  # the next sequence number due
+    run: str = ''  # the actor run whose batches these are
+    expected: int = 0  # the next sequence number due (everything before it is stored)
+    saved_through: int = -1  # the last sequence the trainer's latest checkpoint holds
     batches: int = 0
-    lost: int = 0
+    run_batches: int = 0  # of this run
+    lost: int = 0  # batches the actor no longer held when the trainer asked for them
     restarts: int = 0
+    duplicates: int = 0  # batches received again (resent) and already stored
+    out_of_order: int = 0  # batches received past a missing one: not stored, asked again
     last_heard: float = 0.0  # time.monotonic()
+
+    @property
+    def received_through(self) -> int:
+        return self.expected - 1
+
+
+# What a batch is, for the trainer: stored, or not ('duplicate', 'resend').
+STORED = ('first', 'next', 'gap', 'restart')
 
 
 class SequenceTracker:
-    """The trainer's view of each actor's sequence: lost batches and restarted actors."""
+    """The trainer's view of each actor's stream: in order, each batch once, what was lost."""
 
     def __init__(self):
         self.actors: dict[str, ActorSequence] = {}
 
-    def receive(self, actor: str, sequence: int) -> str:
-        """Note a batch; returns what it says: 'first', 'next', 'gap' (batches were lost
-        before it) or 'restart' (the actor started again from sequence 0)."""
+    def receive(self, actor: str, sequence: int, run: str = '', oldest_kept: int | None = None) -> str:
+        """What a batch is: 'first' (an actor not heard before), 'restart' (a new run of a known
+        actor), 'next' (the one due), 'gap' (due after batches the actor no longer held: lost),
+        'duplicate' (stored already: drop it) or 'resend' (past a missing one: not stored; the
+        actor is asked for what is missing). A run's first batch is due at ``oldest_kept``."""
+        oldest = sequence if oldest_kept is None else min(int(oldest_kept), sequence)
         state = self.actors.get(actor)
-        verdict = 'next'
         if state is None:
-            state = self.actors[actor] = ActorSequence(expected=sequence)
-            verdict = 'first'  # a trainer that (re)started mid-run joins the stream where it is
-        elif sequence < state.expected:
+            state = self.actors[actor] = ActorSequence(run=run, expected=oldest)
+        elif state.run != run:  # the actor started again: its counts go on, its stream starts anew
+            state.run, state.expected, state.saved_through, state.run_batches = run, oldest, -1, 0
             state.restarts += 1
-            verdict = 'restart'
-        elif sequence > state.expected:
-            state.lost += sequence - state.expected
-            verdict = 'gap'
+        state.last_heard = time.monotonic()
+        if sequence < state.expected:
+            state.duplicates += 1
+            return 'duplicate'
+        gap = False
+        if sequence > state.expected and oldest > state.expected:
+            state.lost += oldest - state.expected  # the actor let them go (its bound) before we had them
+            state.expected, gap = oldest, True
+        if sequence > state.expected:
+            state.out_of_order += 1
+            return 'resend'
         state.expected = sequence + 1
         state.batches += 1
-        state.last_heard = time.monotonic()
-        return verdict
+        state.run_batches += 1
+        if state.run_batches == 1:  # the run's first batch stored
+            return 'restart' if state.restarts else 'first'
+        return 'gap' if gap else 'next'
+
+    def saved(self, saved: dict) -> None:
+        """A checkpoint now holds what ``saved`` (its state_dict()) says."""
+        for name, value in saved.items():
+            state = self.actors.get(name)
+            if state is not None and state.run == value['run']:
+                state.saved_through = max(state.saved_through, int(value['through']))
+
+    def state_dict(self) -> dict:
+        """Each actor's run and the last batch stored: plain values, for a checkpoint."""
+        return {name: {'run': s.run, 'through': s.received_through} for name, s in self.actors.items()}
+
+    def load_state_dict(self, state: dict) -> None:
+        """As a checkpoint left it: its batches are stored (and saved), the next ones are due."""
+        self.actors = {}
+        for name, value in state.items():
+            through = int(value['through'])
+            self.actors[str(name)] = ActorSequence(run=str(value['run']), expected=through + 1, saved_through=through)
 
     @property
     def lost(self) -> int:

@@ -19,7 +19,7 @@ import torch
 
 from ..algorithm.learner import NETWORK_STATE, AdviceCounts, EQSACLearner
 from ..data.summary import EpisodeSummary
-from ..data.transitions import SequenceTracker, TransitionBatch
+from ..data.transitions import STORED, SequenceTracker, TransitionBatch
 
 # episodes.csv of a trainer: a learner's columns and the actor each episode came from.
 TRAINER_CSV_FIELDS = (*EpisodeSummary.CSV_FIELDS, 'actor')
@@ -69,7 +69,9 @@ class Trainer:
         self._finite = None  # the networks and optimisers as they last were known finite
 
     def receive(self, batch: TransitionBatch) -> tuple[str, list[tuple[EpisodeSummary, str]]]:
-        """Store a batch: (what its sequence number says, [(episode row, actor)]).
+        """Store a batch: (what its sequence number says, [(episode row, actor)]). Only the batch
+        due from its actor is stored (transitions.SequenceTracker): one stored already, or one
+        past a missing batch, is not, and its verdict says so ('duplicate', 'resend').
 
         A batch with wrong sizes, a non-finite value, a value that cannot be (an action outside
         its bounds, an absurd magnitude, episode statistics that contradict themselves) or a
@@ -80,7 +82,9 @@ class Trainer:
         except ValueError:
             self.rejected_batches += 1
             raise
-        verdict = self.sequences.receive(batch.actor, batch.sequence)
+        verdict = self.sequences.receive(batch.actor, batch.sequence, batch.run, batch.oldest_kept)
+        if verdict not in STORED:  # stored already, or past a missing batch: nothing of it is stored
+            return verdict, []
         learner = self.learner
         starts = learner.config.learning_starts
         for i in range(len(batch)):
