@@ -80,7 +80,11 @@ def test_the_results_pages_tables_are_the_committed_reports():
     splice = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(splice)
     page = (root / 'docs' / 'results.md').read_text()
-    report = (root / 'docs' / 'results' / 'study_pendulum_decisive' / 'table.md').read_text()
-    again, spliced = splice.splice(page, report)
-    assert spliced == ['TESTS', 'ARMS', 'FRONTIER', 'TIMING']
-    assert again == page
+    for study, prefix, markers in (
+        ('study_pendulum_decisive', '', ['TESTS', 'ARMS', 'FRONTIER', 'TIMING']),
+        ('study_pendulum_takeover', 'TAKEOVER', ['TAKEOVER_TESTS', 'TAKEOVER_PERSON']),
+    ):
+        report = (root / 'docs' / 'results' / study / 'table.md').read_text()
+        again, spliced = splice.splice(page, report, prefix)
+        assert spliced == markers
+        assert again == page, study
