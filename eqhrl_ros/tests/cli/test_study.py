@@ -15,7 +15,13 @@ TINY = {
     'max_steps': 40,
     'eval_every': 2,
     'eval_starts': 2,
-    'learner': {'learning_starts': 60, 'advising_budget': 3, 'batch_size': 16, 'hidden_sizes': [16, 16]},
+    'learner': {
+        'learning_starts': 60,
+        'advising_budget': 3,
+        'batch_size': 16,
+        'hidden_sizes': [16, 16],
+        'compile_update': False,  # pendulum.yaml compiles; these runs are seconds long
+    },
     'groups': [
         {
             'name': 'main',

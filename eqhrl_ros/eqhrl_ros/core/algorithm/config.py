@@ -201,7 +201,9 @@ class LearnerConfig:
     compile_update: bool = hyper(
         False,
         'Compile the whole update into one program (torch.compile) in the background while the first '
-        'updates run eagerly; same numbers to float rounding. Off: the eager update (no compiler start-up)',
+        'updates run eagerly; same numbers to float rounding. 1.5-4.7x faster updates, paid back after '
+        '4,000-9,000 updates: on in the shipped params files of long runs (pendulum, lunar_lander, '
+        'teleop_lunar_lander). Off: the eager update (no compiler start-up; short runs, tests)',
     )
 
     def __post_init__(self):
