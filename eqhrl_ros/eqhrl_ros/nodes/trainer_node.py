@@ -179,16 +179,11 @@ class TrainerNode(RunFiles, Node):
             if self.trainer is None and not self._build_from(batch, low, high):
                 return
             self._check_spaces(batch.observations.shape[1], low, high)
-            verdict, rows = self.trainer.receive(batch)
-            self.ack_pub.publish(
-                trainer_msgs.ack_msg(
-                    self.trainer_id,
-                    batch.actor,
-                    self.trainer.sequences.actors[batch.actor],
-                    verdict == 'resend',
-                    self.signer,
-                )
-            )
+            verdict = 'refused'
+            try:
+                verdict, rows = self.trainer.receive(batch)
+            finally:  # stored, or refused for what it holds: its actor hears where its stream stands
+                self._acknowledge(batch.actor, rewind=verdict == 'resend')
         except ValueError as error:
             self.refused_batches += 1
             self.get_logger().error(
@@ -217,6 +212,11 @@ class TrainerNode(RunFiles, Node):
             self.get_logger().info(f'actor {actor} is sending again')
         for row, who in rows:
             self._on_episode(row, who)
+
+    def _acknowledge(self, actor: str, rewind: bool) -> None:
+        state = self.trainer.sequences.actors.get(actor)
+        if state is not None:
+            self.ack_pub.publish(trainer_msgs.ack_msg(self.trainer_id, actor, state, rewind, self.signer))
 
     def _check_one_sender(self, actor: str) -> None:
         """An actor named in ``actors`` (when set), and one node only under its name: two nodes of

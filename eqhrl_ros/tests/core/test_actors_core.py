@@ -295,7 +295,10 @@ def test_finite_but_impossible_transitions_are_refused_whole(values, problem):
     with pytest.raises(ValueError, match=problem):
         trainer.receive(_batch(**values))
     assert len(trainer.learner.replay) == len(trainer.learner.advice_replay) == 0
-    assert trainer.rejected_batches == 1 and trainer.sequences.actors == {}
+    assert trainer.rejected_batches == 1
+    # It will never be stored, so the stream moves past it: its actor does not send it for ever.
+    assert trainer.sequences.actors['a'].expected == 1 and trainer.sequences.lost == 0
+    assert trainer.receive(_batch(sequence=1))[0] == 'next' and len(trainer.learner.replay) == 10
 
 
 def _summary(**changes):
@@ -333,7 +336,7 @@ def test_episode_statistics_that_cannot_be_are_refused_with_their_batch(changes)
     with pytest.raises(ValueError):
         trainer.receive(_batch(episodes=[_summary(**changes)]))
     assert trainer.learner.episode == 0 and len(trainer.learner.replay) == 0
-    _, rows = trainer.receive(_batch(episodes=[_summary()]))
+    _, rows = trainer.receive(_batch(sequence=1, episodes=[_summary()]))
     assert [r.episode for r, _ in rows] == [0] and trainer.learner.episode == 1
 
 
@@ -344,7 +347,7 @@ def test_a_batch_ending_more_episodes_than_it_has_transitions_is_refused():
             _batch(n=4, episodes=[_summary(length=1, advice_asked=0, advice_given=0, advice_declined=0)] * 10_000)
         )
     assert trainer.learner.episode == 0  # the budget counts these: no jump from 11 to 10,023
-    trainer.receive(_batch(n=0, episodes=[_summary()]))  # an episode whose last step went in the batch before
+    trainer.receive(_batch(sequence=1, n=0, episodes=[_summary()]))  # its last step went in the batch before
     assert trainer.learner.episode == 1
 
 

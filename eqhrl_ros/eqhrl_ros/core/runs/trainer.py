@@ -77,10 +77,17 @@ class Trainer:
         its bounds, an absurd magnitude, episode statistics that contradict themselves) or a
         forged sequence number raises ValueError and stores and counts nothing of it.
         """
+        state = self.sequences.actors.get(batch.actor)
+        if state is not None and state.run == batch.run and batch.sequence - state.expected > MAX_SEQUENCE_JUMP:
+            self.rejected_batches += 1  # a forged number: the stream does not move
+            raise ValueError(f'batch {batch.sequence} is {batch.sequence - state.expected} past the next one due')
         try:
             self._check(batch)
         except ValueError:
             self.rejected_batches += 1
+            # Refused for what it holds, it will never be stored: the stream moves past it (else its
+            # actor would send it again for ever, and nothing after it would be stored).
+            self.sequences.receive(batch.actor, batch.sequence, batch.run, batch.oldest_kept)
             raise
         verdict = self.sequences.receive(batch.actor, batch.sequence, batch.run, batch.oldest_kept)
         if verdict not in STORED:  # stored already, or past a missing batch: nothing of it is stored
@@ -130,9 +137,6 @@ class Trainer:
                 raise ValueError(
                     f'{name} of actor {batch.actor!r} reach {float(np.abs(values).max()):.3g}, beyond {bound:g}'
                 )
-        state = self.sequences.actors.get(batch.actor)
-        if state is not None and batch.sequence - state.expected > MAX_SEQUENCE_JUMP:
-            raise ValueError(f'batch {batch.sequence} is {batch.sequence - state.expected} past the next one due')
         if len(batch.episodes) > max(1, n):  # each episode ends with a transition of its batch
             raise ValueError(f'{len(batch.episodes)} episodes end in a batch of {n} transitions')
         for summary in batch.episodes:
