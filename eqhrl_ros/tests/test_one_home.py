@@ -72,3 +72,25 @@ def test_the_experiment_runner_reads_a_params_file_without_starting_ros():
     done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ['Pendulum-v1', '[]']
+
+
+def test_the_summarys_advice_fields_and_the_learners_counts_map_both_ways_in_one_place():
+    from eqhrl_ros.core.algorithm.learner import SUMMARY_FIELDS, AdviceCounts
+
+    assert set(SUMMARY_FIELDS) | {'advice_failed'} <= {f.name for f in dataclasses.fields(EpisodeSummary)}
+    counts = AdviceCounts(asked=5, given=3, human=2, declined=1, human_time_s=4.5, takeovers=1, takeover_steps=7)
+    counts.failed['timeout'] = 1
+    fields = counts.summary_fields()
+    assert fields['advice_asked'] == 5 and fields['advice_failed'] == 1 and fields['takeover_steps'] == 7
+    summary = EpisodeSummary(
+        episode=0, episode_return=0.0, length=10, success=False, total_steps=10, alpha=0.2, **fields
+    )
+    back = AdviceCounts.from_summary(summary)
+    assert (back.asked, back.given, back.human, back.declined, back.human_time_s, back.takeover_steps) == (
+        5,
+        3,
+        2,
+        1,
+        4.5,
+        7,
+    )

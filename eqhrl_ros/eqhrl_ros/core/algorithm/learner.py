@@ -59,6 +59,19 @@ class Resolution:
         return self.action, self.advised
 
 
+# EpisodeSummary's advice fields and the AdviceCounts they come from: one mapping, both ways.
+SUMMARY_FIELDS = {
+    'advice_asked': 'asked',
+    'advice_given': 'given',
+    'advice_human': 'human',
+    'advice_declined': 'declined',
+    'human_time_s': 'human_time_s',
+    'takeovers': 'takeovers',
+    'takeover_steps': 'takeover_steps',
+    'takeover_s': 'takeover_s',
+}
+
+
 @dataclass
 class AdviceCounts:
     asked: int = 0
@@ -76,6 +89,18 @@ class AdviceCounts:
     @property
     def failed_total(self) -> int:
         return sum(self.failed.values())
+
+    def summary_fields(self) -> dict:
+        """These counts as an EpisodeSummary's advice fields (failures as their total)."""
+        return {
+            **{field: getattr(self, name) for field, name in SUMMARY_FIELDS.items()},
+            'advice_failed': self.failed_total,
+        }
+
+    @classmethod
+    def from_summary(cls, summary: EpisodeSummary) -> 'AdviceCounts':
+        """The counts an EpisodeSummary's advice fields hold (failures by kind stay with who counted them)."""
+        return cls(**{name: getattr(summary, field) for field, name in SUMMARY_FIELDS.items()})
 
     def add(self, other: 'AdviceCounts') -> None:
         self.asked += other.asked
@@ -631,11 +656,7 @@ class EQSACLearner:
             episode=self.episode,
             episode_return=self._episode_return,
             length=self.episode_step,
-            advice_asked=counts.asked,
-            advice_given=counts.given,
-            advice_human=counts.human,
-            advice_declined=counts.declined,
-            advice_failed=counts.failed_total,
+            **counts.summary_fields(),
             success=bool(
                 self.success.success(self._episode_return) if self._reported_success is None else self._reported_success
             )
@@ -643,11 +664,7 @@ class EQSACLearner:
             total_steps=self.total_steps,
             alpha=self.alpha,
             interrupted=self.episode_interrupted,
-            human_time_s=counts.human_time_s,
             human_time_total_s=self.advice_total.human_time_s + counts.human_time_s,
-            takeovers=counts.takeovers,
-            takeover_steps=counts.takeover_steps,
-            takeover_s=counts.takeover_s,
             stops=self._episode_stops,
             stopped_s=self._episode_stopped_s,
         )

@@ -146,16 +146,7 @@ class Trainer:
         """An actor's finished episode as a row of the trainer's record: the index over all
         actors (what the advising budget counts), steps over all actors, the trainer's alpha."""
         learner = self.learner
-        counts = AdviceCounts(
-            asked=summary.advice_asked,
-            given=summary.advice_given,
-            human=summary.advice_human,
-            declined=summary.advice_declined,
-            human_time_s=summary.human_time_s,
-            takeovers=summary.takeovers,
-            takeover_steps=summary.takeover_steps,
-            takeover_s=summary.takeover_s,
-        )
+        counts = AdviceCounts.from_summary(summary)
         row = dataclasses.replace(
             summary,
             episode=learner.episode,
