@@ -63,6 +63,18 @@ def wait_for(condition, timeout):
     return False
 
 
+def settled(measure, quiet_s, timeout):
+    """``measure()`` once it has not changed for ``quiet_s`` seconds (or when ``timeout`` ends)."""
+    deadline = time.monotonic() + timeout
+    value, since = measure(), time.monotonic()
+    while time.monotonic() < deadline and time.monotonic() - since < quiet_s:
+        time.sleep(0.1)
+        now = measure()
+        if now != value:
+            value, since = now, time.monotonic()
+    return value
+
+
 def learner_args(out, extra=()):
     return [
         '--ros-args',

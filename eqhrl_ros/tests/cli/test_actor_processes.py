@@ -6,7 +6,7 @@ import signal
 
 import pytest
 
-from process_helpers import output, read_rows, start, stop, wait_for
+from process_helpers import output, read_rows, settled, start, stop, wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -100,7 +100,9 @@ def test_actors_outlive_their_trainer_and_take_the_weights_of_the_next(tmp_path)
         # stored after its last checkpoint, and those made while no trainer listened, were kept
         # by the actor until a checkpoint held them, and sent again to the resumed trainer.
         stop(env)  # the robot stops: the actor finishes no more episodes, and sends what it keeps
-        finished = output(actor).count('] [actor0.actor]: episode ')
+        # The env's last message may still be in the actor's hands when the env has exited: count
+        # its episodes once its log has been quiet for a while (CI once counted one too early).
+        finished = settled(lambda: output(actor).count('] [actor0.actor]: episode '), quiet_s=2.0, timeout=30)
         assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= finished, 60), (finished, output(restarted))
         stored = len(rows_from(out, '/actor0/actor'))
         assert stored == finished, (stored, finished)
