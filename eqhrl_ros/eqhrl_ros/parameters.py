@@ -146,10 +146,27 @@ def run_params(output_dir: str) -> tuple:
         ),
         Param('max_episodes', 0, 'Stop learning after this many episodes (0: never)', (0, INT_MAX)),
         Param('shutdown_when_done', False, 'Shut the process down once max_episodes is reached'),
+        Param(
+            'record',
+            False,
+            'Write output_dir/record.mcap (record-N.mcap on each resume): what the node sends and receives, '
+            'the advise calls, every gate decision and the transitions it stored (see README, "The record")',
+        ),
     )
 
 
-LEARNER_NODE_PARAMS = (*ACTING_PARAMS, *run_params('runs/learner'), TORCH_THREADS)
+LEARNER_NODE_PARAMS = (
+    *ACTING_PARAMS,
+    *run_params('runs/learner'),
+    TORCH_THREADS,
+    Param(
+        'prior',
+        None,
+        'Records of earlier runs (run folders or .mcap files) whose advised and person-initiated transitions '
+        'go into D and D_advising before the first step (a fresh start only; spaces must match)',
+        kind='string_array',
+    ),
+)
 
 ACTOR_NODE_PARAMS = (
     *ACTING_PARAMS,

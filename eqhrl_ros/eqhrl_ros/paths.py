@@ -6,14 +6,14 @@ import sys
 from pathlib import Path
 
 
-def share_dir() -> Path:
-    """share/eqhrl_ros of the install (ament index first; the venv prefix as a fallback)."""
+def share_dir(package: str = 'eqhrl_ros') -> Path:
+    """share/<package> of the install (ament index first; the venv prefix as a fallback)."""
     try:
         from ament_index_python.packages import get_package_share_directory
 
-        return Path(get_package_share_directory('eqhrl_ros'))
+        return Path(get_package_share_directory(package))
     except Exception:  # no ament index on the path (e.g. AMENT_PREFIX_PATH unset in a venv)
-        return Path(sys.prefix) / 'share' / 'eqhrl_ros'
+        return Path(sys.prefix) / 'share' / package
 
 
 def shared_file(folder: str, name_or_path: str, what: str) -> Path:

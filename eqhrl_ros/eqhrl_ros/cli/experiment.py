@@ -144,6 +144,19 @@ def parse_args(argv=None):
         'fixed start states; written to eval.csv (in-process runs; 0: none)',
     )
     parser.add_argument('--eval-starts', type=int, default=10, help='start states of each evaluation')
+    parser.add_argument(
+        '--record',
+        action='store_true',
+        help="each run's record.mcap (the learner's record: true; in-process runs write their advised "
+        'transitions and episodes)',
+    )
+    parser.add_argument(
+        '--prior',
+        nargs='+',
+        metavar='RUN_OR_MCAP',
+        help='earlier runs (folders, searched below, or .mcap files) whose advised and person-initiated '
+        "transitions go into each run's D and D_advising before its first step (the learner's prior)",
+    )
     add_cluster(parser)
     add_save_every(parser)
     batching = parser.add_mutually_exclusive_group()

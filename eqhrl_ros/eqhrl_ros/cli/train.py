@@ -52,6 +52,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument('--budget', type=int, help='overrides learner advising_budget')
     parser.add_argument('--resume', action='store_true', help='continue from <output>/checkpoint.pt')
     parser.add_argument('--overwrite', action='store_true', help='replace a run already in the output folder')
+    parser.add_argument('--record', action='store_true', help="write <output>/record.mcap (the learner's record: true)")
+    parser.add_argument(
+        '--prior',
+        nargs='+',
+        metavar='RUN_OR_MCAP',
+        help="earlier runs (folders or .mcap files) whose advice seeds D and D_advising (the learner's prior)",
+    )
     parser.add_argument(
         '--expert-node',
         choices=EXPERT_NODES,
@@ -110,6 +117,10 @@ def learner_overrides(args) -> list:
         overrides.append(Parameter('resume', value=True))
     if args.overwrite:
         overrides.append(Parameter('overwrite', value=True))
+    if args.record:
+        overrides.append(Parameter('record', value=True))
+    if args.prior:
+        overrides.append(Parameter('prior', value=[str(p) for p in args.prior]))
     return overrides
 
 

@@ -35,6 +35,9 @@ def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, pr
     )
     expert = make_expert(settings, seed)
     resumed = resume is not None and resume.restore(learner, env, expert)
+    prior = settings.learner.get('prior') or []
+    if prior and not resumed:  # a resumed run's saved memories hold it already
+        load_prior_into(learner, prior)
     # Resumed after episode E: episodes 0..E-1, evaluations after up to E episodes, and the
     # gates of episodes 0..E-1 are kept; later rows are made again.
     keep = learner.episode if resumed else None
@@ -74,6 +77,8 @@ def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, pr
                     raise error
 
     def close():
+        if settings.learner.get('record'):
+            write_advice_record(directory, learner, env.action_space)
         record.close()
         env.close()
         if gate_record is not None:
@@ -85,6 +90,36 @@ def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, pr
     # A resumed run's env stream goes on from the save; a fresh one starts from the seed.
     run = SeedRun(env, learner, expert, None if resumed else seed, on_episode, evaluation, on_proposal)
     return run, close
+
+
+def load_prior_into(learner, sources) -> int:
+    """Earlier runs' advised transitions into D and D_advising (the learner node's prior)."""
+    from ..mcap_record import load_prior
+
+    prior = load_prior(sources, learner.obs_dim, learner.scaler.low, learner.scaler.high)
+    return learner.add_prior(
+        prior.observations, prior.actions, prior.rewards, prior.next_observations, prior.terminated
+    )
+
+
+def write_advice_record(directory: Path, learner, action_space) -> None:
+    """An in-process run's record: its advised transitions (D_advising at the end, in the order
+    stored while it was not full) as one TransitionBatch in <run>/record.mcap, what --prior
+    reads. (A learner node's record holds much more: README, "The record".)"""
+    import numpy as np
+
+    from ..core.data.transitions import TransitionBatch, batch_fields
+    from ..mcap_record import RECORD_NAME, McapRecord
+
+    memory, n = learner.advice_replay, len(learner.advice_replay)
+    columns = [getattr(memory, name)[:n].numpy() for name in memory.FIELDS]
+    batch = TransitionBatch('in_process', 0, *columns[:4], columns[4] > 0.5, np.ones(n, bool))
+    record = McapRecord(directory / RECORD_NAME)
+    try:
+        fields = batch_fields(batch, action_space.low, action_space.high)
+        record.write_fields('/learner/transitions', 'eqhrl_interfaces/msg/TransitionBatch', fields)
+    finally:
+        record.close()
 
 
 def run_in_process(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id=None) -> float:

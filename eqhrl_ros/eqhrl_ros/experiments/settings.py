@@ -59,6 +59,10 @@ def load_settings(args) -> Settings:
     check_section('expert', expert, EXPERT_PARAMS)
     if args.budget is not None:
         learner['advising_budget'] = args.budget
+    if getattr(args, 'record', False):
+        learner['record'] = True
+    if getattr(args, 'prior', None):
+        learner['prior'] = [str(Path(p).resolve()) for p in args.prior]
     save_every = getattr(args, 'save_every', None)
     if save_every is not None and not (save_every >= 0 and math.isfinite(save_every)):
         raise ValueError(f'--save-every must be >= 0 minutes (0: never), got {save_every}')

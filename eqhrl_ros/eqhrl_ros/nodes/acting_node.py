@@ -39,6 +39,7 @@ from . import advise_msgs, messages
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .health import OK, WARN, Check, Health
 from .params import choices_validator, declare, reject_unknown_overrides
+from .recording import NodeRecord, introspect
 from .spinning import steady_clock
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -104,17 +105,25 @@ class ActingNode(Node):
         self.gate_pub = self.create_publisher(GateDecision, '~/gate_debug', QOS)
         self.request_pub = self.create_publisher(AdviceRequest, '~/advice_request', messages.LATCHED_QOS)
         # Observations arrive serialized (raw): see messages.SerializedReader.
-        self.create_subscription(Float32MultiArray, 'observation', self._on_observation, OBSERVATION_QOS, raw=True)
+        observations = self.create_subscription(
+            Float32MultiArray, 'observation', self._on_observation, OBSERVATION_QOS, raw=True
+        )
+        self._observation_topic = observations.topic_name
         # The person's command (teleop_expert passes it on): a takeover when it departs from ours.
-        self.create_subscription(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, self._on_person_command, 10)
+        person = self.create_subscription(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, self._on_person_command, 10)
+        self._person_topic = person.topic_name
         self._person: Optional[tuple] = None  # (action, deadman, take_over, time.monotonic())
         self._taking_over_since: Optional[float] = None  # time.monotonic() of the last step taken over
         # The person's STOP holds the env: the episode is paused (not abandoned), and its record
         # says for how long (EpisodeSummary.stops, stopped_s).
-        self.create_subscription(Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS)
+        self._stop_topic = self.create_subscription(
+            Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS
+        ).topic_name
         self._stopped_since: Optional[float] = None  # time.monotonic() when the current stop began
         self.early_observations = 0  # observations before the spaces were known (ignored)
         self.advice_client = self.create_client(Advise, 'advise')
+        introspect(self.advice_client, self)  # every call on advise/_service_event (ros2 bag, the record)
+        self.recording: Optional[NodeRecord] = None  # record: true (the learner node)
 
         self._lock = threading.RLock()  # callbacks may run on several threads
         self._state: Optional[np.ndarray] = None  # s_t the last action answered
@@ -257,6 +266,8 @@ class ActingNode(Node):
                 self.early_observations += 1  # the env re-sends it; acted on once the spaces are known
                 return
             self._last_observation_time = time.monotonic()
+            if self.recording is not None:
+                self.recording.write_raw(self._observation_topic, Float32MultiArray, data)
             if self._stalled_since is not None:
                 self.get_logger().info(f'observations are back after {time.monotonic() - self._stalled_since:.1f} s')
                 self._stalled_since = None
@@ -342,10 +353,11 @@ class ActingNode(Node):
             # said at once, so that the page and teleop_expert end the request too.
             pending = self._take_pending(self._pending.token)
             self.learner.resolve_advice(pending.proposal, failure='episode_ended')  # acted on already
-            self.request_pub.publish(
+            self._send(
+                self.request_pub,
                 messages.advice_request_msg(
                     'failed', pending.proposal.request, self.params['advice_timeout_s'], 'episode_ended'
-                )
+                ),
             )
         self._last_advised = False
         if not self._store(env_step):
@@ -395,6 +407,8 @@ class ActingNode(Node):
         take_over = bool(fields.get('take_over', [0.0])[0])
         with self._lock:
             self._person = (action, deadman, take_over, time.monotonic())
+            if self.recording is not None:
+                self.recording.write(self._person_topic, msg)
 
     def _takeover(self, proposal: Proposal):
         """The person's action when they take this step over, else None. With the deadman held
@@ -416,8 +430,12 @@ class ActingNode(Node):
     def _act(self, obs: np.ndarray, key: tuple) -> None:
         self._state, self._key = obs, key
         proposal = self.learner.propose(obs)
-        if self.params['publish_gate_debug']:
-            self.gate_pub.publish(messages.gate_msg(self.learner.episode, self.learner.episode_step, proposal.decision))
+        if self.params['publish_gate_debug'] or self.recording is not None:
+            gate = messages.gate_msg(self.learner.episode, self.learner.episode_step, proposal.decision)
+            if self.params['publish_gate_debug']:
+                self.gate_pub.publish(gate)
+            if self.recording is not None:  # every decision, published or not
+                self.recording.write(self.gate_pub.topic_name, gate)
         person = self._takeover(proposal)
         if person is not None:  # the person is in charge: no request this step, their action goes
             now = time.monotonic()
@@ -448,8 +466,8 @@ class ActingNode(Node):
         )
         self._check_advise_servers()
         self._pending = PendingAdvice(token, proposal, key, timer, time.monotonic())
-        self.request_pub.publish(
-            messages.advice_request_msg('pending', proposal.request, self.params['advice_timeout_s'])
+        self._send(
+            self.request_pub, messages.advice_request_msg('pending', proposal.request, self.params['advice_timeout_s'])
         )
         future = self.advice_client.call_async(request)
         future.add_done_callback(lambda f: self._on_advice_response(token, f))
@@ -485,7 +503,8 @@ class ActingNode(Node):
         if resolution.outcome == 'declined' and resolution.detail:
             # A person's "why not" is worth seeing (a declining controller says why too).
             self.get_logger().info(f'advice declined: {printable_name(resolution.detail)}', throttle_duration_sec=2.0)
-        self.request_pub.publish(
+        self._send(
+            self.request_pub,
             messages.advice_request_msg(
                 resolution.outcome,
                 pending.proposal.request,
@@ -494,7 +513,7 @@ class ActingNode(Node):
                 human,
                 advice.response_time_s if human else time.monotonic() - pending.sent,
                 resolution.action if resolution.outcome == 'given' else (),
-            )
+            ),
         )
         self._finish_step(*resolution.action_and_advised())
 
@@ -537,7 +556,17 @@ class ActingNode(Node):
         self._publish_action(self._last_action)
 
     def _publish_action(self, action: np.ndarray) -> None:
-        self.action_pub.publish(self._action_out.fill(action, *self._key))
+        self._send(self.action_pub, self._action_out.fill(action, *self._key))
+
+    def _send(self, publisher, msg) -> None:
+        """Publish, and write into the record when there is one."""
+        publisher.publish(msg)
+        if self.recording is None:
+            return
+        if isinstance(msg, (bytes, bytearray, memoryview)):  # published serialized (the action)
+            self.recording.write_raw(publisher.topic_name, publisher.msg_type, msg)
+        else:
+            self.recording.write(publisher.topic_name, msg)
 
     # ------------------------------------------------------------------ a vanished env
 
@@ -570,6 +599,8 @@ class ActingNode(Node):
         """The person's STOP pressed or released: the episode current at the release is paused for
         as long as it held (a stop latched before the env's spaces were known counts when released)."""
         with self._lock:
+            if self.recording is not None:
+                self.recording.write(self._stop_topic, msg)
             now = time.monotonic()
             if bool(msg.data) and self._stopped_since is None:
                 self._stopped_since = now
@@ -586,7 +617,7 @@ class ActingNode(Node):
 
     def _on_episode_end(self, summary: EpisodeSummary) -> None:
         self.summaries.append(summary)
-        self.stats_pub.publish(messages.stats_msg(summary))
+        self._send(self.stats_pub, messages.stats_msg(summary))
         self._episode_done(summary)
         failed = self.learner.advice_total.failed
         failures = ', '.join(f'{k} {v}' for k, v in failed.items() if v)

@@ -27,6 +27,7 @@ from ..parameters import EXPERT_PARAMS, HUMAN_LIMIT_PARAMS
 from .advise_msgs import answer, fill_response, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .params import choices_validator, declare, reject_unknown_overrides
+from .recording import introspect
 from .spinning import pause, run_node, steady_clock
 from .teleop_expert_node import ANSWER_MARGIN_S
 
@@ -48,12 +49,13 @@ class ExpertNode(Node):
         # A simulated person answers from a coroutine (it waits out a reaction time); the
         # others answer at once. Coroutine callbacks need an executor that runs them.
         self.coroutine_callbacks = p['backend'] == 'simulated_human'
-        self.create_service(
+        service = self.create_service(
             Advise,
             'advise',
             self._on_request_as_person if self.coroutine_callbacks else self._on_request,
             callback_group=ReentrantCallbackGroup(),
         )
+        introspect(service, self)  # every call on advise/_service_event (ros2 bag record, the learner's record)
         # The spaces given as parameters are checked against the backend; env_id only names it.
         self.env_info = EnvInfoWatcher(
             self, configured_spec(dict(p, env_id='')), self._on_env, working=lambda: self.requests > 0

@@ -8,6 +8,8 @@ and trainer_node.py.
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, resumed_settings
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
@@ -15,6 +17,9 @@ from ..parameters import LEARNER_NODE_PARAMS
 from .acting_node import OBSERVATION_QOS, ActingNode
 from .run_files import RunFiles, save_and_close
 from .spinning import run_node
+
+# Frames the record takes (gym_env's ~/image with the learner in the env's namespace).
+IMAGE_TOPIC = 'gym_env/image'
 
 __all__ = ['OBSERVATION_QOS', 'LearnerNode', 'main']
 
@@ -33,12 +38,41 @@ class LearnerNode(RunFiles, ActingNode):
             load_checkpoint(learner, self.checkpoint_path, self.replay_path)
             self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')
             self._show_resumed_settings(learner)
+        elif self.params['prior']:
+            self._load_prior(learner)
         with self._lock:
             self.record = EpisodeRecord(
                 self.csv_path,
                 EpisodeSummary.CSV_FIELDS,
                 keep_before=learner.episode if self.params['resume'] else None,
             )
+            if self.params['record']:
+                self._open_recording(learner)
+
+    def _load_prior(self, learner: EQSACLearner) -> None:
+        """Earlier runs' advice into D and D_advising (a record that does not fit refuses the start)."""
+        from ..mcap_record import load_prior
+
+        prior = load_prior(self.params['prior'], learner.obs_dim, learner.scaler.low, learner.scaler.high)
+        learner.add_prior(prior.observations, prior.actions, prior.rewards, prior.next_observations, prior.terminated)
+        cut = f' ({len(prior.cut_short)} cut short, read up to their last chunk)' if prior.cut_short else ''
+        self.get_logger().info(
+            f'prior: {len(prior)} advised transitions from {len(prior.files)} record file(s){cut} '
+            f'in D and D_advising ({len(learner.replay)} in D)'
+        )
+
+    def _open_recording(self, learner: EQSACLearner) -> None:
+        from ..mcap_record import record_path
+        from .recording import NodeRecord
+
+        path = record_path(self.output_dir, resume=self.params['resume'])
+        metadata = {'mode': self.config.mode, 'seed': self.config.seed, 'episode': learner.episode}
+        self.recording = NodeRecord(self, path, metadata)
+        self.recording.tap_service(self.advice_client.srv_name, self.advice_client.srv_type)
+        self.recording.tap_images(IMAGE_TOPIC)
+        self._transitions_topic = self.resolve_topic_name('~/transitions')
+        self._recorded: list = []  # this episode's transitions, written at its end as one TransitionBatch
+        self.get_logger().info(f'recording into {path}')
 
     def _show_resumed_settings(self, learner: EQSACLearner) -> None:
         """The budgets the run had at its save, as this node's parameters (what ros2 param get says)."""
@@ -61,10 +95,46 @@ class LearnerNode(RunFiles, ActingNode):
         return f', output {self.output_dir}'
 
     def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success):
-        return self.learner.step(obs, action, reward, next_obs, terminated, truncated, advised, success)
+        summary = self.learner.step(obs, action, reward, next_obs, terminated, truncated, advised, success)
+        if self.recording is not None:  # stored: learner.step refuses a bad one with ValueError
+            self._recorded.append((obs, self.learner.normalize(action), reward, next_obs, terminated, advised))
+        return summary
+
+    def _write_transitions(self, summary=None) -> None:
+        """The transitions stored since the last write, as the actors send them to a trainer."""
+        if self.recording is None or not self._recorded:
+            return
+        from ..core.data.transitions import TransitionBatch as Batch
+        from .trainer_msgs import batch_msg
+
+        columns = list(zip(*self._recorded))
+        batch = Batch(
+            actor=self.get_fully_qualified_name(),
+            sequence=self.learner.episode - (summary is not None),
+            observations=np.asarray(columns[0], dtype=np.float32),
+            actions=np.asarray(columns[1], dtype=np.float32),
+            rewards=np.asarray(columns[2], dtype=np.float32),
+            next_observations=np.asarray(columns[3], dtype=np.float32),
+            terminated=np.asarray(columns[4], dtype=bool),
+            advised=np.asarray(columns[5], dtype=bool),
+            episodes=[summary] if summary is not None else [],
+        )
+        self._recorded = []
+        spec = self.spec
+        self.recording.write(self._transitions_topic, batch_msg(batch, spec.action_low, spec.action_high))
 
     def _episode_done(self, summary: EpisodeSummary) -> None:
         self._append_row(summary.csv_row())
+        self._write_transitions(summary)
+
+    def close(self) -> None:
+        with self._lock:
+            recording = self.recording
+            if recording is not None:
+                self._write_transitions()  # an unfinished episode's transitions (they are in D)
+                self.recording = None
+                recording.close()
+        super().close()
 
     def _after_episode(self, summary: EpisodeSummary) -> None:
         every = self.params['checkpoint_every_episodes']

@@ -38,6 +38,7 @@ from .advise_msgs import answer, fill_response, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec
 from .graph_trust import OnePublisher
 from .params import choices_validator, declare, reject_unknown_overrides
+from .recording import introspect
 from .spinning import run_node, steady_clock
 
 # The answer must reach the learner before its advice_timeout_s ends.
@@ -84,12 +85,13 @@ class TeleopExpertNode(Node):
         # the person must not hold back the commands. Coroutine callbacks need an executor
         # that runs them (spinning.make_executor).
         self.coroutine_callbacks = self.params['answer_mode'] == 'window'
-        self.create_service(
+        service = self.create_service(
             Advise,
             'advise',
             self._on_request_in_window if self.coroutine_callbacks else self._on_request_now,
             callback_group=ReentrantCallbackGroup(),
         )
+        introspect(service, self)  # every call on advise/_service_event (ros2 bag record, the learner's record)
         topic = {'joy': 'joy', 'twist': 'cmd_vel', 'array': 'teleop_command'}[source]
         # Commands are the person's only while one node publishes them: command_publisher if set;
         # for teleop_command, else the drivers that ship (in this node's namespace).

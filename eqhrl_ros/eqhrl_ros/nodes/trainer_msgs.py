@@ -22,6 +22,7 @@ from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionAck, Tra
 from ..core.data.signing import Signer
 from ..core.data.summary import EpisodeSummary
 from ..core.data.transitions import TransitionBatch as Batch
+from ..core.data.transitions import batch_fields, batch_from_fields
 
 TRANSITIONS_TOPIC = '/transitions'
 WEIGHTS_TOPIC = '/weights'
@@ -126,22 +127,11 @@ def signature_refusal(msg, signer: Optional[Signer]) -> str:
 
 
 def batch_msg(batch: Batch, action_low, action_high) -> TransitionBatch:
-    return TransitionBatch(
-        actor=batch.actor,
-        sequence=int(batch.sequence),
-        actor_run=batch.run,
-        oldest_kept=int(batch.sequence if batch.oldest_kept is None else batch.oldest_kept),
-        observation_size=int(batch.observations.shape[1]),
-        action_low=_floats(action_low),
-        action_high=_floats(action_high),
-        observations=_floats(batch.observations),
-        actions=_floats(batch.actions),
-        rewards=_floats(batch.rewards),
-        next_observations=_floats(batch.next_observations),
-        terminated=[bool(v) for v in batch.terminated],
-        advised=[bool(v) for v in batch.advised],
-        episodes=[EpisodeStats(**dataclasses.asdict(s)) for s in batch.episodes],
-    )
+    fields = batch_fields(batch, action_low, action_high)
+    for name in ('action_low', 'action_high', 'observations', 'actions', 'rewards', 'next_observations'):
+        fields[name] = _floats(fields[name])
+    fields['episodes'] = [EpisodeStats(**e) for e in fields['episodes']]
+    return TransitionBatch(**fields)
 
 
 def batch_bytes(msg: TransitionBatch) -> int:
@@ -150,45 +140,8 @@ def batch_bytes(msg: TransitionBatch) -> int:
     return 4 * floats + len(msg.terminated) + len(msg.advised) + 128 * len(msg.episodes) + len(msg.actor) + 256
 
 
-class BatchError(ValueError):
-    """A TransitionBatch whose sizes do not fit together."""
-
-
-def batch_from_msg(msg: TransitionBatch) -> tuple[Batch, np.ndarray, np.ndarray]:
-    """(the core's batch, action_low, action_high). Sizes that do not add up raise BatchError;
-    values are checked by the trainer (Trainer.receive)."""
-    obs_dim = int(msg.observation_size)
-    action_dim = len(msg.action_low)
-    n = len(msg.rewards)
-    if obs_dim < 1 or action_dim < 1 or len(msg.action_high) != action_dim:
-        raise BatchError(
-            f'observation_size {obs_dim}, action_low {len(msg.action_low)} and action_high '
-            f'{len(msg.action_high)} values do not describe spaces'
-        )
-    sizes = {
-        'observations': (len(msg.observations), n * obs_dim),
-        'next_observations': (len(msg.next_observations), n * obs_dim),
-        'actions': (len(msg.actions), n * action_dim),
-        'terminated': (len(msg.terminated), n),
-        'advised': (len(msg.advised), n),
-    }
-    for name, (got, expected) in sizes.items():
-        if got != expected:
-            raise BatchError(f'{name} has {got} values, {n} transitions need {expected}')
-    batch = Batch(
-        actor=msg.actor,
-        sequence=int(msg.sequence),
-        observations=np.frombuffer(msg.observations, dtype=np.float32).reshape(n, obs_dim),
-        actions=np.frombuffer(msg.actions, dtype=np.float32).reshape(n, action_dim),
-        rewards=np.frombuffer(msg.rewards, dtype=np.float32),
-        next_observations=np.frombuffer(msg.next_observations, dtype=np.float32).reshape(n, obs_dim),
-        terminated=np.asarray(msg.terminated, dtype=bool),
-        advised=np.asarray(msg.advised, dtype=bool),
-        episodes=[EpisodeSummary(**{name: getattr(e, name) for name in _STATS_FIELDS}) for e in msg.episodes],
-        run=msg.actor_run,
-        oldest_kept=int(msg.oldest_kept),
-    )
-    return batch, np.asarray(msg.action_low, dtype=np.float32), np.asarray(msg.action_high, dtype=np.float32)
+# A received message into the core's batch: the message's fields are read by name.
+batch_from_msg = batch_from_fields
 
 
 def weights_msg(trainer_id: str, version: int, episodes: int, stamp, tensors: bytes) -> PolicyWeights:

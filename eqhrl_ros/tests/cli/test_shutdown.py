@@ -12,7 +12,7 @@ import torch
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
 
-from process_helpers import BIN, fail_writes, learner_args, read_rows, start, stop, wait_for
+from process_helpers import BIN, fail_writes, learner_args, output, read_rows, start, stop, wait_for
 from ros_helpers import params, small_learner_params
 
 EXECUTABLES = (
@@ -286,3 +286,31 @@ def test_a_node_that_saves_nothing_does_not_say_it_is_finishing_a_save(capfd):
         faulthandler.cancel_dump_traceback_later()
         err = capfd.readouterr().err
         assert said in err and (saves or 'save' not in err), err
+
+
+def test_a_record_cut_by_kill_9_reads_up_to_its_last_chunk(tmp_path):
+    """The record closes its chunk every second: what a kill -9 leaves (no index, no summary)
+    reads up to its last whole chunk, episodes in order."""
+    from eqhrl_ros.mcap_record import read_record
+
+    out = tmp_path / 'run'
+    args = ['--params', 'demo', '--episodes', '200', '--max-steps', '20', '--output', str(out), '--record']
+    process = start('eqhrl-train', *args, log_dir=tmp_path)
+
+    def episodes_recorded():
+        path = out / 'record.mcap'
+        return [m.message.episode for m in read_record(path).on('/learner/episode_stats')] if path.exists() else []
+
+    try:
+        # The live file reads too, up to its last whole chunk.
+        assert wait_for(lambda: len(episodes_recorded()) >= 3, 120), output(process)
+        before = episodes_recorded()
+        process.send_signal(signal.SIGKILL)
+        process.wait()
+    finally:
+        stop(process)
+    contents = read_record(out / 'record.mcap')
+    assert not contents.complete and 'cut short' in contents.problem
+    after = [m.message.episode for m in contents.on('/learner/episode_stats')]
+    assert after[: len(before)] == before == list(range(len(before)))
+    assert len(contents.on('/learner/transitions')) >= len(before)

@@ -470,6 +470,18 @@ class EQSACLearner:
         if advised and asks_for_advice(self.mode) and self.config.dual_replay:
             self.advice_replay.add(obs, normalized_action, reward, next_obs, terminated)
 
+    def add_prior(self, observations, normalized_actions, rewards, next_observations, terminated) -> int:
+        """Earlier runs' advised and person-initiated transitions, as prior data (RLPD, HIL-SERL):
+        into D, and into D_advising where this mode has it, before the first step. Actions in
+        [-1, 1]. They count towards learning_starts. Each row is checked as store() checks it
+        (ValueError names the first bad one, and nothing of the call is kept after it)."""
+        rows = 0
+        for row in zip(observations, normalized_actions, rewards, next_observations, terminated):
+            obs, action, reward, next_obs, done = row
+            self.store(obs, np.clip(action, -1.0, 1.0), float(reward), next_obs, bool(done), advised=True)
+            rows += 1
+        return rows
+
     def record(
         self,
         obs,

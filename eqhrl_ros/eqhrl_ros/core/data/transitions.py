@@ -13,6 +13,7 @@ lost when the trainer never had it.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -41,6 +42,71 @@ class TransitionBatch:
 
     def __len__(self) -> int:
         return len(self.rewards)
+
+
+class BatchError(ValueError):
+    """A TransitionBatch message whose sizes do not fit together."""
+
+
+def batch_fields(batch: TransitionBatch, action_low, action_high) -> dict:
+    """The fields of eqhrl_interfaces/msg/TransitionBatch for ``batch`` (episodes as dicts of
+    EpisodeStats' fields); the signature is left out."""
+    return {
+        'actor': batch.actor,
+        'sequence': int(batch.sequence),
+        'actor_run': batch.run,
+        'oldest_kept': int(batch.sequence if batch.oldest_kept is None else batch.oldest_kept),
+        'observation_size': int(batch.observations.shape[1]),
+        'action_low': np.asarray(action_low, dtype=np.float32).ravel(),
+        'action_high': np.asarray(action_high, dtype=np.float32).ravel(),
+        'observations': np.asarray(batch.observations, dtype=np.float32).ravel(),
+        'actions': np.asarray(batch.actions, dtype=np.float32).ravel(),
+        'rewards': np.asarray(batch.rewards, dtype=np.float32).ravel(),
+        'next_observations': np.asarray(batch.next_observations, dtype=np.float32).ravel(),
+        'terminated': [bool(v) for v in batch.terminated],
+        'advised': [bool(v) for v in batch.advised],
+        'episodes': [dataclasses.asdict(s) for s in batch.episodes],
+    }
+
+
+def batch_from_fields(msg) -> tuple[TransitionBatch, np.ndarray, np.ndarray]:
+    """(the batch, action_low, action_high) from a TransitionBatch message, or anything with its
+    fields as attributes (a message read back from a record). Sizes that do not add up raise
+    BatchError; values are checked where they are stored (Trainer.receive, EQSACLearner.store)."""
+    obs_dim = int(msg.observation_size)
+    action_dim = len(msg.action_low)
+    n = len(msg.rewards)
+    if obs_dim < 1 or action_dim < 1 or len(msg.action_high) != action_dim:
+        raise BatchError(
+            f'observation_size {obs_dim}, action_low {len(msg.action_low)} and action_high '
+            f'{len(msg.action_high)} values do not describe spaces'
+        )
+    sizes = {
+        'observations': (len(msg.observations), n * obs_dim),
+        'next_observations': (len(msg.next_observations), n * obs_dim),
+        'actions': (len(msg.actions), n * action_dim),
+        'terminated': (len(msg.terminated), n),
+        'advised': (len(msg.advised), n),
+    }
+    for name, (got, expected) in sizes.items():
+        if got != expected:
+            raise BatchError(f'{name} has {got} values, {n} transitions need {expected}')
+    stats = [f.name for f in dataclasses.fields(EpisodeSummary)]
+    batch = TransitionBatch(
+        actor=msg.actor,
+        sequence=int(msg.sequence),
+        observations=np.asarray(msg.observations, dtype=np.float32).reshape(n, obs_dim),
+        actions=np.asarray(msg.actions, dtype=np.float32).reshape(n, action_dim),
+        rewards=np.asarray(msg.rewards, dtype=np.float32),
+        next_observations=np.asarray(msg.next_observations, dtype=np.float32).reshape(n, obs_dim),
+        terminated=np.asarray(msg.terminated, dtype=bool),
+        advised=np.asarray(msg.advised, dtype=bool),
+        episodes=[EpisodeSummary(**{name: getattr(e, name) for name in stats}) for e in msg.episodes],
+        run=msg.actor_run,
+        oldest_kept=int(msg.oldest_kept),
+    )
+    low, high = (np.asarray(v, dtype=np.float32) for v in (msg.action_low, msg.action_high))
+    return batch, low, high
 
 
 class Outbox:

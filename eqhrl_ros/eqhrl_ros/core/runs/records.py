@@ -34,6 +34,8 @@ def previous_replay_path(replay_path) -> Path:
     return replay_path.with_name(f'.{replay_path.name}.previous')
 
 
+# A run's MCAP record: record.mcap, then record-1.mcap, ... for each resume (eqhrl_ros/mcap_record.py).
+RECORD_FILES = 'record*.mcap'
 RUN_FILES = ('episodes.csv', 'checkpoint.pt', 'replay.pt', previous_replay_path('replay.pt').name, 'policy.pt')
 
 
@@ -79,6 +81,8 @@ class RunFolder:
         if overwrite and not resume:
             for name in RUN_FILES:
                 (self.path / name).unlink(missing_ok=True)
+            for record in self.path.glob(RECORD_FILES):  # the MCAP record (record: true), resumes included
+                record.unlink(missing_ok=True)
 
 
 class EpisodeRecord:

@@ -1,0 +1,143 @@
+"""record: true — one MCAP file per run holding what the learner sent and received, every advise
+call (both sides, from service introspection), every gate decision and the stored transitions;
+read back with mcap-ros2-support and, independently, with rosbags; and prior: a later run seeded
+with an earlier run's advice."""
+
+import numpy as np
+import pytest
+
+from eqhrl_ros.mcap_record import McapRecord, RecordError, load_prior, read_record
+from eqhrl_ros.nodes.expert_node import ExpertNode
+from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+from eqhrl_ros.nodes.learner_node import LearnerNode
+
+from process_helpers import read_rows
+from ros_helpers import params, small_learner_params
+
+REQUEST_SENT, REQUEST_RECEIVED, RESPONSE_SENT, RESPONSE_RECEIVED = range(4)
+
+
+def recorded_run(harness, ros_context, out, episodes=4, **extra):
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
+    harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
+    overrides = small_learner_params(out, max_episodes=episodes, record=True, publish_gate_debug=False, **extra)
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=overrides))
+    assert harness.spin_until(lambda: learner.done, timeout=90)
+    learner.close()
+    return learner
+
+
+def test_a_recorded_run_holds_every_request_answer_gate_and_transition(harness, ros_context, tmp_path):
+    learner = recorded_run(harness, ros_context, tmp_path)
+    rows = read_rows(tmp_path / 'episodes.csv')
+    asked = sum(int(r['advice_asked']) for r in rows)
+    given = sum(int(r['advice_given']) for r in rows)
+    steps = sum(int(r['length']) for r in rows)
+    assert asked > 0, 'the gates never fired: nothing to check'
+
+    contents = read_record(tmp_path / 'record.mcap')
+    assert contents.complete, contents.problem
+    events = [m.message for m in contents.on('/advise/_service_event')]
+    kinds = [e.info.event_type for e in events]
+    # Both sides of every call: the learner's client and the expert's server.
+    assert [kinds.count(k) for k in range(4)] == [asked] * 4
+    sent = [e for e in events if e.info.event_type == REQUEST_SENT]
+    answered = [e for e in events if e.info.event_type == RESPONSE_RECEIVED]
+    assert [e.info.sequence_number for e in sent] == sorted(e.info.sequence_number for e in sent)  # in order
+    assert [e.info.sequence_number for e in sent] == [e.info.sequence_number for e in answered]
+    assert all(len(e.request[0].observation) == 3 and np.isfinite(e.request[0].discrepancy) for e in sent)
+    assert all(e.response[0].advised and len(e.response[0].action) == 1 for e in answered)
+    assert all(e.response[0].response_time_s >= 0 for e in answered)  # the reaction time, with the answer
+
+    requests = [m.message for m in contents.on('/learner/advice_request')]
+    assert [r.outcome for r in requests].count(1) == given  # AdviceRequest.GIVEN
+    gates = [m.message for m in contents.on('/learner/gate_debug')]
+    assert len(gates) == steps  # every decision, though publish_gate_debug is false
+    assert sum(g.fire for g in gates) == asked
+    assert len(contents.on('/observation')) >= steps and len(contents.on('/action')) >= steps
+    stats = [m.message for m in contents.on('/learner/episode_stats')]
+    assert [s.episode for s in stats] == [int(r['episode']) for r in rows]
+    batches = [m.message for m in contents.on('/learner/transitions')]
+    assert sum(len(b.rewards) for b in batches) == steps == learner.learner.total_steps
+    assert sum(sum(b.advised) for b in batches) == given == len(learner.learner.advice_replay)
+
+    # An independent reader: rosbags sees the same topics and message counts, and decodes them all.
+    from rosbags.highlevel import AnyReader
+
+    counts = {}
+    with AnyReader([tmp_path / 'record.mcap']) as reader:
+        for connection, _, raw in reader.messages():
+            typename = connection.msgtype
+            if typename not in reader.typestore.fielddefs:  # rosbags names a service's event pkg/srv/msg/Name
+                typename = typename.replace('/srv/', '/srv/msg/')
+            reader.typestore.deserialize_cdr(raw, typename)
+            counts[connection.topic] = counts.get(connection.topic, 0) + 1
+    ours = {}
+    for message in contents.messages:
+        ours[message.topic] = ours.get(message.topic, 0) + 1
+    assert counts == ours
+
+
+def test_a_run_seeded_with_an_earlier_runs_advice_starts_with_it(harness, ros_context, tmp_path):
+    first = recorded_run(harness, ros_context, tmp_path / 'first', episodes=3)
+    advised = len(first.learner.advice_replay)
+    assert advised > 0
+    prior = load_prior([tmp_path / 'first'], 3, [-2.0], [2.0])
+    assert len(prior) == advised
+    assert np.allclose(np.sort(prior.rewards), np.sort(first.learner.advice_replay.reward[:advised].numpy()))
+
+    second = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=small_learner_params(tmp_path / 'second', prior=[str(tmp_path / 'first')]),
+        )
+    )
+    assert len(second.learner.advice_replay) == advised and len(second.learner.replay) == advised
+    assert second.learner.total_steps == 0  # prior data, not steps of this run
+
+
+def test_a_prior_from_other_spaces_is_refused_in_one_line(tmp_path):
+    record = McapRecord(tmp_path / 'record.mcap')
+    record.write_fields(
+        '/learner/transitions',
+        'eqhrl_interfaces/msg/TransitionBatch',
+        {
+            'observation_size': 2,
+            'action_low': [-1.0],
+            'action_high': [1.0],
+            'observations': [0.0, 0.0],
+            'actions': [0.5],
+            'rewards': [1.0],
+            'next_observations': [0.0, 1.0],
+            'terminated': [False],
+            'advised': [True],
+        },
+    )
+    record.close()
+    with pytest.raises(RecordError, match='observations of 2 .* this env has 3'):
+        load_prior([tmp_path], 3, [-2.0], [2.0])
+    with pytest.raises(RecordError, match=r'actions in \[\[-1.0\], \[1.0\]\]'):
+        load_prior([tmp_path / 'record.mcap'], 2, [-2.0], [2.0])
+    assert len(load_prior([tmp_path], 2, [-1.0], [1.0])) == 1
+    with pytest.raises(RecordError, match='no such file'):
+        load_prior([tmp_path / 'nothing'], 2, [-1.0], [1.0])
+    (tmp_path / 'empty').mkdir()
+    with pytest.raises(RecordError, match='no record'):
+        load_prior([tmp_path / 'empty'], 2, [-1.0], [1.0])
+
+
+def test_a_record_cut_short_reads_up_to_its_last_chunk(tmp_path):
+    """What a kill -9 leaves: no index and no summary, the last chunk maybe half written."""
+    path = tmp_path / 'record.mcap'
+    record = McapRecord(path, flush_period_s=0.0)  # a chunk per message
+    for i in range(20):
+        record.write_fields('/stop', 'std_msgs/msg/Bool', {'data': bool(i % 2)})
+    record._file.flush()
+    whole = path.read_bytes()
+    cut = tmp_path / 'cut.mcap'
+    for end in (len(whole) - 7, len(whole) - 60):  # into the last chunk's index, into the chunk
+        cut.write_bytes(whole[:end])
+        contents = read_record(cut)
+        assert not contents.complete and 'cut short' in contents.problem
+        read = [m.message.data for m in contents.messages]
+        assert len(read) >= 18 and read == [bool(i % 2) for i in range(len(read))]
