@@ -353,7 +353,7 @@ class ActingNode(Node):
             # said at once, so that the page and teleop_expert end the request too.
             pending = self._take_pending(self._pending.token)
             self.learner.resolve_advice(pending.proposal, failure='episode_ended')  # acted on already
-            self._send(
+            self._publish_recorded(
                 self.request_pub,
                 messages.advice_request_msg(
                     'failed', pending.proposal.request, self.params['advice_timeout_s'], 'episode_ended'
@@ -466,7 +466,7 @@ class ActingNode(Node):
         )
         self._check_advise_servers()
         self._pending = PendingAdvice(token, proposal, key, timer, time.monotonic())
-        self._send(
+        self._publish_recorded(
             self.request_pub, messages.advice_request_msg('pending', proposal.request, self.params['advice_timeout_s'])
         )
         future = self.advice_client.call_async(request)
@@ -503,7 +503,7 @@ class ActingNode(Node):
         if resolution.outcome == 'declined' and resolution.detail:
             # A person's "why not" is worth seeing (a declining controller says why too).
             self.get_logger().info(f'advice declined: {printable_name(resolution.detail)}', throttle_duration_sec=2.0)
-        self._send(
+        self._publish_recorded(
             self.request_pub,
             messages.advice_request_msg(
                 resolution.outcome,
@@ -556,9 +556,9 @@ class ActingNode(Node):
         self._publish_action(self._last_action)
 
     def _publish_action(self, action: np.ndarray) -> None:
-        self._send(self.action_pub, self._action_out.fill(action, *self._key))
+        self._publish_recorded(self.action_pub, self._action_out.fill(action, *self._key))
 
-    def _send(self, publisher, msg) -> None:
+    def _publish_recorded(self, publisher, msg) -> None:
         """Publish, and write into the record when there is one."""
         publisher.publish(msg)
         if self.recording is None:
@@ -617,7 +617,7 @@ class ActingNode(Node):
 
     def _on_episode_end(self, summary: EpisodeSummary) -> None:
         self.summaries.append(summary)
-        self._send(self.stats_pub, messages.stats_msg(summary))
+        self._publish_recorded(self.stats_pub, messages.stats_msg(summary))
         self._episode_done(summary)
         failed = self.learner.advice_total.failed
         failures = ', '.join(f'{k} {v}' for k, v in failed.items() if v)

@@ -129,11 +129,7 @@ class LearnerNode(RunFiles, ActingNode):
 
     def close(self) -> None:
         with self._lock:
-            recording = self.recording
-            if recording is not None:
-                self._write_transitions()  # an unfinished episode's transitions (they are in D)
-                self.recording = None
-                recording.close()
+            self._write_transitions()  # an unfinished episode's transitions (they are in D)
         super().close()
 
     def _after_episode(self, summary: EpisodeSummary) -> None:

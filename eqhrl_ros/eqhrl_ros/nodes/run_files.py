@@ -15,6 +15,7 @@ class RunFiles:
     spaces are known, ``learner`` and ``record``."""
 
     record = None
+    recording = None  # the MCAP record (record: true; nodes/recording.py)
     failed_saves = 0
 
     def _open_run_folder(self) -> None:
@@ -76,6 +77,9 @@ class RunFiles:
 
     def close(self) -> None:
         with self._lock:
+            recording, self.recording = self.recording, None
+            if recording is not None:
+                recording.close()
             if self.record is None:
                 return
             error = self.record.close()

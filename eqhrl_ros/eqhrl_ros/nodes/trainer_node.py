@@ -32,6 +32,7 @@ from ..core.algorithm.learner import EQSACLearner, LearnerConfig
 from ..core.data.errors import CheckpointError
 from ..core.data.signing import signer_from
 from ..core.data.summary import EpisodeSummary
+from ..core.data.transitions import STORED
 from ..core.data.weights import encode_weights
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
@@ -122,6 +123,13 @@ class TrainerNode(RunFiles, Node):
         self.record = EpisodeRecord(
             self.csv_path, TRAINER_CSV_FIELDS, keep_before=learner.episode if p['resume'] else None
         )
+        if p['record']:
+            from ..mcap_record import record_path
+            from .recording import NodeRecord
+
+            path = record_path(self.output_dir, resume=p['resume'])
+            self.recording = NodeRecord(self, path, {'mode': self.config.mode, 'trainer': self.trainer_id})
+            self.get_logger().info(f'recording the batches it stores and its episodes into {path}')
         self.learner = learner
         self.spaces = (learner.obs_dim, learner.scaler.low.copy(), learner.scaler.high.copy())
         limits = BatchLimits(p['max_abs_observation'], p['max_abs_reward'])
@@ -182,6 +190,8 @@ class TrainerNode(RunFiles, Node):
             verdict = 'refused'
             try:
                 verdict, rows = self.trainer.receive(batch)
+                if self.recording is not None and verdict in STORED:  # as it came, signature included
+                    self.recording.write(self.transitions_topic, msg)
             finally:  # stored, or refused for what it holds: its actor hears where its stream stands
                 self._acknowledge(batch.actor, rewind=verdict == 'resend')
         except ValueError as error:
@@ -262,7 +272,10 @@ class TrainerNode(RunFiles, Node):
 
     def _on_episode(self, row: EpisodeSummary, actor: str) -> None:
         self.summaries.append((row, actor))
-        self.stats_pub.publish(messages.stats_msg(row))
+        stats = messages.stats_msg(row)
+        self.stats_pub.publish(stats)
+        if self.recording is not None:
+            self.recording.write(self.stats_pub.topic_name, stats)
         self._append_row([*row.csv_row(), actor])
         self.get_logger().info(
             f'episode {row.episode:4d}  return {row.episode_return:9.2f}  len {row.length:4d}  '

@@ -10,6 +10,7 @@ import pytest
 import rclpy
 
 from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
+from eqhrl_ros.mcap_record import read_record
 from eqhrl_ros.nodes import trainer_msgs
 from eqhrl_ros.nodes.actor_node import ActorNode
 from eqhrl_ros.nodes.expert_node import ExpertNode
@@ -81,7 +82,7 @@ def batch_message(actor: str, sequence: int = 0, n: int = 5, advised: bool = Fal
 
 def test_two_actors_feed_one_trainer_and_act_with_its_weights(harness, ros_context, tmp_path):
     actors = [add_actor(harness, ros_context, f'/a{i}') for i in range(2)]
-    trainer = add_trainer(harness, ros_context, tmp_path)
+    trainer = add_trainer(harness, ros_context, tmp_path, record=True)
     assert harness.spin_until(lambda: len(trainer.summaries) >= 8, timeout=90)
     # Learning runs in the trainer's own thread, at its own pace; the actors act meanwhile.
     assert harness.spin_until(
@@ -111,6 +112,17 @@ def test_two_actors_feed_one_trainer_and_act_with_its_weights(harness, ros_conte
         assert len([s for s in actor.summaries if s.advice_asked]) <= 2
     rows = (tmp_path / 'trainer' / 'episodes.csv').read_text().splitlines()
     assert rows[0].endswith(',actor') and rows[1].endswith('/actor')
+
+    # record: true: every batch it stored, as it came, and every episode, in trainer/record.mcap.
+    trainer.stop_learning()
+    trainer.close()
+    contents = read_record(tmp_path / 'trainer' / 'record.mcap')
+    assert contents.complete, contents.problem
+    batches = [m.message for m in contents.on('/transitions')]
+    assert sum(len(b.rewards) for b in batches) == len(trainer.learner.replay)
+    assert sum(sum(b.advised) for b in batches) == len(trainer.learner.advice_replay)
+    stats = [m.message.episode for m in contents.on('/trainer/episode_stats')]
+    assert stats == [row.episode for row, _ in trainer.summaries]
 
 
 def test_an_actor_keeps_its_transitions_until_a_trainer_listens(harness, ros_context, tmp_path):
