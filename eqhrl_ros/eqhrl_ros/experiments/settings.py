@@ -93,7 +93,23 @@ def load_settings(args) -> Settings:
     )
     if save_every is not None:
         settings.save_every_s = 60.0 * save_every
+    if learner.get('prior') and settings.env_id:
+        check_prior(learner['prior'], settings)
     return settings
+
+
+def check_prior(sources, settings: Settings) -> None:
+    """Refuse, before anything runs, a prior that is missing or was made on other spaces."""
+    from ..core import make_env
+    from ..mcap_record import RecordError, load_prior
+
+    env = make_env(settings.env_id, settings.max_episode_steps)
+    try:
+        load_prior(sources, int(env.observation_space.shape[0]), env.action_space.low, env.action_space.high)
+    except RecordError as error:
+        raise ValueError(f'prior: {error}') from error
+    finally:
+        env.close()
 
 
 def learner_config(settings: Settings, algorithm: str, seed: int):

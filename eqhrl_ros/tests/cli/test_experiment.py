@@ -435,3 +435,46 @@ def test_a_terminated_study_stops_its_workers_with_it(tmp_path):
     )
     command = [str(Path(sys.prefix) / 'bin' / 'eqhrl-study'), '--plan', 'plan.yaml', '--jobs', '2', '--output', 'out']
     _stop_and_check_workers_end(command, tmp_path, signal.SIGTERM)
+
+
+def test_a_recorded_experiment_seeds_the_next_with_its_advice(tmp_path, capsys):
+    """--record keeps each in-process run's advised transitions; --prior puts all of them into
+    the next runs' D and D_advising (seen here in the record the next run writes in turn)."""
+    from eqhrl_ros.mcap_record import load_prior
+
+    params_file = tmp_path / 'tiny.yaml'
+    params_file.write_text(
+        'gym_env:\n  ros__parameters:\n    env_id: Pendulum-v1\n    max_episode_steps: 30\n'
+        'learner:\n  ros__parameters:\n    env_id: Pendulum-v1\n    hidden_sizes: [16, 16]\n'
+        '    batch_size: 16\n    learning_starts: 30\n    queue_length: 3\n    advising_budget: 2\n'
+        '    max_episodes: 3\n'
+    )
+    common = ['--params', str(params_file), '--algorithms', 'eqsac', '--eval-every', '0', '--jobs', '1']
+    assert experiment.main([*common, '--seeds', '0', '1', '--record', '--output', str(tmp_path / 'first')]) == 0
+    given = sum(int(row['advice_given']) for row in read(tmp_path / 'first' / 'episodes.csv'))
+    assert given > 0
+    first = load_prior([tmp_path / 'first'], 3, [-2.0], [2.0])
+    assert len(first) == given and len(first.files) == 2
+
+    second = ['--seeds', '5', '--record', '--prior', str(tmp_path / 'first'), '--output', str(tmp_path / 'second')]
+    assert experiment.main([*common, *second]) == 0
+    own = sum(int(row['advice_given']) for row in read(tmp_path / 'second' / 'episodes.csv'))
+    # The second run's D_advising: the first runs' advice, then its own.
+    assert len(load_prior([tmp_path / 'second'], 3, [-2.0], [2.0])) == given + own
+
+    wrong = tmp_path / 'wrong.yaml'
+    wrong.write_text(params_file.read_text().replace('Pendulum-v1', 'MountainCarContinuous-v0'))
+    refused = [
+        '--params',
+        str(wrong),
+        '--seeds',
+        '0',
+        '--prior',
+        str(tmp_path / 'first'),
+        '--output',
+        str(tmp_path / 'x'),
+    ]
+    capsys.readouterr()
+    assert experiment.main(refused) == 2  # before anything runs
+    assert 'recorded on observations of 3 and actions of 1 values; this env has 2 and 1' in capsys.readouterr().err
+    assert not (tmp_path / 'x').exists()
