@@ -15,6 +15,7 @@ setup(
         ('share/' + package_name + '/params', glob('params/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
         ('share/' + package_name + '/studies', glob('studies/*.yaml')),
+        ('share/' + package_name + '/config', glob('config/*.xml')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

@@ -14,7 +14,8 @@ from pathlib import Path
 from .settings import Settings, env_node_command
 
 
-def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id: int) -> None:
+def train_command(settings: Settings, algorithm: str, seed: int, directory: Path) -> list:
+    """The eqhrl-train command of one run through the ROS nodes (the learner's settings it carries)."""
     command = [
         str(Path(sys.prefix) / 'bin' / 'eqhrl-train'),
         '--params',
@@ -33,10 +34,19 @@ def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Pa
     ]  # an unfinished run starts over
     if 'advising_budget' in settings.learner:
         command += ['--budget', str(settings.learner['advising_budget'])]
+    if settings.learner.get('record'):
+        command += ['--record']
+    if settings.learner.get('prior'):
+        command += ['--prior', *settings.learner['prior']]
     if settings.expert_backend == 'none':
         command += ['--expert-node', 'none']
     if settings.env_node:
         command += ['--env-node', 'none', '--discovery', 'localhost']
+    return command
+
+
+def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Path, progress, domain_id: int) -> None:
+    command = train_command(settings, algorithm, seed, directory)
     env = dict(os.environ, OMP_NUM_THREADS='1')
     # A private domain per run, so that parallel runs never exchange messages.
     env['ROS_DOMAIN_ID'] = str(domain_id)

@@ -478,3 +478,20 @@ def test_a_recorded_experiment_seeds_the_next_with_its_advice(tmp_path, capsys):
     assert experiment.main(refused) == 2  # before anything runs
     assert 'recorded on observations of 3 and actions of 1 values; this env has 2 and 1' in capsys.readouterr().err
     assert not (tmp_path / 'x').exists()
+
+
+def test_a_run_through_ros_carries_record_and_prior_to_the_learner(tmp_path):
+    from eqhrl_ros.experiments.ros_runs import train_command
+    from eqhrl_ros.mcap_record import McapRecord
+
+    record = McapRecord(tmp_path / 'record.mcap')  # an empty record on Pendulum's spaces is a valid prior
+    fields = {'observation_size': 3, 'action_low': [-2.0], 'action_high': [2.0]}
+    record.write_fields('/learner/transitions', 'eqhrl_interfaces/msg/TransitionBatch', fields)
+    record.close()
+    args = experiment.parse_args(
+        ['--params', 'demo', '--through-ros', '--record', '--prior', str(tmp_path), '--output', str(tmp_path / 'o')]
+    )
+    settings = load_settings(args)
+    command = train_command(settings, 'eqsac', 3, tmp_path / 'o' / 'eqsac' / 'seed3')
+    assert '--record' in command
+    assert command[command.index('--prior') + 1 :][:1] == [str(tmp_path.resolve())]
