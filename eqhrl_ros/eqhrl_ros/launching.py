@@ -29,3 +29,22 @@ def fail_launch_on_error(node):
             raise RuntimeError(reason)
 
     return RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit))
+
+
+# dds_profile:= of the launch files: a name shipped in share/eqhrl_ros/config, or an XML path.
+DDS_PROFILES = {'lossy_link': 'fastdds_lossy_link.xml'}
+DDS_PROFILE_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'  # what Fast DDS 2.x (ROS 2 Jazzy) reads
+
+
+def dds_profile_env(value: str, share_dir) -> dict:
+    """The environment that gives every node a Fast DDS profile: {} for '' (the environment as it
+    is), the shipped profile for a name of DDS_PROFILES, else ``value`` as a path to an XML file."""
+    from pathlib import Path
+
+    if not value:
+        return {}
+    path = Path(share_dir) / 'config' / DDS_PROFILES[value] if value in DDS_PROFILES else Path(value)
+    if not path.is_file():
+        names = ', '.join(DDS_PROFILES)
+        raise ValueError(f'dds_profile:={value} is neither one of {names} nor an XML file')
+    return {DDS_PROFILE_VARIABLE: str(path)}

@@ -10,7 +10,8 @@ Actor i runs in namespace /<actor_prefix><actor_offset + i>: e.g. /actor0/gym_en
 machine), and to `<hostname>_actor` where it does not (a robot machine: two robots launched
 alike never share a name). actor_offset shifts the indices and the seeds alike.
 All actors send to /transitions and take /weights (transitions_topic:=, weights_topic:= remap
-both sides, for several trainers in one domain); resume:=true continues the trainer's run.
+both sides, for several trainers in one domain); resume:=true continues the trainer's run;
+dds_profile:=lossy_link gives every node the Fast DDS profile for hosts on a lossy link.
 The trainer takes transitions only from actors it knows: those started here, the full names in
 trainer_actors:= (actors on other machines), or any that signs with key_file:=. A node that exits
 with an error (a trainer refusing to start) stops the launch, which exits non-zero.
@@ -31,7 +32,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from eqhrl_ros.launching import fail_launch_on_error
+from eqhrl_ros.launching import dds_profile_env, fail_launch_on_error
 from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, TRAINER_PARAMS, learner_section_for
 
 
@@ -75,6 +76,8 @@ def _nodes(context):
         raise ValueError(f'resume:={resume} is not true or false')
     prefix = _prefix(LaunchConfiguration('actor_prefix').perform(context), with_trainer == 'true')
     key = {'key_file': LaunchConfiguration('key_file').perform(context)}  # the deployment's shared secret
+    # Fast DDS for a lossy link between hosts (docs/performance.md, "Weights over a lossy link").
+    dds = dds_profile_env(LaunchConfiguration('dds_profile').perform(context), get_package_share_directory('eqhrl_ros'))
     remaps = [
         ('/transitions', LaunchConfiguration('transitions_topic').perform(context)),
         ('/weights', LaunchConfiguration('weights_topic').perform(context)),
@@ -99,6 +102,7 @@ def _nodes(context):
                 parameters=[trainer],
                 remappings=remaps,
                 output='screen',
+                additional_env=dds,
             )
         )
     env_params = {**shared, **_section(data, 'gym_env')}
@@ -107,11 +111,27 @@ def _nodes(context):
         ns = f'{prefix}{i}'
         env_i = {**env_params, 'seed': int(env_params.get('seed', 42)) + i}
         actor_i = {**actor_params, 'seed': int(actor_params.get('seed', 42)) + i, **key}
-        nodes.append(Node(package='eqhrl_ros', executable='gym_env', name='gym_env', namespace=ns, parameters=[env_i]))
+        nodes.append(
+            Node(
+                package='eqhrl_ros',
+                executable='gym_env',
+                name='gym_env',
+                namespace=ns,
+                parameters=[env_i],
+                additional_env=dds,
+            )
+        )
         if with_expert == 'true':
             expert = {**shared, **_section(data, 'expert')}
             nodes.append(
-                Node(package='eqhrl_ros', executable='expert', name='expert', namespace=ns, parameters=[expert])
+                Node(
+                    package='eqhrl_ros',
+                    executable='expert',
+                    name='expert',
+                    namespace=ns,
+                    parameters=[expert],
+                    additional_env=dds,
+                )
             )
         nodes.append(
             Node(
@@ -122,6 +142,7 @@ def _nodes(context):
                 parameters=[actor_i],
                 remappings=remaps,
                 output='screen',
+                additional_env=dds,
             )
         )
     # A node that refuses to start (or fails later) stops the launch, which then exits non-zero.
@@ -160,6 +181,12 @@ def generate_launch_description():
             ),
             DeclareLaunchArgument('transitions_topic', default_value='/transitions', description='remap /transitions'),
             DeclareLaunchArgument('weights_topic', default_value='/weights', description='remap /weights'),
+            DeclareLaunchArgument(
+                'dds_profile',
+                default_value='',
+                description='Fast DDS profile for every node: lossy_link (hosts on Wi-Fi or a lossy link: '
+                'share/eqhrl_ros/config/fastdds_lossy_link.xml), an XML path, or empty (the environment as it is)',
+            ),
             OpaqueFunction(function=_nodes),
         ]
     )

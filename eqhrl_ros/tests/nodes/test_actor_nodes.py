@@ -233,6 +233,7 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
         'trainer': {p.name for p in (*LEARNER_CONFIG_PARAMS, *TRAINER_PARAMS)} | {'use_sim_time'},
     }
     defaults = dict(actor_prefix='', actor_offset='0', resume='false', transitions_topic='/transitions', key_file='')
+    defaults['dds_profile'] = ''
     arguments.update(defaults, weights_topic='/weights', trainer_actors='')
 
     def launched():
@@ -287,6 +288,16 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
     assert [n['namespace'] for n in second if n['executable'] == 'actor'] == ['team_b_2', 'team_b_3']
     assert [n['parameters'][0]['seed'] for n in second if n['executable'] == 'actor'] == [44, 45]
     assert all(('/transitions', '/b/transitions') in n['remappings'] for n in second if n['executable'] != 'gym_env')
+    assert all(n['additional_env'] == {} for n in second)  # no dds_profile: the environment as it is
+    # dds_profile:=lossy_link: every node gets the shipped Fast DDS profile; a name that is no
+    # profile and no file is refused.
+    arguments.update(dds_profile='lossy_link')
+    profiles = {n['additional_env']['FASTRTPS_DEFAULT_PROFILES_FILE'] for n in launched()}
+    assert len(profiles) == 1 and profiles.pop().endswith('config/fastdds_lossy_link.xml')
+    arguments.update(dds_profile='lossy')
+    with pytest.raises(ValueError, match='dds_profile:=lossy is neither'):
+        launch_file._nodes(None)
+    arguments.update(dds_profile='')
     # A trainer alone, told its actors on other machines by name.
     arguments.update(actors='0', trainer_actors='/host_a_actor0/actor, /host_b_actor0/actor', key_file='')
     (alone,) = launched()
