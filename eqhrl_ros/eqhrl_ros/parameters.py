@@ -215,6 +215,13 @@ TRAINER_PARAMS = (
     ),
     Param('weights_every_updates', 50, 'Publish the networks on weights every N updates', (1, INT_MAX)),
     Param(
+        'weights_on_wire',
+        'float32',
+        'How the tensors travel on weights: float32, or float16 (half the bytes, for a thin link; the trainer '
+        'learns in float32, the actors cast back)',
+        choices=('float32', 'float16'),
+    ),
+    Param(
         'actor_silence_s', 10.0, 'Log an actor that sent nothing for this long (it may have stopped)', (0.1, 86400.0)
     ),
     Param('report_period_s', 10.0, 'Log transitions, updates and weights per second this often', (0.1, 86400.0)),

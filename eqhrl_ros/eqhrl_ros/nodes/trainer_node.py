@@ -362,7 +362,11 @@ class TrainerNode(RunFiles, Node):
             return
         self.trainer.keep_finite()
         msg = trainer_msgs.weights_msg(
-            self.trainer_id, learner.updates, learner.episode, self.get_clock().now().to_msg(), encode_weights(learner)
+            self.trainer_id,
+            learner.updates,
+            learner.episode,
+            self.get_clock().now().to_msg(),
+            encode_weights(learner, self.params['weights_on_wire']),
         )
         self.weights_pub.publish(trainer_msgs.sign_weights(msg, self.signer))
         self.trainer.weights_sent()

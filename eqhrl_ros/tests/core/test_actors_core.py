@@ -403,3 +403,17 @@ def test_a_named_trainer_is_the_only_one_followed():
     assert pin.judge('lab-trainer', 1, 0, 0, alone=False) == 'apply'
     pin.name('')  # the person lets the next trainer that publishes alone take over
     assert pin.judge('next', 0, 0, 0, alone=True) == 'apply'
+
+
+def test_weights_travel_as_float16_and_arrive_as_float32():
+    """weights_on_wire float16: half the bytes; the actor's networks stay float32, within float16's
+    rounding of the trainer's."""
+    source, target = pendulum_learner(), pendulum_learner()
+    wide, narrow = encode_weights(source), encode_weights(source, 'float16')
+    assert len(narrow) < 0.51 * len(wide)
+    apply_weights(target, narrow)
+    for network in ('actor', 'critic'):
+        mine, theirs = getattr(target, network).state_dict(), getattr(source, network).state_dict()
+        for key, value in mine.items():
+            assert value.dtype == theirs[key].dtype
+            assert torch.allclose(value, theirs[key], rtol=1e-3, atol=1e-4), key

@@ -13,18 +13,23 @@ from safetensors import SafetensorError
 from safetensors.torch import load, save
 
 NETWORKS = ('actor', 'critic')
+# How the trainer may send the tensors (weights_on_wire): float16 halves the bytes; the trainer
+# keeps learning in float32 and an actor casts them back to its own float32 on arrival.
+WIRE_DTYPES = {'float32': torch.float32, 'float16': torch.float16}
 
 
 class WeightsError(ValueError):
     """Weights that this learner cannot take: not safetensors, other names or shapes, NaN."""
 
 
-def encode_weights(learner) -> bytes:
-    """The learner's actor and twin critics as safetensors bytes."""
+def encode_weights(learner, wire_dtype: str = 'float32') -> bytes:
+    """The learner's actor and twin critics as safetensors bytes, floating tensors in ``wire_dtype``."""
+    dtype = WIRE_DTYPES[wire_dtype]
     tensors = {}
     for network in NETWORKS:
         for key, tensor in getattr(learner, network).state_dict().items():
-            tensors[f'{network}.{key}'] = tensor.detach().cpu().contiguous()
+            tensor = tensor.detach().cpu()
+            tensors[f'{network}.{key}'] = (tensor.to(dtype) if tensor.is_floating_point() else tensor).contiguous()
     return save(tensors)
 
 
@@ -44,13 +49,15 @@ def apply_weights(learner, data: bytes) -> None:
             missing, extra = sorted(set(own) - set(received)), sorted(set(received) - set(own))
             raise WeightsError(f"{network} tensors differ from this learner's: missing {missing}, unexpected {extra}")
         for key, tensor in received.items():
-            if tensor.shape != own[key].shape or tensor.dtype != own[key].dtype:
+            narrower = tensor.dtype in WIRE_DTYPES.values() and own[key].dtype == torch.float32
+            if tensor.shape != own[key].shape or (tensor.dtype != own[key].dtype and not narrower):
                 raise WeightsError(
                     f'{network}.{key} is {tuple(tensor.shape)} {tensor.dtype}, this learner has '
                     f'{tuple(own[key].shape)} {own[key].dtype} (other hidden_sizes?)'
                 )
             if tensor.is_floating_point() and not torch.isfinite(tensor).all():
                 raise WeightsError(f'{network}.{key} holds non-finite values (NaN or inf)')
+            received[key] = tensor.to(own[key].dtype)  # float16 on the wire: back to float32
         states[network] = received
     unknown = [name for name in tensors if name.split('.', 1)[0] not in NETWORKS]
     if unknown:
