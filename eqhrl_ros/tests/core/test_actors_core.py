@@ -410,7 +410,7 @@ def test_weights_travel_as_float16_and_arrive_as_float32():
     rounding of the trainer's."""
     source, target = pendulum_learner(), pendulum_learner()
     wide, narrow = encode_weights(source), encode_weights(source, 'float16')
-    assert len(narrow) < 0.51 * len(wide)
+    assert len(narrow) < 0.55 * len(wide)  # the names and shapes (its JSON header) stay
     apply_weights(target, narrow)
     for network in ('actor', 'critic'):
         mine, theirs = getattr(target, network).state_dict(), getattr(source, network).state_dict()
