@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: system-deps setup lint test test-fast demo bench bench-seeds bench-learner bench-ros bench-flood bench-actors bench-busy profile clean lock
+.PHONY: system-deps setup lint test test-fast demo bench bench-seeds bench-learner bench-ros bench-flood bench-actors bench-multi-host bench-busy profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -106,6 +106,15 @@ bench-flood: $(VENV)/.stamp-eqhrl_ros
 # late steps with the actor.
 bench-actors: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_actors.py
+
+# Actors and a trainer on hosts in network namespaces, with packet loss (nftables), and the fault
+# run (a 30 s cut and a trainer restart). As root; installs nftables with apt where it is missing.
+bench-multi-host: $(VENV)/.stamp-eqhrl_ros
+	@command -v nft >/dev/null || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nftables >/dev/null; } || \
+	  { echo "error: bench-multi-host needs nftables (apt-get install nftables) and root"; exit 1; }
+	$(VPY) benchmarks/bench_multi_host.py
+	$(VPY) benchmarks/bench_multi_host.py --cut --variants default
 
 # A busy machine: exits 1 if our default keeps under 40 % of its quiet
 # speed beside one CPU-bound process, in-process and through ROS.

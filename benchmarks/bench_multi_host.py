@@ -9,9 +9,10 @@ an nftables rule in each host's input chain drops that share of the packets it r
 the SUBNET range, with ROS_STATIC_PEERS in case multicast does not pass.
 
 The trainer (Table 1's networks, 256x256: weights of about 0.8 MB) runs on one host; each actor
-host runs a lock-step Pendulum gym_env, the heuristic expert and an actor. For each Fast DDS
-profile (``default``, and ``lossy_link``: share/eqhrl_ros/config/fastdds_lossy_link.xml, with
-net.core.rmem_max/wmem_max raised to 4 MB as it asks), 1 and 2 actor hosts, and each loss rate,
+host runs a lock-step Pendulum gym_env, the heuristic expert and an actor. For each variant (the Fast DDS
+profile ``default``, or ``lossy_link``: share/eqhrl_ros/config/fastdds_lossy_link.xml with
+net.core.rmem_max/wmem_max raised to 4 MB as it asks; ``+float16``: weights_on_wire:=float16),
+1 and 2 actor hosts, and each loss rate,
 it runs --seconds and prints: transitions/s and updates/s at the trainer, weights sent and
 applied per actor (the share delivered: an actor takes the latest version, so a version
 replaced before it arrived whole counts as not delivered), the weights' latency p50/p99 from
@@ -179,14 +180,15 @@ def reports(text: str) -> list[tuple[float, int, int, int]]:
     return [(float(t), int(n), int(u), int(w)) for t, n, u, w in REPORT.findall(text)]
 
 
-def throughput_run(hosts: int, loss: int, profile: str, seconds: float, log_dir: Path) -> dict:
+def throughput_run(hosts: int, loss: int, profile: str, wire: str, seconds: float, log_dir: Path) -> dict:
     names = ['trainer', *[f'h{i}' for i in range(hosts)]]
     network = Network(names, loss)
     nodes = []
     try:
         buffers = network.raise_buffers() if profile == 'lossy_link' else 'default'
         actors = [f'/h{i}/actor' for i in range(hosts)]
-        trainer = start_trainer(network, log_dir, log_dir / f'out_{profile}_{hosts}_{loss}', actors, profile)
+        out = log_dir / f'out_{profile}_{wire}_{hosts}_{loss}'
+        trainer = start_trainer(network, log_dir, out, actors, profile, '-p', f'weights_on_wire:={wire}')
         nodes.append(trainer)
         actor_nodes = []
         for name in names[1:]:
@@ -242,12 +244,12 @@ def throughput_run(hosts: int, loss: int, profile: str, seconds: float, log_dir:
         network.close()
 
 
-def cut_run(hosts: int, profile: str, log_dir: Path, cut_s: float = 30.0) -> dict:
+def cut_run(hosts: int, profile: str, wire: str, log_dir: Path, cut_s: float = 30.0) -> dict:
     names = ['trainer', *[f'h{i}' for i in range(hosts)]]
     network = Network(names, 0)
     nodes = []
-    out = log_dir / f'cut_{profile}_{hosts}'
-    extra = ['-p', 'checkpoint_every_episodes:=5', '-p', 'save_replay:=false']
+    out = log_dir / f'cut_{profile}_{wire}_{hosts}'
+    extra = ['-p', 'checkpoint_every_episodes:=5', '-p', 'save_replay:=false', '-p', f'weights_on_wire:={wire}']
     try:
         if profile == 'lossy_link':
             network.raise_buffers()
@@ -309,7 +311,13 @@ def main(argv=None) -> int:
     parser.add_argument('--seconds', type=float, default=60.0, help='measured seconds per configuration')
     parser.add_argument('--hosts', type=int, nargs='+', default=[1, 2], help='actor hosts')
     parser.add_argument('--loss', type=int, nargs='+', default=[0, 5], help='packet loss, percent')
-    parser.add_argument('--profiles', nargs='+', default=['default', 'lossy_link'], choices=['default', 'lossy_link'])
+    parser.add_argument(
+        '--variants',
+        nargs='+',
+        default=['default', 'lossy_link', 'lossy_link+float16'],
+        choices=['default', 'lossy_link', 'default+float16', 'lossy_link+float16'],
+        help='Fast DDS profile, and +float16 for weights_on_wire:=float16',
+    )
     parser.add_argument('--cut', action='store_true', help='the fault run (30 s cut, trainer kill -9 + resume)')
     args = parser.parse_args(argv)
     if os.geteuid() != 0 or not shutil.which('nft'):
@@ -318,21 +326,23 @@ def main(argv=None) -> int:
     log_dir = Path(tempfile.mkdtemp(prefix='bench_multi_host_'))
     print(f'logs in {log_dir}', flush=True)
     failed = False
-    for profile in args.profiles:
+    for variant in args.variants:
+        profile, _, wire = variant.partition('+')
+        wire = wire or 'float32'
         for hosts in args.hosts:
             if args.cut:
-                result = cut_run(hosts, profile, log_dir)
-                print(f'cut  profile {profile:10s} actor hosts {hosts}: {result}', flush=True)
+                result = cut_run(hosts, profile, wire, log_dir)
+                print(f'cut  {variant:18s} actor hosts {hosts}: {result}', flush=True)
                 failed |= bool(result.get('lost') or result.get('duplicated') or 'error' in result)
                 continue
             for loss in args.loss:
-                result = throughput_run(hosts, loss, profile, args.seconds, log_dir)
+                result = throughput_run(hosts, loss, profile, wire, args.seconds, log_dir)
                 shown = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in result.items()}
                 shown = {
                     k: ([round(x, 3) if isinstance(x, float) else x for x in v] if isinstance(v, list) else v)
                     for k, v in shown.items()
                 }
-                print(f'profile {profile:10s} actor hosts {hosts} loss {loss:2d} %: {shown}', flush=True)
+                print(f'{variant:18s} actor hosts {hosts} loss {loss:2d} %: {shown}', flush=True)
                 failed |= 'error' in result
     return 1 if failed else 0
 
