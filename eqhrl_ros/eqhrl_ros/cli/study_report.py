@@ -128,6 +128,25 @@ def score_runs(folder: Path, threshold: float, budget: dict) -> dict:
     return scores
 
 
+def prior_size(settings) -> int:
+    """Transitions an arm's runs start D with (its learner's prior; 0 without, or when unreadable)."""
+    sources = settings.learner.get('prior') or []
+    if not sources:
+        return 0
+    from ..core import make_env
+    from ..mcap_record import RecordError, load_prior
+
+    env = make_env(settings.env_id, settings.max_episode_steps)
+    try:
+        return len(
+            load_prior(sources, int(env.observation_space.shape[0]), env.action_space.low, env.action_space.high)
+        )
+    except RecordError:
+        return 0
+    finally:
+        env.close()
+
+
 def first_update_episode(folder: Path, learning_starts: dict) -> dict:
     """{(arm, seed): the first episode in which updates ran}: the episode holding the
     learning_starts-th transition, from the run's episode lengths (LunarLander's vary)."""
@@ -694,7 +713,9 @@ def main(argv=None) -> int:
     budget = {name: budget_of(s) for name, s in settings.items()}
     configs = {arm.name: learner_config(settings[arm.name], arm.mode, 0) for arm in loaded.arms}
     # The first episode with updates, run by run (LunarLander's episodes end at other steps).
-    updates_from = first_update_episode(folder, {name: c.learning_starts for name, c in configs.items()})
+    # An arm seeded with prior data (its learner's prior) starts D with it: fewer steps to learning_starts.
+    starts = {name: max(0, c.learning_starts - prior_size(settings[name])) for name, c in configs.items()}
+    updates_from = first_update_episode(folder, starts)
     arms = read_arms(folder)
     scores = score_runs(folder, threshold, budget)
     planned = {arm.name: len(arm.seeds) for arm in loaded.arms}
