@@ -3,10 +3,15 @@ call (both sides, from service introspection), every gate decision and the store
 read back with mcap-ros2-support and, independently, with rosbags; and prior: a later run seeded
 with an earlier run's advice."""
 
+import io
+
 import numpy as np
 import pytest
+import rclpy
+from std_msgs.msg import Bool
 
 from eqhrl_ros.mcap_record import McapRecord, RecordError, load_prior, read_record
+from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
@@ -17,18 +22,26 @@ from ros_helpers import params, small_learner_params
 REQUEST_SENT, REQUEST_RECEIVED, RESPONSE_SENT, RESPONSE_RECEIVED = range(4)
 
 
-def recorded_run(harness, ros_context, out, episodes=4, **extra):
-    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
+def recorded_run(harness, ros_context, out, episodes=4, images=False, on_start=None, **extra):
+    env = params(max_episode_steps=25, publish_images=images, image_rate_hz=20.0)
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=env))
     harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
     overrides = small_learner_params(out, max_episodes=episodes, record=True, publish_gate_debug=False, **extra)
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=overrides))
+    if on_start is not None:
+        harness.spin_until(lambda: False, timeout=0.5)
+        on_start()
     assert harness.spin_until(lambda: learner.done, timeout=90)
     learner.close()
     return learner
 
 
 def test_a_recorded_run_holds_every_request_answer_gate_and_transition(harness, ros_context, tmp_path):
-    learner = recorded_run(harness, ros_context, tmp_path)
+    # The person's STOP, pressed and released before the run: both are in the record.
+    person = harness.add(rclpy.create_node('person', context=ros_context))
+    stop = person.create_publisher(Bool, messages.STOP_TOPIC, messages.STOP_QOS)
+    stop.publish(Bool(data=True))
+    learner = recorded_run(harness, ros_context, tmp_path, images=True, on_start=lambda: stop.publish(Bool(data=False)))
     rows = read_rows(tmp_path / 'episodes.csv')
     asked = sum(int(r['advice_asked']) for r in rows)
     given = sum(int(r['advice_given']) for r in rows)
@@ -60,6 +73,13 @@ def test_a_recorded_run_holds_every_request_answer_gate_and_transition(harness, 
     batches = [m.message for m in contents.on('/learner/transitions')]
     assert sum(len(b.rewards) for b in batches) == steps == learner.learner.total_steps
     assert sum(sum(b.advised) for b in batches) == given == len(learner.learner.advice_replay)
+
+    assert [m.message.data for m in contents.on('/stop')] == [True, False]
+    frames = contents.on('/gym_env/image/compressed')
+    assert frames and all(f.message.format == 'jpeg' for f in frames)
+    from PIL import Image
+
+    assert Image.open(io.BytesIO(bytes(frames[-1].message.data))).size[0] > 0  # a JPEG that opens
 
     # An independent reader: rosbags sees the same topics and message counts, and decodes them all.
     from rosbags.highlevel import AnyReader
