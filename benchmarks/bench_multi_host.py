@@ -4,9 +4,10 @@
 
 Each host is a Linux network namespace; they are joined by a bridge in a switch namespace, with
 addresses inside the namespaces only (nothing reaches the machine's own network). Packet loss:
-an nftables rule in each host's input chain drops that share of the packets it receives
-(``numgen random mod 100 < loss``; this kernel has no netem). Discovery as across a real network:
-the SUBNET range, with ROS_STATIC_PEERS in case multicast does not pass.
+an nftables rule at the ingress of each host's link drops that share of the frames it receives
+(``numgen random mod 100 < loss``, before IP reassembles fragments; this kernel has no netem).
+Discovery as across a real network: the SUBNET range, with ROS_STATIC_PEERS in case multicast
+does not pass.
 
 The trainer (Table 1's networks, 256x256: weights of about 0.8 MB) runs on one host; each actor
 host runs a lock-step Pendulum gym_env, the heuristic expert and an actor. For each variant (the Fast DDS
@@ -74,10 +75,13 @@ class Network:
             sh('ip', '-n', ns, 'link', 'set', link, 'up')
             sh('ip', '-n', ns, 'link', 'set', 'lo', 'up')
             if loss:
+                # At the device's ingress, before IP reassembles fragments: each frame is lost
+                # with the given chance, as on a real link (an input-hook rule would see whole
+                # datagrams, and lose a 64 KB datagram no more often than a small one).
                 rules = (
-                    'add table inet eqhrl_loss\n'
-                    'add chain inet eqhrl_loss input { type filter hook input priority 0; }\n'
-                    f'add rule inet eqhrl_loss input iifname "{link}" numgen random mod 100 < {loss} counter drop\n'
+                    'add table netdev eqhrl_loss\n'
+                    f'add chain netdev eqhrl_loss ingress {{ type filter hook ingress device "{link}" priority 0; }}\n'
+                    f'add rule netdev eqhrl_loss ingress numgen random mod 100 < {loss} counter drop\n'
                 )
                 subprocess.run(['ip', 'netns', 'exec', ns, 'nft', '-f', '-'], input=rules, text=True, check=True)
 
@@ -320,6 +324,8 @@ def main(argv=None) -> int:
     )
     parser.add_argument('--cut', action='store_true', help='the fault run (30 s cut, trainer kill -9 + resume)')
     args = parser.parse_args(argv)
+    # A SIGTERM ends the run through its finally clauses: its nodes stopped, its namespaces deleted.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     if os.geteuid() != 0 or not shutil.which('nft'):
         print('needs root, iproute2 and nftables (make bench-multi-host installs nftables)', file=sys.stderr)
         return 2
