@@ -38,6 +38,8 @@ class LearnerNode(RunFiles, ActingNode):
             load_checkpoint(learner, self.checkpoint_path, self.replay_path)
             self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')
             self._show_resumed_settings(learner)
+            if self.params['prior']:
+                self.get_logger().info('prior not loaded: it seeds a fresh start only (a resumed run goes on as saved)')
         elif self.params['prior']:
             self._load_prior(learner)
         with self._lock:
