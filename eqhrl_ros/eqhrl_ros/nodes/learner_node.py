@@ -53,9 +53,12 @@ class LearnerNode(RunFiles, ActingNode):
 
     def _load_prior(self, learner: EQSACLearner) -> None:
         """Earlier runs' advice into D and D_advising (a record that does not fit refuses the start)."""
-        from ..mcap_record import load_prior
+        from ..mcap_record import RecordError, load_prior
 
-        prior = load_prior(self.params['prior'], learner.obs_dim, learner.scaler.low, learner.scaler.high)
+        try:
+            prior = load_prior(self.params['prior'], learner.obs_dim, learner.scaler.low, learner.scaler.high)
+        except RecordError as error:
+            raise ValueError(f'prior: {error}') from error
         learner.add_prior(prior.observations, prior.actions, prior.rewards, prior.next_observations, prior.terminated)
         cut = f' ({len(prior.cut_short)} cut short, read up to their last chunk)' if prior.cut_short else ''
         self.get_logger().info(
