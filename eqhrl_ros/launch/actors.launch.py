@@ -83,6 +83,17 @@ def _nodes(context):
         ('/weights', LaunchConfiguration('weights_topic').perform(context)),
     ]
 
+    def node(executable: str, parameters: dict, **options):
+        """One of the package's nodes, named as its executable, with the launch's DDS profile."""
+        return Node(
+            package='eqhrl_ros',
+            executable=executable,
+            name=executable,
+            parameters=[parameters],
+            additional_env=dds,
+            **options,
+        )
+
     nodes = []
     if with_trainer == 'true':
         trainer = {**shared, **learner_section_for(learner, TRAINER_PARAMS), **key}
@@ -94,57 +105,18 @@ def _nodes(context):
             trainer['actors'] = named or here
         if resume == 'true':
             trainer['resume'] = True
-        nodes.append(
-            Node(
-                package='eqhrl_ros',
-                executable='trainer',
-                name='trainer',
-                parameters=[trainer],
-                remappings=remaps,
-                output='screen',
-                additional_env=dds,
-            )
-        )
+        nodes.append(node('trainer', trainer, remappings=remaps, output='screen'))
     env_params = {**shared, **_section(data, 'gym_env')}
     actor_params = {**shared, **learner_section_for(learner, ACTOR_NODE_PARAMS)}
     for i in range(offset, offset + actors):
         ns = f'{prefix}{i}'
         env_i = {**env_params, 'seed': int(env_params.get('seed', 42)) + i}
         actor_i = {**actor_params, 'seed': int(actor_params.get('seed', 42)) + i, **key}
-        nodes.append(
-            Node(
-                package='eqhrl_ros',
-                executable='gym_env',
-                name='gym_env',
-                namespace=ns,
-                parameters=[env_i],
-                additional_env=dds,
-            )
-        )
+        nodes.append(node('gym_env', env_i, namespace=ns))
         if with_expert == 'true':
             expert = {**shared, **_section(data, 'expert')}
-            nodes.append(
-                Node(
-                    package='eqhrl_ros',
-                    executable='expert',
-                    name='expert',
-                    namespace=ns,
-                    parameters=[expert],
-                    additional_env=dds,
-                )
-            )
-        nodes.append(
-            Node(
-                package='eqhrl_ros',
-                executable='actor',
-                name='actor',
-                namespace=ns,
-                parameters=[actor_i],
-                remappings=remaps,
-                output='screen',
-                additional_env=dds,
-            )
-        )
+            nodes.append(node('expert', expert, namespace=ns))
+        nodes.append(node('actor', actor_i, namespace=ns, remappings=remaps, output='screen'))
     # A node that refuses to start (or fails later) stops the launch, which then exits non-zero.
     return [*nodes, *(fail_launch_on_error(node) for node in nodes)]
 
