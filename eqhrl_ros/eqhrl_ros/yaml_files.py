@@ -10,6 +10,10 @@ anything is built from it, when it is
 - anything the safe loader refuses (tags such as ``!!python/object``, bad syntax), or
 - not a mapping at its top (a file whose whole content is ``42`` or a list).
 
+One tag beyond the safe loader's is read: ``!!python/tuple``, as a list. launch_ros writes a
+node's parameters to a temporary params file with ``yaml.dump``, which tags every tuple so
+(``hidden_sizes``, ``actors``), and builds nothing from it but a sequence of plain values.
+
 The events are checked first, by the parser alone (no objects are built, no recursion), so a
 deep or huge file costs time in proportion to its size up to the limits, and no more.
 """
@@ -22,7 +26,16 @@ import yaml
 
 MAX_BYTES = 1 << 20
 MAX_DEPTH = 32
-_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)  # libyaml where PyYAML has it
+_SAFE = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)  # libyaml where PyYAML has it
+TUPLE_TAG = 'tag:yaml.org,2002:python/tuple'
+
+
+class _Loader(_SAFE):
+    """The safe loader, and launch_ros's tuples as lists (nothing else of Python's tags)."""
+
+
+_Loader.add_constructor(TUPLE_TAG, lambda loader, node: loader.construct_sequence(node, deep=True))
+_LOADER = _Loader
 
 
 class YamlFileError(ValueError):

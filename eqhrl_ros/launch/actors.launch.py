@@ -25,7 +25,6 @@ import os
 import re
 import socket
 
-import yaml
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
@@ -34,6 +33,7 @@ from launch_ros.actions import Node
 
 from eqhrl_ros.launching import dds_profile_env, fail_launch_on_error
 from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, TRAINER_PARAMS, learner_section_for
+from eqhrl_ros.yaml_files import load_mapping
 
 
 def _section(data: dict, name: str) -> dict:
@@ -55,8 +55,7 @@ def _nodes(context):
     params_file = LaunchConfiguration('params_file').perform(context) or os.path.join(
         get_package_share_directory('eqhrl_ros'), 'params', f'{env}.yaml'
     )
-    with open(params_file) as f:
-        data = yaml.safe_load(f) or {}
+    data = load_mapping(params_file, 'params file')  # refused in one line, as the nodes refuse it
     shared = _section(data, '/**')
     learner = _section(data, 'learner')
     actors = int(LaunchConfiguration('actors').perform(context))

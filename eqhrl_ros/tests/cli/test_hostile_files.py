@@ -56,6 +56,19 @@ def test_invalid_utf8_and_an_oversized_file_are_refused_before_parsing(tmp_path)
         load_mapping(big)
 
 
+def test_launch_ros_params_files_with_python_tuples_load_as_lists(tmp_path):
+    # What launch_ros writes for Node(parameters=[{...}]): yaml.dump of a dict whose lists it made tuples.
+    import yaml
+
+    dumped = yaml.dump({'/**': {'ros__parameters': {'hidden_sizes': (64, 64), 'actors': ('/a/actor',)}}})
+    assert '!!python/tuple' in dumped
+    loaded = load_mapping(write(tmp_path, 'launch_params', dumped), 'params file')
+    assert loaded['/**']['ros__parameters'] == {'hidden_sizes': [64, 64], 'actors': ['/a/actor']}
+    # Any other Python tag is still refused, inside a tuple too.
+    with pytest.raises(YamlFileError, match='could not determine a constructor'):
+        load_mapping(write(tmp_path, 'inner', 'a: !!python/tuple [!!python/name:os.system ""]\n'))
+
+
 def test_a_good_file_loads_and_an_empty_one_is_an_empty_mapping(tmp_path):
     assert load_mapping(write(tmp_path, 'ok', 'a: 1\nb: [1, {c: x}]\n')) == {'a': 1, 'b': [1, {'c': 'x'}]}
     assert load_mapping(write(tmp_path, 'empty', '')) == {}
