@@ -31,16 +31,13 @@ from eqhrl_interfaces.msg import PolicyWeights, TransitionAck, TransitionBatch
 
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner
 from ..core.data.signing import signer_from
-from ..core.data.transitions import Outbox
+from ..core.data.transitions import ACK_WAIT_S, MAX_MISSING, Outbox
 from ..core.data.weights import TrainerPin, WeightsError, apply_weights
 from ..parameters import ACTOR_NODE_PARAMS
 from . import trainer_msgs
 from .acting_node import ActingNode
 from .health import OK, WARN, Check
 from .spinning import run_node
-
-# Sent batches the trainer has not stored, and no acknowledgement for this long: send them again.
-ACK_WAIT_S = 2.0
 
 
 class ActorNode(ActingNode):
@@ -77,8 +74,8 @@ class ActorNode(ActingNode):
         )
         self.acks = 0
         self.acks_refused = 0
-        self._rewound = (None, 0.0)  # (received_through, time.monotonic()) of the last resend
         self._last_ack = time.monotonic()
+        self._last_probe = 0.0
         weights = self.create_subscription(
             PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, self._on_weights, trainer_msgs.WEIGHTS_QOS
         )
@@ -151,9 +148,10 @@ class ActorNode(ActingNode):
                 self._apply(msg)  # the trainer followed has left: the one that replaced it is alone
 
     def _send(self) -> None:
-        """Publish sealed batches while a trainer listens; otherwise keep them (bounded)."""
+        """Publish what is due (batches the trainer lacks, then sealed ones) while a trainer
+        listens, at most SEND_AT_ONCE a call; otherwise keep them (bounded)."""
         outbox = self.outbox
-        if not outbox.sealed:
+        if not outbox.pending:
             return
         if self.transitions_pub.get_subscription_count() == 0:
             if self._trainer_away_since is None:
@@ -180,26 +178,26 @@ class ActorNode(ActingNode):
             self.sent_transitions += len(batch)
 
     def _resend_if_unanswered(self) -> None:
-        """Batches sent that the trainer has not stored, and no word from it for ACK_WAIT_S: the last
-        ones went into a cut link, and no later batch came to show the gap. Send them again."""
+        """Batches sent that the trainer has not stored, and no word from it for ACK_WAIT_S: the
+        last ones went into a cut link (or its acknowledgements did), and no later batch came to
+        show the gap. Send the oldest of them again, once per ACK_WAIT_S: its acknowledgement
+        says what else is missing."""
         outbox, now = self.outbox, time.monotonic()
-        through = outbox.received_through
-        if not outbox.unacked or outbox.unacked[-1].sequence <= through or now - self._last_ack < ACK_WAIT_S:
+        if now - self._last_ack < ACK_WAIT_S or now - self._last_probe < ACK_WAIT_S:
             return
-        if self.transitions_pub.get_subscription_count() == 0 or now - self._rewound[1] < ACK_WAIT_S:
+        if self.transitions_pub.get_subscription_count() == 0:
             return
-        again = outbox.rewind(through)
-        if again:
-            self._rewound = (through, now)
+        if outbox.probe(now):
+            self._last_probe = now
             self.get_logger().info(
-                f'no acknowledgement for {ACK_WAIT_S:g} s: sending {again} batches after {through} again',
+                f'no acknowledgement for {ACK_WAIT_S:g} s: sending batch {outbox.received_through + 1} again',
                 throttle_duration_sec=5.0,
             )
 
     def _on_ack(self, msg: TransitionAck) -> None:
         """The followed trainer's acknowledgement of this run's batches: let go of what its checkpoint
-        holds; send again, in order, what it lacks (at most once a second for one gap: batches
-        already on their way would each ask again)."""
+        holds; send again what it lacks (each batch at most once per RESEND_AFTER_S: every
+        acknowledgement until it arrives names it)."""
         with self._lock:
             if self.outbox is None or msg.actor != self.actor_name or msg.actor_run != self.actor_run:
                 return
@@ -210,14 +208,14 @@ class ActorNode(ActingNode):
                     self.get_logger().warn(f'acknowledgement refused: {refusal}', throttle_duration_sec=5.0)
                 return
             self.acks += 1
-            through, now = int(msg.received_through), time.monotonic()
-            self._last_ack = now
-            rewind = bool(msg.rewind) and (self._rewound[0] != through or now - self._rewound[1] > 1.0)
-            again = self.outbox.acknowledge(through, int(msg.saved_through), rewind)
+            through = int(msg.received_through)
+            self._last_ack = time.monotonic()
+            missing = [int(s) for s in msg.missing[:MAX_MISSING]]
+            again = self.outbox.acknowledge(through, int(msg.saved_through), missing, int(msg.highest_received))
             if again:
-                self._rewound = (through, now)
                 self.get_logger().info(
-                    f'the trainer lacks batches after {through}: sending {again} again', throttle_duration_sec=5.0
+                    f'the trainer lacks {again} batch(es) after {through}: sending them again',
+                    throttle_duration_sec=5.0,
                 )
             self._send()
 
@@ -271,9 +269,12 @@ class ActorNode(ActingNode):
             return
         if new_trainer:
             self.get_logger().info(f"weights from trainer '{msg.trainer_id}' (v{msg.version})")
-            if self.outbox is not None and self.outbox.rewind(-1):
-                # Another trainer (a restart): it drops what it already holds, and asks for the rest.
-                self.get_logger().info(f'sending the {self.outbox.unsent} transitions kept to the new trainer')
+            if self.outbox is not None and self.outbox.unacked:
+                # Another trainer (a restart): the oldest batch kept goes to it at once, and its
+                # acknowledgement says what of the rest it lacks (a resumed one has its checkpoint's).
+                self.outbox.new_trainer()
+                self._last_ack = self._last_probe = 0.0
+                self.get_logger().info(f'{self.outbox.unsent} transitions kept for the new trainer')
         self.trainer_id, self.weights_version = msg.trainer_id, int(msg.version)
         self.pin.applied(msg.trainer_id, msg.version)
         self.weights_applied += 1

@@ -94,7 +94,13 @@ def sign_batch(msg: TransitionBatch, signer: Optional[Signer]) -> TransitionBatc
 
 
 def ack_parts(msg: TransitionAck) -> list:
-    return [msg.actor.encode(), msg.actor_run.encode(), struct.pack('<q?', msg.saved_through, msg.rewind)]
+    missing = np.asarray(msg.missing, dtype='<i8').tobytes()
+    return [
+        msg.actor.encode(),
+        msg.actor_run.encode(),
+        struct.pack('<qq', msg.saved_through, msg.highest_received),
+        missing,
+    ]
 
 
 def sign_ack(msg: TransitionAck, signer: Optional[Signer]) -> TransitionAck:
@@ -154,14 +160,16 @@ def weights_msg(trainer_id: str, version: int, episodes: int, stamp, tensors: by
     )
 
 
-def ack_msg(trainer_id: str, actor: str, state, rewind: bool, signer: Optional[Signer]) -> TransitionAck:
-    """The trainer's acknowledgement of an actor's stream (``state``: transitions.ActorSequence)."""
+def ack_msg(trainer_id: str, actor: str, state, highest: int, missing, signer: Optional[Signer]) -> TransitionAck:
+    """The trainer's acknowledgement of an actor's stream (``state``: transitions.ActorSequence;
+    ``highest`` and ``missing``: Trainer.missing)."""
     msg = TransitionAck(
         trainer_id=trainer_id,
         actor=actor,
         actor_run=state.run,
         received_through=int(state.received_through),
         saved_through=int(state.saved_through),
-        rewind=bool(rewind),
+        highest_received=int(max(highest, state.received_through)),
+        missing=[int(s) for s in missing],
     )
     return sign_ack(msg, signer)

@@ -32,7 +32,6 @@ from ..core.algorithm.learner import EQSACLearner, LearnerConfig
 from ..core.data.errors import CheckpointError
 from ..core.data.signing import signer_from
 from ..core.data.summary import EpisodeSummary
-from ..core.data.transitions import STORED
 from ..core.data.weights import encode_weights
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
@@ -187,13 +186,13 @@ class TrainerNode(RunFiles, Node):
             if self.trainer is None and not self._build_from(batch, low, high):
                 return
             self._check_spaces(batch.observations.shape[1], low, high)
-            verdict = 'refused'
             try:
-                verdict, rows = self.trainer.receive(batch)
-                if self.recording is not None and verdict in STORED:  # as it came, signature included
-                    self.recording.write(self.transitions_topic, msg)
-            finally:  # stored, or refused for what it holds: its actor hears where its stream stands
-                self._acknowledge(batch.actor, rewind=verdict == 'resend')
+                verdict, rows, stored = self.trainer.receive(batch, payload=msg)
+                if self.recording is not None:  # as they came, signature included
+                    for stored_msg in stored:
+                        self.recording.write(self.transitions_topic, stored_msg)
+            finally:  # stored, held, or refused for what it holds: its actor hears where its stream stands
+                self._acknowledge(batch.actor)
         except ValueError as error:
             self.refused_batches += 1
             self.get_logger().error(
@@ -211,10 +210,11 @@ class TrainerNode(RunFiles, Node):
             )
         elif verdict == 'restart':
             self.get_logger().info(f'actor {actor} started again')
-        elif verdict == 'resend':
+        elif verdict == 'ahead':
             state = self.trainer.sequences.actors[batch.actor]
             self.get_logger().info(
-                f'actor {actor}: batch {batch.sequence} came before batch {state.expected}: asked again from there',
+                f'actor {actor}: batch {batch.sequence} came before batch {state.expected}: held, the missing ones '
+                'asked for',
                 throttle_duration_sec=5.0,
             )
         if batch.actor in self._silent:
@@ -223,10 +223,11 @@ class TrainerNode(RunFiles, Node):
         for row, who in rows:
             self._on_episode(row, who)
 
-    def _acknowledge(self, actor: str, rewind: bool) -> None:
+    def _acknowledge(self, actor: str) -> None:
         state = self.trainer.sequences.actors.get(actor)
         if state is not None:
-            self.ack_pub.publish(trainer_msgs.ack_msg(self.trainer_id, actor, state, rewind, self.signer))
+            highest, missing = self.trainer.missing(actor)
+            self.ack_pub.publish(trainer_msgs.ack_msg(self.trainer_id, actor, state, highest, missing, self.signer))
 
     def _check_one_sender(self, actor: str) -> None:
         """An actor named in ``actors`` (when set), and one node only under its name: two nodes of
@@ -416,7 +417,7 @@ class TrainerNode(RunFiles, Node):
             f'{updates} updates ({(updates - before_u) / seconds:.1f}/s), {self.trainer.updates_owed()} owed, '
             f'weights v{updates} sent {self.weights_published} times, '
             f'{self.trainer.sequences.lost} batches lost, '
-            f'{sum(s.out_of_order for s in sequences.values())} asked again, '
+            f'{sum(s.out_of_order for s in sequences.values())} held past a gap, '
             f'{sum(s.duplicates for s in sequences.values())} received twice, {self.refused_batches} refused, '
             f'{self.dropped_batches} dropped (inbox full)'
         )

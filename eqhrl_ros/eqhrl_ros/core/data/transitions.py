@@ -1,14 +1,17 @@
 """Transitions on their way from an actor node to the trainer: batches, the actor's outbox,
 and the trainer's view of each actor's stream. No ROS here (nodes/trainer_msgs.py converts).
 
-Nothing is lost in an ordinary fault (a cut link, a trainer killed and resumed): each batch
-carries its actor run and a sequence number; the trainer stores an actor's batches in order
-only (a later one is not stored, and its acknowledgement asks for what it lacks: go-back-N),
-drops the ones it already has, and acknowledges both what it has stored (``received``) and
-what its last checkpoint holds (``saved``). The actor keeps every batch until a checkpoint holds
-it, so a trainer resumed from that checkpoint asks for, and gets, everything after it. What an
-actor may keep is bounded (``limit`` transitions); past it the oldest batch goes, counted as
-lost when the trainer never had it.
+Nothing is lost in an ordinary fault (a cut link, a trainer killed and resumed), and what was
+lost is all that is sent again (selective repeat, not go-back-N): each batch carries its actor
+run and a sequence number; the trainer stores an actor's batches in order, holds (bounded) the
+ones that arrive past a missing one, drops the ones it already has, and acknowledges what it
+has stored (``received``), the highest batch it has or holds, the ones it lacks below that
+(``missing``), and what its last checkpoint holds (``saved``). The actor keeps every batch
+until a checkpoint holds it, sends again only what an acknowledgement names as missing or what
+no acknowledgement has covered for ``ACK_WAIT_S``, and each batch at most once per
+``RESEND_AFTER_S``. A trainer resumed from its checkpoint thus asks for, and gets, everything
+after it. What an actor may keep is bounded (``limit`` transitions); past it the oldest batch
+goes, counted as lost when the trainer never had it.
 """
 
 from __future__ import annotations
@@ -21,6 +24,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .summary import EpisodeSummary
+
+# A sent batch no acknowledgement has covered for this long went into a cut link (or its
+# acknowledgement did): it is sent again. Also the actor's wait before it probes a silent trainer.
+ACK_WAIT_S = 2.0
+# A batch named missing is sent again at most once in this time: every acknowledgement until it
+# arrives names it again.
+RESEND_AFTER_S = 1.0
+# What the trainer holds past a missing batch, per actor, and names as missing in one acknowledgement.
+MAX_HELD_BATCHES = 1024
+MAX_MISSING = 256
 
 
 @dataclass
@@ -111,7 +124,7 @@ def batch_from_fields(msg) -> tuple[TransitionBatch, np.ndarray, np.ndarray]:
 
 class Outbox:
     """What an actor has to send: the batch being filled, sealed batches not sent yet, and sent
-    batches not yet held by the trainer's checkpoint (``unacked``).
+    batches not yet held by the trainer's checkpoint (``unacked``), with the ones to send again.
 
     A batch is sealed when it holds ``batch_transitions``, when an episode ends (so that the
     episode's statistics travel with its last transitions), or when the node's flush timer
@@ -126,8 +139,11 @@ class Outbox:
         self.batch_transitions, self.limit = batch_transitions, limit
         self.sealed: deque[TransitionBatch] = deque()  # to send, oldest first
         self.unacked: deque[TransitionBatch] = deque()  # sent, not in a trainer's checkpoint yet
+        self._sent_at: dict[int, float] = {}  # sequence -> time.monotonic() it last went out
+        self._again: deque[int] = deque()  # sequences to send again, in the order asked
         self.next_sequence = 0
         self.received_through = -1  # the trainer has stored every batch up to this one
+        self.highest_received = -1  # the highest batch the trainer has stored or holds
         self.dropped_batches = 0  # dropped at the bound before the trainer had them: lost
         self.dropped_transitions = 0
         self.dropped_episodes = 0
@@ -155,6 +171,11 @@ class Outbox:
     def oldest_kept(self) -> int:
         kept = self.unacked or self.sealed
         return kept[0].sequence if kept else self.next_sequence
+
+    @property
+    def pending(self) -> bool:
+        """Something to send now: a sealed batch, or one to send again."""
+        return bool(self.sealed or self._again)
 
     def add(self, obs, normalized_action, reward: float, next_obs, terminated: bool, advised: bool) -> None:
         if self._since is None:
@@ -193,6 +214,7 @@ class Outbox:
         self._open()
         while self.waiting > self.limit and len(self.unacked) + len(self.sealed) > 1:
             dropped = (self.unacked or self.sealed).popleft()
+            self._sent_at.pop(dropped.sequence, None)
             if dropped.sequence <= self.received_through:
                 self.released_unsaved += 1  # the trainer has it; only a crash before its next save loses it
                 continue
@@ -200,33 +222,81 @@ class Outbox:
             self.dropped_transitions += len(dropped)
             self.dropped_episodes += len(dropped.episodes)
 
-    def pop_oldest(self) -> TransitionBatch | None:
-        """The oldest sealed batch, to send now (None when there is none); kept until acknowledged."""
+    def pop_oldest(self, now: float | None = None) -> TransitionBatch | None:
+        """The next batch to send now (None when there is none): one the trainer lacks first, then
+        the oldest sealed one. Kept until a checkpoint holds it."""
+        now = time.monotonic() if now is None else now
+        while self._again:
+            batch = self._find(self._again.popleft())
+            if batch is not None:  # else let go meanwhile (saved, or dropped at the bound)
+                self._sent_at[batch.sequence] = now
+                self.resent_batches += 1
+                return batch
         if not self.sealed:
             return None
         batch = self.sealed.popleft()
         batch.oldest_kept = self.oldest_kept if self.unacked else batch.sequence
         self.unacked.append(batch)
+        self._sent_at[batch.sequence] = now
         return batch
 
-    def acknowledge(self, received_through: int, saved_through: int, rewind: bool) -> int:
-        """A trainer's acknowledgement: batches its checkpoint holds are let go; with ``rewind``
-        (it lacks a batch sent since ``received_through``), the sent batches after it go out again,
-        in order. Returns how many are sent again."""
-        self.received_through = received_through
-        while self.unacked and self.unacked[0].sequence <= saved_through:
-            self.unacked.popleft()
-        return self.rewind(received_through) if rewind else 0
+    def _find(self, sequence: int) -> TransitionBatch | None:
+        if not self.unacked or not self.unacked[0].sequence <= sequence <= self.unacked[-1].sequence:
+            return None
+        batch = self.unacked[sequence - self.unacked[0].sequence]  # numbered without holes
+        return batch if batch.sequence == sequence else None
 
-    def rewind(self, after: int) -> int:
-        """Send again every sent batch numbered after ``after`` (a trainer lacks them)."""
-        again = [b for b in self.unacked if b.sequence > after]
-        if not again:
-            return 0
-        self.unacked = deque(b for b in self.unacked if b.sequence <= after)
-        self.sealed.extendleft(reversed(again))
-        self.resent_batches += len(again)
-        return len(again)
+    def acknowledge(
+        self,
+        received_through: int,
+        saved_through: int,
+        missing=(),
+        highest_received: int | None = None,
+        now: float | None = None,
+    ) -> int:
+        """A trainer's acknowledgement: batches its checkpoint holds are let go; the ones it names
+        ``missing``, and the sent ones above ``highest_received`` (all it has or holds) that no
+        acknowledgement covered within ACK_WAIT_S, go out again, each at most once per
+        RESEND_AFTER_S. Returns how many are queued to go again."""
+        now = time.monotonic() if now is None else now
+        self.received_through = received_through
+        self.highest_received = (
+            received_through if highest_received is None else max(received_through, highest_received)
+        )
+        while self.unacked and self.unacked[0].sequence <= saved_through:
+            self._sent_at.pop(self.unacked.popleft().sequence, None)
+        queued = set(self._again)
+        due = [s for s in missing if s > received_through and now - self._sent_at.get(s, now) >= RESEND_AFTER_S]
+        due += [
+            b.sequence
+            for b in self.unacked
+            if b.sequence > self.highest_received and now - self._sent_at.get(b.sequence, now) >= ACK_WAIT_S
+        ]
+        return self._queue_again(due, queued)
+
+    def probe(self, now: float | None = None) -> int:
+        """No word from the trainer for a while: send again the oldest batch it has not stored (its
+        acknowledgement then says what else it lacks). Returns 1 if one is queued."""
+        now = time.monotonic() if now is None else now
+        for batch in self.unacked:
+            if batch.sequence > self.received_through:
+                if now - self._sent_at.get(batch.sequence, now) < ACK_WAIT_S:
+                    return 0
+                return self._queue_again([batch.sequence], set(self._again))
+        return 0
+
+    def _queue_again(self, sequences, queued: set) -> int:
+        count = 0
+        for sequence in sorted(set(sequences) - queued):
+            if self._find(sequence) is not None:
+                self._again.append(sequence)
+                count += 1
+        return count
+
+    def new_trainer(self) -> None:
+        """Another trainer (a restart): it may lack anything its checkpoint does not hold, which is
+        all this actor keeps. Its first acknowledgement says what it has."""
+        self.received_through = self.highest_received = self.oldest_kept - 1
 
 
 @dataclass
@@ -239,7 +309,7 @@ class ActorSequence:
     lost: int = 0  # batches the actor no longer held when the trainer asked for them
     restarts: int = 0
     duplicates: int = 0  # batches received again (resent) and already stored
-    out_of_order: int = 0  # batches received past a missing one: not stored, asked again
+    out_of_order: int = 0  # batches received past a missing one: held until it comes
     last_heard: float = 0.0  # time.monotonic()
 
     @property
@@ -247,7 +317,7 @@ class ActorSequence:
         return self.expected - 1
 
 
-# What a batch is, for the trainer: stored, or not ('duplicate', 'resend').
+# What a batch is, for the trainer: stored, or not ('duplicate'; 'ahead': past a missing one, held).
 STORED = ('first', 'next', 'gap', 'restart')
 
 
@@ -260,8 +330,8 @@ class SequenceTracker:
     def receive(self, actor: str, sequence: int, run: str = '', oldest_kept: int | None = None) -> str:
         """What a batch is: 'first' (an actor not heard before), 'restart' (a new run of a known
         actor), 'next' (the one due), 'gap' (due after batches the actor no longer held: lost),
-        'duplicate' (stored already: drop it) or 'resend' (past a missing one: not stored; the
-        actor is asked for what is missing). A run's first batch is due at ``oldest_kept``."""
+        'duplicate' (stored already: drop it) or 'ahead' (past a missing one: not stored yet; the
+        trainer holds it and asks for what is missing). A run's first batch is due at ``oldest_kept``."""
         oldest = sequence if oldest_kept is None else min(int(oldest_kept), sequence)
         state = self.actors.get(actor)
         if state is None:
@@ -279,7 +349,7 @@ class SequenceTracker:
             state.expected, gap = oldest, True
         if sequence > state.expected:
             state.out_of_order += 1
-            return 'resend'
+            return 'ahead'
         state.expected = sequence + 1
         state.batches += 1
         state.run_batches += 1

@@ -13,13 +13,14 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
 from ..algorithm.learner import NETWORK_STATE, AdviceCounts, EQSACLearner
 from ..data.summary import EpisodeSummary
-from ..data.transitions import STORED, SequenceTracker, TransitionBatch
+from ..data.transitions import MAX_HELD_BATCHES, MAX_MISSING, STORED, SequenceTracker, TransitionBatch
 
 # episodes.csv of a trainer: a learner's columns and the actor each episode came from.
 TRAINER_CSV_FIELDS = (*EpisodeSummary.CSV_FIELDS, 'actor')
@@ -32,6 +33,16 @@ INT32_MAX = 2**31 - 1
 # A batch numbered this far past the last one of its actor is not a gap but a forgery (an actor
 # that really lost that many batches of 50 transitions would have lost a day at 1 kHz).
 MAX_SEQUENCE_JUMP = 1_000_000
+
+
+class Receipt(NamedTuple):
+    """What Trainer.receive made of a batch: its verdict, the episode rows it ended (with their
+    actor), and what was stored by this call, in order: the batch's payload, then those of the
+    batches held past it that it let through."""
+
+    verdict: str
+    rows: list
+    stored: list
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,12 +77,17 @@ class Trainer:
         self.rejected_batches = 0
         self.weights_at = None  # learner.updates when weights last went out
         self.restored = 0  # updates undone because they made the networks non-finite
+        # Batches past a missing one, per actor: {sequence: (batch, payload)}, or None for one
+        # refused for what it holds (never stored; the stream moves past it when it is due).
+        self.held: dict[str, dict[int, tuple | None]] = {}
         self._finite = None  # the networks and optimisers as they last were known finite
 
-    def receive(self, batch: TransitionBatch) -> tuple[str, list[tuple[EpisodeSummary, str]]]:
-        """Store a batch: (what its sequence number says, [(episode row, actor)]). Only the batch
-        due from its actor is stored (transitions.SequenceTracker): one stored already, or one
-        past a missing batch, is not, and its verdict says so ('duplicate', 'resend').
+    def receive(self, batch: TransitionBatch, payload=None) -> Receipt:
+        """Store a batch, and the ones held past it that it lets through. Only the batch due from
+        its actor is stored at once (transitions.SequenceTracker); one past a missing batch is
+        held (at most MAX_HELD_BATCHES an actor) until the missing ones come; one stored already
+        is dropped. ``payload`` (the message, say) is what ``Receipt.stored`` lists for each
+        batch stored (the batch itself by default).
 
         A batch with wrong sizes, a non-finite value, a value that cannot be (an action outside
         its bounds, an absurd magnitude, episode statistics that contradict themselves) or a
@@ -87,11 +103,24 @@ class Trainer:
             self.rejected_batches += 1
             # Refused for what it holds, it will never be stored: the stream moves past it (else its
             # actor would send it again for ever, and nothing after it would be stored).
-            self.sequences.receive(batch.actor, batch.sequence, batch.run, batch.oldest_kept)
+            verdict = self.sequences.receive(batch.actor, batch.sequence, batch.run, batch.oldest_kept)
+            self._forget_held(batch.actor)
+            if verdict == 'ahead':
+                self._hold(batch.actor, batch.sequence, None)
+            else:
+                self._let_through(batch.actor, [], [])
             raise
         verdict = self.sequences.receive(batch.actor, batch.sequence, batch.run, batch.oldest_kept)
-        if verdict not in STORED:  # stored already, or past a missing batch: nothing of it is stored
-            return verdict, []
+        self._forget_held(batch.actor)
+        rows, stored = [], []
+        if verdict == 'ahead':
+            self._hold(batch.actor, batch.sequence, (batch, payload))
+        elif verdict in STORED:
+            self._store(batch, payload, rows, stored)
+            self._let_through(batch.actor, rows, stored)
+        return Receipt(verdict, rows, stored)
+
+    def _store(self, batch: TransitionBatch, payload, rows: list, stored: list) -> None:
         learner = self.learner
         starts = learner.config.learning_starts
         for i in range(len(batch)):
@@ -106,7 +135,50 @@ class Trainer:
             learner.total_steps += 1  # env steps over all actors
             if len(learner.replay) >= starts:
                 self.eligible += 1
-        return verdict, [(self.add_episode(summary), batch.actor) for summary in batch.episodes]
+        rows += [(self.add_episode(summary), batch.actor) for summary in batch.episodes]
+        stored.append(batch if payload is None else payload)
+
+    def _hold(self, actor: str, sequence: int, entry) -> None:
+        held = self.held.setdefault(actor, {})
+        if len(held) < MAX_HELD_BATCHES or sequence < max(held):
+            held[sequence] = entry
+            while len(held) > MAX_HELD_BATCHES:
+                del held[max(held)]  # the furthest ahead goes: asked for again later
+
+    def _forget_held(self, actor: str) -> None:
+        """Held batches of another run of the actor, or already passed, are dropped."""
+        held, state = self.held.get(actor), self.sequences.actors.get(actor)
+        if not held:
+            return
+        for sequence in [s for s, entry in held.items() if s < state.expected]:
+            del held[sequence]
+        if any(entry is not None and entry[0].run != state.run for entry in held.values()):
+            held.clear()
+
+    def _let_through(self, actor: str, rows: list, stored: list) -> None:
+        """The held batches that are now due, in order."""
+        held, state = self.held.get(actor), self.sequences.actors[actor]
+        while held and state.expected in held:
+            entry = held.pop(state.expected)
+            self.sequences.receive(actor, state.expected, state.run, state.expected)
+            if entry is not None:
+                self._store(entry[0], entry[1], rows, stored)
+
+    def missing(self, actor: str) -> tuple[int, list[int]]:
+        """(the highest batch of ``actor`` stored or held, the ones below it not here yet: at most
+        MAX_MISSING, the oldest first)."""
+        state = self.sequences.actors.get(actor)
+        if state is None:
+            return -1, []
+        held = self.held.get(actor) or {}
+        highest = max(held, default=state.received_through)
+        gaps = []
+        for sequence in range(state.expected, highest):
+            if sequence not in held:
+                gaps.append(sequence)
+                if len(gaps) >= MAX_MISSING:
+                    break
+        return highest, gaps
 
     def _check(self, batch: TransitionBatch) -> None:
         n, obs_dim, action_dim = len(batch), self.learner.obs_dim, self.learner.action_dim
