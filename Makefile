@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: system-deps setup lint test test-fast demo bench bench-seeds bench-learner bench-ros bench-flood bench-actors bench-multi-host bench-busy profile clean lock
+.PHONY: system-deps setup ros2-tools lint test test-fast demo bench bench-seeds bench-learner bench-ros bench-flood bench-actors bench-multi-host bench-busy profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -64,12 +64,23 @@ $(VENV)/.stamp-eqhrl_ros: $(VENV)/.stamp-interfaces $(PACKAGE_SRC)
 	rm -rf eqhrl_ros/build eqhrl_ros/*.egg-info
 	touch $@
 
+# The real `ros2` CLI and `ros2 launch` (not on PyPI) for the tests that run them, where the
+# project's machines have their sources (../shared/ros2-tools); a user's clone goes without
+# them, and those tests say so in one line.
+ROS2_TOOLS_INSTALL := $(wildcard ../shared/ros2-tools/install.sh)
+ros2-tools: $(if $(ROS2_TOOLS_INSTALL),$(VENV)/.stamp-ros2-tools)
+	@[ -n "$(ROS2_TOOLS_INSTALL)" ] || echo "no ../shared/ros2-tools: the tests of the real ros2 CLI and ros2 launch are skipped"
+
+$(VENV)/.stamp-ros2-tools: $(VENV)/.stamp-deps $(ROS2_TOOLS_INSTALL)
+	bash $(ROS2_TOOLS_INSTALL) $(VENV) . .ros2-tools 2>&1 | $(PIP_QUIET)
+	touch $@
+
 # ruff: lint and format check of the whole tree (rules in ruff.toml).
 lint: $(VENV)/.stamp-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
-test: system-deps setup lint
+test: system-deps setup ros2-tools lint
 	$(VENV)/bin/pytest eqhrl_ros/tests
 
 # Feedback for a developer in under a minute: everything but the tests marked slow.
@@ -140,4 +151,4 @@ lock: $(VENV)/.stamp-deps
 	  $(VPY) -m pip freeze --exclude-editable | sed -e 's/^torch==2.13.0+cpu/torch==2.13.0/'; } > constraints.txt
 
 clean:
-	rm -rf $(VENV) $(BUILD) runs
+	rm -rf $(VENV) $(BUILD) .ros2-tools runs

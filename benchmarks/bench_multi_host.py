@@ -20,9 +20,10 @@ replaced before it arrived whole counts as not delivered), the weights' latency 
 publish to applied, and the bytes on the trainer's link (sent: per weights message; received:
 per transition).
 
---cut: the fault run instead: actors on one or two hosts, a 30 s cut of their links, then a
-kill -9 of the trainer and a restart with resume; at the end the envs stop, and every episode
-each actor finished is looked for in the trainer's episodes.csv: lost and duplicated (target 0).
+--cut: the fault run instead: actors on one or two hosts, 60 s of learning, a 30 s cut of their
+links, 60 s more, then a kill -9 of the trainer and a restart with resume, and 120 s more; at the end the envs stop, and every episode
+each actor finished is looked for in the trainer's episodes.csv: lost and duplicated (target 0),
+and the actors' transitions sent per transition stepped (what the resends cost; target under 1.2).
 """
 
 from __future__ import annotations
@@ -177,6 +178,8 @@ REPORT = re.compile(
     r'\[(\d+\.\d+)\] \[trainer\]: (\d+) transitions from \d+ actor\(s\) .*?, (\d+) updates '
     r'.*?weights v\d+ sent (\d+) times'
 )
+SENT = re.compile(r'(\d+) steps; sent \d+ batches \((\d+) transitions, (\d+) batches again\)')
+TWICE = re.compile(r'(\d+) received twice')
 APPLIED = re.compile(r'weights applied (\d+)(?: \(latency p50 ([\d.]+) ms, p99 ([\d.]+) ms\))?')
 
 
@@ -268,19 +271,19 @@ def cut_run(hosts: int, profile: str, wire: str, log_dir: Path, cut_s: float = 3
             actor_nodes.append(host_nodes[2])
         if not wait_for(lambda: all('weights from trainer' in a.text() for a in actor_nodes), 240):
             return {'error': 'no weights reached the actors in 240 s'}
-        time.sleep(20)
+        time.sleep(60)
         for name in names[1:]:
             network.cut(name, True)
         time.sleep(cut_s)
         for name in names[1:]:
             network.cut(name, False)
-        time.sleep(15)
+        time.sleep(60)
         trainer.stop(signal.SIGKILL)
         time.sleep(5)
         restarted = start_trainer(network, log_dir, out, actors, profile, *extra, '-p', 'resume:=true')
         nodes.append(restarted)
         wait_for(lambda: 'resumed from' in restarted.text(), 120)
-        time.sleep(30)
+        time.sleep(120)
         for env in envs:
             env.stop()
         finished = {
@@ -298,7 +301,18 @@ def cut_run(hosts: int, profile: str, wire: str, log_dir: Path, cut_s: float = 3
 
         wait_for(lambda: recorded() == finished, 120)
         stored = recorded()
+        for actor in actor_nodes:
+            actor.stop()
+        sent = [SENT.findall(actor.text()) for actor in actor_nodes]
+        steps = sum(int(s[-1][0]) for s in sent if s)
+        transitions = sum(int(s[-1][1]) for s in sent if s)
         return {
+            'transitions sent / stepped': transitions / max(steps, 1),
+            'batches sent again': sum(int(s[-1][2]) for s in sent if s),
+            # Resent batches the trainer already had: what a resend wasted (go-back-N: tens of thousands).
+            'received twice': sum(
+                int(n) for n in TWICE.findall(trainer.text())[-1:] + TWICE.findall(restarted.text())[-1:]
+            ),
             'finished': finished,
             'recorded': stored,
             'lost': sum(max(0, finished[a] - stored.get(a, 0)) for a in finished),
@@ -340,6 +354,7 @@ def main(argv=None) -> int:
                 result = cut_run(hosts, profile, wire, log_dir)
                 print(f'cut  {variant:18s} actor hosts {hosts}: {result}', flush=True)
                 failed |= bool(result.get('lost') or result.get('duplicated') or 'error' in result)
+                failed |= result.get('transitions sent / stepped', 0) >= 1.2
                 continue
             for loss in args.loss:
                 result = throughput_run(hosts, loss, profile, wire, args.seconds, log_dir)

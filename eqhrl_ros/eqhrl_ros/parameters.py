@@ -200,12 +200,26 @@ ACTOR_NODE_PARAMS = (
         'the oldest batch goes, counted as lost when the trainer never had it',
         (1, INT_MAX),
     ),
+    Param(
+        'exit_wait_s',
+        3.0,
+        'At exit (Ctrl-C, SIGTERM): wait up to this long for the trainer to store every transition sent '
+        '(0: do not wait); what it still lacks then is counted lost in the exit line',
+        (0.0, 60.0),
+    ),
     TORCH_THREADS,
 )
 
 TRAINER_PARAMS = (
     *ENV_PARAMS,
     *run_params('runs/trainer'),
+    Param(
+        'exit_wait_s',
+        4.0,
+        'At exit: keep storing what actors still send for up to this long, until none publishes (their own '
+        'exit_wait_s waits for this), then save (0: save at once)',
+        (0.0, 60.0),
+    ),
     Param(
         'updates_per_transition',
         1.0,

@@ -12,8 +12,19 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
 os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')  # pygame renders rgb_array frames without a display
 
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
 import pytest  # noqa: E402
 import torch  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+VENV = Path(sys.prefix)
+# The real `ros2` CLI and `ros2 launch` (not on PyPI): `make test` builds them here from
+# ../shared/ros2-tools where that exists (the project's machines); a user's clone has none.
+ROS2_TOOLS = REPO / '.ros2-tools' / 'setup.sh'
 
 # Two cores: keep torch from oversubscribing when tests start ROS node threads.
 torch.set_num_threads(1)
@@ -45,3 +56,55 @@ def harness(ros_context, request):
         yield h
     finally:
         h.close()
+
+
+@pytest.fixture(scope='session')
+def colcon_install(tmp_path_factory):
+    """The repository built as a ROS user builds it: a checkout under src/ of a workspace,
+    `colcon build`, the venv as underlay. Returns the install space."""
+    colcon = VENV / 'bin' / 'colcon'
+    if not colcon.exists():
+        pytest.fail(f'colcon is missing from {VENV}: run `make setup`')
+    workspace = tmp_path_factory.mktemp('ws')
+    (workspace / 'src').mkdir()
+    # Build outputs at the top only (a pattern would also drop eqhrl_ros/core/runs), caches anywhere.
+    top = {'.venv', '.ros2-tools', 'build', 'install', 'log', 'runs', '.git'}
+    caches = shutil.ignore_patterns('__pycache__', '*.egg-info')
+
+    def ignore(folder, names):
+        return set(caches(folder, names)) | (top & set(names) if Path(folder) == REPO else set())
+
+    shutil.copytree(REPO, workspace / 'src' / 'eqhrl', ignore=ignore)
+    env = dict(os.environ, AMENT_PREFIX_PATH=str(VENV), CMAKE_PREFIX_PATH=str(VENV))
+    env['PATH'] = f'{VENV / "bin"}:{env["PATH"]}'
+    result = subprocess.run(
+        [
+            str(colcon),
+            'build',
+            '--event-handlers',
+            'console_direct-',
+            '--cmake-args',
+            f'-DPython3_EXECUTABLE={sys.executable}',
+            f'-DCMAKE_PROJECT_INCLUDE={REPO / "tools" / "cmake" / "venv_underlay_fixes.cmake"}',
+            '-DBUILD_TESTING=OFF',
+        ],
+        cwd=workspace,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return workspace / 'install'
+
+
+@pytest.fixture(scope='session')
+def ros2_env(colcon_install):
+    """The environment of a shell that sourced the real ros2 tools and the colcon install space,
+    as a ROS user's terminal has it (this test run's private domain included)."""
+    if not ROS2_TOOLS.is_file():
+        pytest.skip(f'no real ros2 CLI here ({ROS2_TOOLS} missing: make test installs it from ../shared/ros2-tools)')
+    script = f'. {ROS2_TOOLS} && . {colcon_install}/setup.sh && env -0'
+    result = subprocess.run(['bash', '-c', script], capture_output=True, timeout=60, check=True)
+    pairs = (item.split('=', 1) for item in result.stdout.decode().split('\0') if '=' in item)
+    return dict(pairs)

@@ -1,4 +1,5 @@
-"""The tree builds as a regular ROS 2 workspace does: colcon, with the venv as underlay.
+"""The tree builds as a regular ROS 2 workspace does: colcon, with the venv as underlay
+(the build is conftest.py's colcon_install, shared with the tests of the real ros2 CLI).
 
 Checks what `ros2 run eqhrl_ros learner` relies on after sourcing install/setup.bash:
 the ament index entry, executables in lib/eqhrl_ros, and the Advise type importable
@@ -6,7 +7,6 @@ from the install space.
 """
 
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -15,44 +15,7 @@ import pytest
 
 pytestmark = pytest.mark.slow  # see setup.cfg: left out by make test-fast
 
-REPO = Path(__file__).resolve().parents[2]
-VENV = Path(sys.prefix)
-
-
-@pytest.fixture(scope='module')
-def colcon_install(tmp_path_factory):
-    colcon = VENV / 'bin' / 'colcon'
-    if not colcon.exists():
-        pytest.fail(f'colcon is missing from {VENV}: run `make setup`')
-    workspace = tmp_path_factory.mktemp('ws')
-    (workspace / 'src').mkdir()
-    # A checkout of this repository under src/, as a ROS user would have it (build outputs left out).
-    shutil.copytree(
-        REPO,
-        workspace / 'src' / 'eqhrl',
-        ignore=shutil.ignore_patterns('.venv', 'build', 'install', 'log', 'runs', '.git', '__pycache__', '*.egg-info'),
-    )
-    env = dict(os.environ, AMENT_PREFIX_PATH=str(VENV), CMAKE_PREFIX_PATH=str(VENV))
-    env['PATH'] = f'{VENV / "bin"}:{env["PATH"]}'
-    result = subprocess.run(
-        [
-            str(colcon),
-            'build',
-            '--event-handlers',
-            'console_direct-',
-            '--cmake-args',
-            f'-DPython3_EXECUTABLE={sys.executable}',
-            f'-DCMAKE_PROJECT_INCLUDE={REPO / "tools" / "cmake" / "venv_underlay_fixes.cmake"}',
-            '-DBUILD_TESTING=OFF',
-        ],
-        cwd=workspace,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    return workspace / 'install'
+VENV = sys.prefix
 
 
 def test_colcon_builds_both_packages(colcon_install):
@@ -61,6 +24,15 @@ def test_colcon_builds_both_packages(colcon_install):
     assert (colcon_install / 'eqhrl_interfaces' / 'share' / 'eqhrl_interfaces' / 'srv' / 'Advise.srv').is_file()
     assert (colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros' / 'params' / 'pendulum.yaml').is_file()
     assert (colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros' / 'launch' / 'train.launch.py').is_file()
+
+
+def test_the_install_space_holds_every_module_of_the_package(colcon_install):
+    import eqhrl_ros
+
+    source = Path(eqhrl_ros.__file__).parent
+    installed = next((colcon_install / 'eqhrl_ros' / 'lib').glob('python3*/site-packages/eqhrl_ros'))
+    modules = {p.relative_to(source) for p in source.rglob('*.py')}
+    assert modules and modules <= {p.relative_to(installed) for p in installed.rglob('*.py')}
 
 
 def test_ros2_run_finds_the_executables(colcon_install):

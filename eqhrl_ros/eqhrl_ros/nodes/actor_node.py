@@ -328,25 +328,45 @@ class ActorNode(ActingNode):
         steps = self.learner.total_steps if self.learner else 0
         return (
             f'{steps} steps; sent {self.sent_batches} batches ({self.sent_transitions} transitions, '
-            f'{resent} batches again), {unsent} not stored by the trainer, {dropped} dropped; '
+            f'{resent} batches again), {unsent} not stored by the trainer{" (lost)" if unsent and self.done else ""}, '
+            f'{dropped} dropped; '
             f'weights applied {self.weights_applied}{latency}, '
             f'refused {self.weights_refused}; waited for weights {self.weights_waits} times'
         )
 
 
 def _flush_and_report(node: ActorNode) -> None:
-    """At exit: send what is waiting if a trainer listens (a last partial batch included)."""
+    """At exit: act no more, send what is left (a last partial batch included) and wait up to
+    exit_wait_s for the trainer to store it all, answering its acknowledgements; then say what
+    it still lacks."""
+    from rclpy.executors import SingleThreadedExecutor
+
     try:
         with node._lock:
+            node.done = True  # no more steps: the env's next observations are not acted on
             if node.outbox is not None:
                 node.outbox.seal()
-                for _ in range(100):
-                    if not node.outbox.sealed or node.transitions_pub.get_subscription_count() == 0:
-                        break
-                    node._send()
+                node._send()
+        if node.outbox is not None and node.params['exit_wait_s'] > 0:
+            executor = SingleThreadedExecutor(context=node.context)
+            executor.add_node(node)  # acknowledgements in, batches the trainer lacks out
+            deadline = time.monotonic() + node.params['exit_wait_s']
+            try:
+                while time.monotonic() < deadline and node.context.ok():
+                    with node._lock:
+                        if node.outbox.unsent == 0 or node.transitions_pub.get_subscription_count() == 0:
+                            break
+                        node._resend_if_unanswered()
+                        node._send()
+                    executor.spin_once(timeout_sec=0.05)
+            finally:
+                executor.remove_node(node)
+                executor.shutdown(timeout_sec=0)
     except Exception as error:  # the middleware may already be going down (a second Ctrl-C)
         node.get_logger().warn(f'could not send the last transitions: {error}')
-    node.get_logger().info(f'actor {node.actor_name}: {node.report()}')
+    unsent = node.outbox.unsent if node.outbox is not None else 0
+    log = node.get_logger().error if unsent else node.get_logger().info
+    log(f'actor {node.actor_name}: {node.report()}')
 
 
 def main(args=None):
