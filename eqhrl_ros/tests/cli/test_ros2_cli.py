@@ -123,7 +123,10 @@ def test_train_launch_and_the_readmes_ros2_commands(ros2_env, tmp_path):
             timeout=60,
         )
         assert 'Setting parameter failed' in refused.stdout + refused.stderr, refused
-        request = '{observation: [1.0, 0.0, 0.0], proposed_action: [0.0], action_low: [-2.0], action_high: [2.0], timeout_s: 1.0}'
+        request = (
+            '{observation: [1.0, 0.0, 0.0], proposed_action: [0.0], action_low: [-2.0], action_high: [2.0], '
+            'timeout_s: 1.0}'
+        )
         answer = ros2(ros2_env, 'service', 'call', '/advise', 'eqhrl_interfaces/srv/Advise', request)
         assert 'advised=True' in answer and 'action=' in answer, answer
         helped = ros2(ros2_env, 'run', 'eqhrl_ros', 'learner', '--help')
