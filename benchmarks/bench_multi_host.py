@@ -22,8 +22,9 @@ per transition).
 
 --cut: the fault run instead: actors on one or two hosts, 60 s of learning, a 30 s cut of their
 links, 60 s more, then a kill -9 of the trainer and a restart with resume, and 120 s more; at
-the end the envs stop, and every episode each actor finished is looked for in the trainer's episodes.csv: lost and duplicated (target 0),
-and the actors' transitions sent per transition stepped (what the resends cost; target under 1.2).
+the end the envs stop, and every episode each actor finished is looked for in the trainer's
+episodes.csv: lost and duplicated (target 0), and the actors' transitions sent per transition
+stepped (what the resends cost; target under 1.2) with the resent batches the trainer already had.
 """
 
 from __future__ import annotations
