@@ -107,10 +107,11 @@ bench-learner: $(VENV)/.stamp-bench
 bench-ros: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_ros.py --executor events
 
-# A hostile flood on the learner's and the env's input topics: memory and recovery.
+# A hostile flood on the learner's and the env's input topics (memory and recovery), and on the
+# trainer's /transitions from a name it does not hear (memory during and after).
 bench-flood: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/flood.py --target learner; learner=$$?; $(VPY) benchmarks/flood.py --target env; env=$$?; \
-	  exit $$(( learner || env ))
+	  $(VPY) benchmarks/flood_trainer.py; trainer=$$?; exit $$(( learner || env || trainer ))
 
 # What torch.compile and bfloat16 matrix products would buy the update (evidence, no target).
 # Actors and a trainer against the lock-step learner; exits 1 if a 50 Hz env had

@@ -29,6 +29,11 @@ WEIGHTS_TOPIC = '/weights'
 # Reliable, and deep enough that an actor's backlog sent at once after the trainer (re)appears
 # is not overwritten in the writer's history before it is acknowledged.
 TRANSITIONS_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
+# The trainer's side: the middleware keeps the buffers of the reader's history for the reader's
+# life, as large as the largest message it held, so its depth bounds what a flood of huge batches
+# from a stranger costs (refused at once, but only once taken from that history). A batch that
+# finds it full is lost on the way, and sent again (selective repeat).
+TRANSITIONS_READER_QOS = QoSProfile(depth=20, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
 # The latest weights only, kept for actors that start (or restart) later.
 WEIGHTS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Batches an actor publishes per call: a backlog goes out over several calls, within the QoS depth.

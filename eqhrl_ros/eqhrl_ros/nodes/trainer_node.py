@@ -47,6 +47,19 @@ from .run_files import RunFiles, save_and_close
 from .spinning import run_node, steady_clock, stop_with_error
 
 STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# Refused batches of this many bytes since the last report make a new transitions subscription.
+FLOOD_BYTES = 16e6
+
+
+def give_back_freed_memory() -> None:
+    """Return the heap's free pages to the system (glibc's malloc_trim; elsewhere nothing): after
+    a flood of large messages, freed but kept, they held the trainer's RSS hundreds of MB up."""
+    import ctypes
+
+    try:
+        ctypes.CDLL('libc.so.6').malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 class TrainerNode(RunFiles, Node):
@@ -85,9 +98,7 @@ class TrainerNode(RunFiles, Node):
 
         self.weights_pub = self.create_publisher(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, trainer_msgs.WEIGHTS_QOS)
         self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', STATS_QOS)
-        transitions = self.create_subscription(
-            TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, self._on_batch, trainer_msgs.TRANSITIONS_QOS
-        )
+        transitions = self._subscribe_transitions()
         # What it has stored and saved, after every batch: actors keep and resend until it is saved.
         self.ack_pub = self.create_publisher(
             TransitionAck, trainer_msgs.ack_topic(transitions.topic_name), trainer_msgs.ACK_QOS
@@ -99,6 +110,7 @@ class TrainerNode(RunFiles, Node):
         self._namesakes: dict = {}  # actor name -> (time looked up, nodes of that name publishing transitions)
         self.transitions_topic = self.resolve_topic_name(trainer_msgs.TRANSITIONS_TOPIC)
         self.dropped_batches = 0  # refused because the inbox was full (counted as lost by their actor too)
+        self._refused_bytes = 0  # of strangers' batches refused since their memory was last given back
         self._work = threading.Event()  # set when a batch arrives
         self._hold = threading.Event()  # set while another thread saves
         self._stopping = threading.Event()
@@ -153,10 +165,39 @@ class TrainerNode(RunFiles, Node):
 
     # ------------------------------------------------------------------ transitions in
 
+    def _subscribe_transitions(self):
+        self.transitions_sub = self.create_subscription(
+            TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, self._on_batch, trainer_msgs.TRANSITIONS_READER_QOS
+        )
+        return self.transitions_sub
+
+    def _give_back_flood_memory(self) -> None:
+        """After strangers' batches were refused: the middleware keeps the buffers of the reader's
+        history as large as the largest message it held (20 of a flood's), and malloc the freed
+        messages' pages. A new subscription and malloc_trim return both. A batch of an actor in
+        flight meanwhile is lost on the way and sent again."""
+        flood, self._refused_bytes = self._refused_bytes, 0
+        if flood >= FLOOD_BYTES:
+            self.destroy_subscription(self.transitions_sub)
+            self._subscribe_transitions()
+            self.get_logger().info(f'{flood / 1e6:.0f} MB of refused batches: their memory given back')
+        give_back_freed_memory()
+
     def _on_batch(self, msg: TransitionBatch) -> None:
-        """The executor's part: queue the batch for the learning thread, nothing more. The queue
-        holds at most inbox_limit_mb; past it a batch is dropped and counted (a flood, or updates
-        far slower than the actors), and its actor's next batch shows the gap."""
+        """The executor's part: refuse a batch from an actor it does not hear (not in ``actors``,
+        or not signed with key_file) at once, and queue the others for the learning thread,
+        nothing more. The queue holds at most inbox_limit_mb; past it a batch is dropped and
+        counted (updates far slower than the actors), and its actor's next batch shows the gap.
+        So a stranger's flood never reaches the queue: it costs what one message in hand costs."""
+        refusal = self._stranger(msg)
+        if refusal:
+            self.refused_batches += 1
+            self._refused_bytes += trainer_msgs.batch_bytes(msg)
+            self.get_logger().error(
+                f'batch {msg.sequence} of actor {printable_name(msg.actor)} refused: {refusal}',
+                throttle_duration_sec=5.0,
+            )
+            return
         size = trainer_msgs.batch_bytes(msg)
         with self._inbox_bytes_lock:
             full = self._inbox_bytes + size > self.params['inbox_limit_mb'] * 1e6
@@ -173,14 +214,18 @@ class TrainerNode(RunFiles, Node):
         self._inbox.append(msg)
         self._work.set()
 
+    def _stranger(self, msg: TransitionBatch) -> str:
+        """Why a batch comes from an actor this trainer does not hear ('' when it may)."""
+        allowed = self.params['actors']
+        if allowed and msg.actor not in allowed:
+            return f'actor {printable_name(msg.actor)} is not one of actors ({", ".join(allowed[:5])})'
+        return trainer_msgs.signature_refusal(msg, self.signer)
+
     def _store(self, msg: TransitionBatch) -> None:
         """The learning thread's part: a batch into D (and D_advising), its episodes into the record."""
         if self.done:
             return  # max_episodes reached: learning stopped, the record is closed to new rows
         try:
-            refusal = trainer_msgs.signature_refusal(msg, self.signer)
-            if refusal:
-                raise ValueError(refusal)
             self._check_one_sender(msg.actor)
             batch, low, high = trainer_msgs.batch_from_msg(msg)
             if self.trainer is None and not self._build_from(batch, low, high):
@@ -230,12 +275,9 @@ class TrainerNode(RunFiles, Node):
             self.ack_pub.publish(trainer_msgs.ack_msg(self.trainer_id, actor, state, highest, missing, self.signer))
 
     def _check_one_sender(self, actor: str) -> None:
-        """An actor named in ``actors`` (when set), and one node only under its name: two nodes of
+        """One node only under an actor's name (``_stranger`` has checked the name): two nodes of
         one full name publishing transitions (two machines launched alike, or a stranger posing as
         an actor) cannot be told apart, so the batches of both are refused."""
-        allowed = self.params['actors']
-        if allowed and actor not in allowed:
-            raise ValueError(f'actor {printable_name(actor)} is not one of actors ({", ".join(allowed[:5])})')
         now = time.monotonic()
         looked, count = self._namesakes.get(actor, (float('-inf'), 0))
         if now - looked >= GRAPH_CACHE_S:
@@ -404,6 +446,8 @@ class TrainerNode(RunFiles, Node):
 
     def _report(self) -> None:
         # Without the lock: counters only (ints, read whole); the learning thread keeps going.
+        if self._refused_bytes:
+            self._give_back_flood_memory()
         if self.trainer is None:
             return
         now, transitions, updates = time.monotonic(), self.learner.total_steps, self.learner.updates

@@ -339,6 +339,20 @@ def test_the_trainers_inbox_is_bounded_in_bytes_and_counts_what_it_drops(harness
     assert trainer._inbox_bytes <= 1e6
 
 
+def test_a_flood_from_an_actor_the_trainer_does_not_hear_never_reaches_its_inbox(harness, ros_context, tmp_path):
+    """Refused where it arrives, by name (and by signature with a key_file): before, the inbox
+    queued a stranger's batches up to inbox_limit_mb and its memory stayed up after."""
+    trainer = add_trainer(harness, ros_context, tmp_path, actors=['/a0/actor'])
+    trainer.stop_learning()  # nothing is stored: what is queued stays in the inbox
+    msg = batch_message('/flood', n=9_000)
+    for sequence in range(10):
+        msg.sequence = sequence
+        trainer._on_batch(msg)
+    assert not trainer._inbox and trainer._inbox_bytes == 0 and trainer.refused_batches == 10
+    trainer._on_batch(batch_message('/a0/actor'))  # the actor it hears is queued as before
+    assert len(trainer._inbox) == 1 and trainer.dropped_batches == 0
+
+
 def test_a_rogue_trainer_beside_the_real_one_changes_no_action(harness, ros_context, tmp_path):
     """A well-formed PolicyWeights with a trainer id of its own, whose actor always pushes +2,
     published at 20 Hz beside the real trainer: the actor refuses every one and keeps acting
