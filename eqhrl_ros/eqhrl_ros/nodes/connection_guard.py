@@ -7,8 +7,11 @@ web server's own protocol (aiohttp's) and tells ``ConnectionGuard`` what it saw:
 - a connection that has not sent a whole request header (up to the blank line) within
   ``header_timeout_s`` is closed: idle and half-open connections do not stay;
 - when a limit is reached, the oldest connection still without a whole header gives way to the
-  new one (a page load sends its header at once); only when every connection held has sent
-  one is the new connection refused.
+  new one (a page load sends its header at once); failing that, the oldest websocket (an open
+  page's, or a client's holding one open), so that a person who opens the page always gets in,
+  however many websockets others hold; only when every connection held is a plain request in
+  progress is the new connection refused. (A client that reconnects in a loop can push a page
+  out in turn: off loopback the token keeps strangers out.)
 Refusals and closures are counted and logged at most once per ``log_every_s``.
 """
 
@@ -60,12 +63,15 @@ class ConnectionGuard:
             crowd = members()  # as it is now: the limit before may have made room already
             if len(crowd) >= limit:
                 idle = next((c for c in crowd if not c.header_seen), None)
+                kind = 'without a request'
+                if idle is None:
+                    idle, kind = next((c for c in crowd if c.websocket), None), '(the oldest websocket)'
                 if idle is None:
                     self.refused += 1
                     self._say(f'a connection from {client} refused: every connection held is in use')
                     return False
                 self.evicted += 1
-                self._say(f'a connection from {self.open.get(idle)} without a request closed to make room')
+                self._say(f'a connection from {self.open.get(idle)} {kind} closed to make room')
                 idle.close()
                 # Its connection_lost comes on a later turn of the loop: it no longer counts from now,
                 # or a burst of new connections would be let in beyond the limit meanwhile.
@@ -90,6 +96,7 @@ class GuardedProtocol(asyncio.Protocol):
         self.inner: Optional[asyncio.Protocol] = None
         self.transport: Optional[asyncio.Transport] = None
         self.header_seen = False
+        self.websocket = False  # its request asked for a websocket (a page's updates)
         self._head = b''
         self._timer: Optional[asyncio.TimerHandle] = None
 
@@ -111,6 +118,7 @@ class GuardedProtocol(asyncio.Protocol):
             self._head = (self._head + data)[-MAX_HEADER_BYTES:]
             if HEADER_END in self._head or len(self._head) >= MAX_HEADER_BYTES:
                 self.header_seen = True  # from here on, aiohttp's own timeouts and heartbeats apply
+                self.websocket = b'upgrade: websocket' in self._head.lower()
                 self._head = b''
                 if self._timer is not None:
                     self._timer.cancel()
