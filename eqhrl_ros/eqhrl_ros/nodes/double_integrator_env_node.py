@@ -125,6 +125,7 @@ class DoubleIntegratorEnv(Node):
                 realtime=self.realtime,
                 rate_hz=self.rate_hz if self.realtime else 0.0,
                 success_rule=EnvInfo.SUCCESS_REPORTED,  # the last field of each observation
+                publisher=self.get_fully_qualified_name(),  # tells it from a stranger's env_info
             )
         )
         self._reset()

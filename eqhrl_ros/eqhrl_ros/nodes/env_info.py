@@ -10,6 +10,8 @@ one at work logs it and goes on.
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from typing import Callable, Optional
 
 from rclpy.node import Node
@@ -24,10 +26,19 @@ from .spinning import start_up_errors, stop_with_error
 TOPIC = 'env_info'
 # Latched: one message, kept for late joiners. A subscriber must ask for transient-local too.
 ENV_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# An env_info not taken when it came is looked at again for this long (its env's observation
+# publisher may be discovered a moment after it), then dropped; at most HELD_MESSAGES at once.
+# One that names its publisher, for NAMED_HOLD_S only: a stranger's that names the env before
+# the env runs must not be taken once the env appears.
+HOLD_S = 10.0
+NAMED_HOLD_S = 2.0
+HELD_MESSAGES = 8
 
 
-def env_info_msg(spec: EnvSpec) -> EnvInfo:
+def env_info_msg(spec: EnvSpec, publisher: str = '') -> EnvInfo:
+    """``spec`` as an EnvInfo; ``publisher``: the env node's full name (EnvInfo.msg says why)."""
     return EnvInfo(
+        publisher=publisher,
         name=spec.name,
         observation_size=spec.observation_size,
         observation_labels=list(spec.observation_labels),
@@ -117,13 +128,15 @@ class EnvInfoWatcher:
         self._on_spec = on_spec
         self.subscription = node.create_subscription(EnvInfo, TOPIC, self._on_env_info, ENV_INFO_QOS)
         self.topic = self.subscription.topic_name
-        # Only the env speaks for the env: env_info is taken while every node publishing it also
-        # publishes the observations (or is env_node). A stranger's latched env_info is held, not
-        # obeyed, and looked at again while it waits (graph_trust.py says why the graph decides).
+        # Only the env speaks for the env: an env_info naming its publisher is taken while that node
+        # publishes env_info and the observations (or is env_node); one naming none, while every
+        # node publishing env_info does. Any other is held, not obeyed, and looked at again for
+        # HOLD_S (graph_trust.py says why the graph decides). So a stranger's latched env_info
+        # neither configures a node nor keeps it from the real env's, which names the env.
         self.env_node = node.get_parameter('env_node').value if node.has_parameter('env_node') else ''
         self.observation_topic = node.resolve_topic_name('observation')
         self.untrusted = 0
-        self._held: Optional[EnvInfo] = None
+        self._held: deque = deque(maxlen=HELD_MESSAGES)  # (time.monotonic() it came, EnvInfo)
         self._recheck = node.create_timer(0.5, self._on_recheck)
         if configured is not None:
             self._use(configured)
@@ -145,28 +158,43 @@ class EnvInfoWatcher:
         else:
             stop_with_error(self.node, message)
 
-    def refusal(self) -> str:
-        """'' when every publisher of env_info is the env (it publishes observation, or is env_node)."""
+    def refusal(self, msg: Optional[EnvInfo] = None) -> str:
+        """'' when ``msg`` comes from the env: it names a node that publishes env_info and the
+        observations (or is env_node), or it names none and every publisher of env_info is such a
+        node. Else why not."""
         speakers = publishers(self.node, self.topic)
         allowed = {self.env_node} if self.env_node else publishers(self.node, self.observation_topic)
+        which = f"'{self.env_node}'" if self.env_node else f'the publisher of {self.observation_topic}'
+        claimed = getattr(msg, 'publisher', '') if msg is not None else ''
+        if claimed:
+            if claimed in speakers and claimed in allowed:
+                return ''
+            return f'{self.topic} names its publisher {shown(claimed)}, which does not publish it and is not {which}'
         strangers = sorted(speakers - allowed)
         if strangers:
-            which = f"'{self.env_node}'" if self.env_node else f'the publisher of {self.observation_topic}'
             return f'{self.topic} is published by {strangers}, which is not {which}'
+        if not speakers:  # its publisher has left: nobody vouches for it
+            return f'{self.topic} has no publisher now'
         return ''
 
     def _on_recheck(self) -> None:
-        if self._held is not None and not self.refusal():
-            msg, self._held = self._held, None
-            self._on_env_info(msg)
+        now = time.monotonic()
+        for held in list(self._held):
+            if now - held[0] > (NAMED_HOLD_S if held[1].publisher else HOLD_S):
+                self._held.remove(held)  # never vouched for in time: dropped
+        for held in list(self._held):
+            if not self.refusal(held[1]):
+                self._held.remove(held)
+                self._on_env_info(held[1])
+                return
 
     def _on_env_info(self, msg: EnvInfo) -> None:
         if self.node.context is None or not self.node.context.ok():
             return
-        refusal = self.refusal()
+        refusal = self.refusal(msg)
         if refusal:
             self.untrusted += 1
-            self._held = msg  # taken once the stranger has left (or the env's observations show)
+            self._held.append((time.monotonic(), msg))  # taken if the graph vouches for it soon
             self.node.get_logger().warn(f'env_info held, not obeyed: {refusal}', throttle_duration_sec=5.0)
             return
         try:

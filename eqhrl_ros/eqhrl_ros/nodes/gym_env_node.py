@@ -91,7 +91,7 @@ class GymEnvNode(Node):
         self.health = Health(self, self.health_checks)
         # Latched: nodes that start later still learn the spaces from it.
         self.env_info_pub = self.create_publisher(EnvInfo, env_info.TOPIC, env_info.ENV_INFO_QOS)
-        self.env_info_pub.publish(env_info.env_info_msg(self.spec))
+        self.env_info_pub.publish(env_info.env_info_msg(self.spec, self.get_fully_qualified_name()))
         self._reset(seed=p['seed'])
         # The steady clock: the env's pace and its re-sends must not stop with ROS time
         # (use_sim_time with no /clock). Frames are stamped with the node's clock.

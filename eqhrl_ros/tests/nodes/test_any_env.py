@@ -377,6 +377,24 @@ def test_an_env_info_from_a_node_that_is_not_the_env_is_held_not_obeyed(harness,
     assert waiting.learner.scaler.high.tolist() == [2.0] and env is not None
 
 
+def test_a_learner_holding_a_strangers_env_info_takes_the_real_envs_though_the_stranger_stays(
+    harness, ros_context, tmp_path
+):
+    """The stranger's latched env_info stays on the graph when the env starts: before, the learner
+    held both and waited for ever (0 episodes in 60 s). The env's own names it as its publisher."""
+    waiting = harness.add(LearnerNode(context=ros_context, parameter_overrides=no_env_id(tmp_path)))
+    rogue = harness.add(rclpy.create_node('rogue', context=ros_context))
+    fake = env_info.env_info_msg(EnvSpec('Pendulum-v1', 3, [-100.0], [100.0]), publisher='/gym_env')  # a forged name
+    rogue.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(fake)
+    assert harness.spin_until(lambda: waiting.env_info.untrusted >= 1)
+    harness.spin_until(lambda: False, timeout=env_info.NAMED_HOLD_S + 1.0)  # looked at again, then dropped
+    assert waiting.learner is None and not waiting.env_info._held  # no spaces from a stranger
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=20)))
+    assert harness.spin_until(lambda: waiting.learner is not None, timeout=20)
+    assert waiting.learner.scaler.high.tolist() == [2.0]
+    assert harness.spin_until(lambda: waiting.learner.total_steps > 0, timeout=20)
+
+
 @pytest.mark.parametrize(
     'observation,low,problem',
     [
