@@ -7,6 +7,7 @@ skips these tests, in one line, where they are not installed."""
 
 import csv
 import os
+import shutil
 import signal
 import subprocess
 import time
@@ -140,3 +141,117 @@ def test_train_launch_and_the_readmes_ros2_commands(ros2_env, tmp_path):
     assert 'Traceback' not in text, text[-3000:]
     # The learner saved at exit: its record holds the episodes it had when stopped, or more.
     assert settled(lambda: len(rows(out)), 0.5, 5) >= episodes
+
+
+PARAMS = """
+gym_env:
+  ros__parameters: {max_episode_steps: 30}
+learner:
+  ros__parameters:
+    mode: eqsac
+    hidden_sizes: [16, 16]
+    batch_size: 16
+    learning_starts: 100
+    queue_length: 3
+    advising_budget: 2
+    checkpoint_every_episodes: 5
+    output_dir: OUT
+    report_period_s: 2.0
+/**:
+  ros__parameters: {env_id: Pendulum-v1}
+"""
+
+
+@pytest.fixture
+def three_hosts():
+    """A trainer host and two robot hosts: network namespaces on a bridge in a switch namespace,
+    with addresses inside them only. Needs root; deleted after the test."""
+    if os.geteuid() != 0 or shutil.which('ip') is None:
+        pytest.skip('network namespaces need root and iproute2 (ip netns)')
+    tag = os.getpid() % 10000
+    switch, names = f'eqs_sw{tag}', ('trainer', 'robot_a', 'robot_b')
+    hosts = {name: f'eqs_{name}{tag}' for name in names}
+    addresses = {name: f'10.239.{tag % 200}.{i + 1}' for i, name in enumerate(names)}
+    links = {name: f'eq{name[-1]}{tag}' for name in names}
+
+    def ip(*args):
+        subprocess.run(['ip', *args], capture_output=True, text=True, check=True, timeout=20)
+
+    try:
+        ip('netns', 'add', switch)
+        ip('-n', switch, 'link', 'add', 'br0', 'type', 'bridge')
+        ip('-n', switch, 'link', 'set', 'br0', 'up')
+        for name, ns in hosts.items():
+            ip('netns', 'add', ns)
+            ip('link', 'add', links[name], 'type', 'veth', 'peer', 'name', f's{links[name]}')
+            ip('link', 'set', links[name], 'netns', ns)
+            ip('link', 'set', f's{links[name]}', 'netns', switch)
+            ip('-n', switch, 'link', 'set', f's{links[name]}', 'master', 'br0')
+            ip('-n', switch, 'link', 'set', f's{links[name]}', 'up')
+            ip('-n', ns, 'addr', 'add', f'{addresses[name]}/24', 'dev', links[name])
+            ip('-n', ns, 'link', 'set', links[name], 'up')
+            ip('-n', ns, 'link', 'set', 'lo', 'up')
+        yield hosts, addresses, links, ip
+    finally:
+        for ns in [*hosts.values(), switch]:
+            subprocess.run(['ip', 'netns', 'del', ns], capture_output=True, timeout=20)
+
+
+def test_actors_launch_across_three_hosts_through_a_cut_a_trainer_kill_and_a_robots_ctrl_c(
+    ros2_env, three_hosts, tmp_path
+):
+    """The README's recipe on three hosts: a trainer host told its robots by name, two robot
+    hosts each launching one actor. Robot A's link is cut for 5 s; the trainer host is killed
+    (-9) and launched again with resume:=true; then robot A's launch gets a Ctrl-C. Every
+    episode robot A finished is in the record exactly once, and so are robot B's."""
+    hosts, addresses, links, ip = three_hosts
+    out = tmp_path / 'out'
+    params_file = tmp_path / 'params.yaml'
+    params_file.write_text(PARAMS.replace('OUT', str(out)))
+    actors = '/robot_a_actor0/actor,/robot_b_actor1/actor'  # robot B's index is 1 (actor_offset:=1)
+
+    def launch(host, *arguments):
+        peers = ';'.join(a for name, a in addresses.items() if name != host)
+        env = dict(ros2_env, ROS_AUTOMATIC_DISCOVERY_RANGE='SUBNET', ROS_STATIC_PEERS=peers)
+        command = ['ip', 'netns', 'exec', hosts[host], 'ros2', 'launch', 'eqhrl_ros', 'actors.launch.py']
+        return Launched([*command, f'params_file:={params_file}', *arguments], tmp_path, env, host)
+
+    def recorded(actor):
+        return [r['actor'] for r in rows(out / 'episodes.csv')].count(actor)
+
+    trainer_args = ('actors:=0', f'trainer_actors:={actors}')
+    launched = [launch('trainer', *trainer_args)]
+    for i, robot in enumerate(('robot_a', 'robot_b')):
+        args = ('actors:=1', 'trainer:=false', f'actor_prefix:={robot}_actor', f'actor_offset:={i}')
+        launched.append(launch(robot, *args))
+    trainer, robot_a, robot_b = launched
+    a, b = '/robot_a_actor0/actor', '/robot_b_actor1/actor'
+    try:
+        assert wait_for(lambda: recorded(a) >= 3 and recorded(b) >= 3, 240), trainer.text()[-3000:]
+        ip('-n', hosts['robot_a'], 'link', 'set', links['robot_a'], 'down')
+        time.sleep(5)
+        ip('-n', hosts['robot_a'], 'link', 'set', links['robot_a'], 'up')
+        before = recorded(a)
+        assert wait_for(lambda: recorded(a) > before + 2, 120), trainer.text()[-3000:]
+        trainer.signal(signal.SIGKILL)  # the trainer host dies: launch and trainer at once
+        trainer.process.wait(timeout=30)
+        launched.append(launch('trainer', *trainer_args, 'resume:=true'))
+        trainer = launched[-1]
+        assert wait_for(lambda: 'resumed from' in trainer.text(), 120), trainer.text()[-3000:]
+        before = recorded(a), recorded(b)
+        assert wait_for(lambda: recorded(a) > before[0] + 2 and recorded(b) > before[1] + 2, 180)
+        assert robot_a.ctrl_c() == 0, robot_a.text()[-3000:]
+        finished_a = robot_a.text().count('] [robot_a_actor0.actor]: episode ')
+        assert settled(lambda: recorded(a), 3.0, 60) == finished_a, (recorded(a), finished_a)
+        assert robot_b.ctrl_c() == 0, robot_b.text()[-3000:]
+        finished_b = robot_b.text().count('] [robot_b_actor1.actor]: episode ')
+        assert settled(lambda: recorded(b), 3.0, 60) == finished_b, (recorded(b), finished_b)
+        assert trainer.ctrl_c() == 0, trainer.text()[-3000:]
+    finally:
+        for process in launched:
+            process.close()
+    episodes = [int(r['episode']) for r in rows(out / 'episodes.csv')]
+    assert episodes == list(range(len(episodes)))  # one record, indexed over both robots, no gap
+    for robot in (robot_a, robot_b):
+        assert ', 0 not stored by the trainer, ' in robot.text(), robot.text()[-2000:]
+    print(trainer.text().splitlines()[-1])
