@@ -29,7 +29,9 @@ def recorded_run(harness, ros_context, out, episodes=4, images=False, on_start=N
     overrides = small_learner_params(out, max_episodes=episodes, record=True, publish_gate_debug=False, **extra)
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=overrides))
     if on_start is not None:
-        harness.spin_until(lambda: False, timeout=0.5)
+        # The learner has heard the latched STOP (a fixed wait lost it under load: only the
+        # release was in the record).
+        assert harness.spin_until(lambda: learner._stopped_since is not None, timeout=30)
         on_start()
     assert harness.spin_until(lambda: learner.done, timeout=90)
     learner.close()
