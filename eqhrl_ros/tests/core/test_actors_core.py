@@ -361,8 +361,10 @@ def test_batches_past_a_missing_one_are_held_and_stored_in_order_when_it_comes()
     assert receipt.verdict == 'next' and receipt.stored == ['m1', 'm2', 'm3', 'm5']  # 4 passed over
     assert trainer.sequences.actors['a'].expected == 6 and len(trainer.learner.replay) == 50
     assert trainer.missing('a') == (5, []) and trainer.receive(_batch(oldest_kept=0, sequence=3)).verdict == 'duplicate'
-    # A new run of the actor: what was held of the old one goes.
+    # A new run of the actor: what was held of the old one goes, refused ones included.
     trainer.receive(_batch(oldest_kept=0, sequence=9))
+    with pytest.raises(ValueError):
+        trainer.receive(_batch(oldest_kept=0, sequence=8, rewards=np.full(10, 1e9, np.float32)))
     trainer.receive(_batch(oldest_kept=0, sequence=1, run='r2'))
     assert list(trainer.held['a']) == [1] and trainer.missing('a') == (1, [0])
 

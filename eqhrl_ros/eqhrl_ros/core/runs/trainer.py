@@ -77,9 +77,9 @@ class Trainer:
         self.rejected_batches = 0
         self.weights_at = None  # learner.updates when weights last went out
         self.restored = 0  # updates undone because they made the networks non-finite
-        # Batches past a missing one, per actor: {sequence: (batch, payload)}, or None for one
-        # refused for what it holds (never stored; the stream moves past it when it is due).
-        self.held: dict[str, dict[int, tuple | None]] = {}
+        # Batches past a missing one, per actor: {sequence: (run, batch, payload)}; batch None for
+        # one refused for what it holds (never stored; the stream moves past it when it is due).
+        self.held: dict[str, dict[int, tuple]] = {}
         self._finite = None  # the networks and optimisers as they last were known finite
 
     def receive(self, batch: TransitionBatch, payload=None) -> Receipt:
@@ -106,7 +106,7 @@ class Trainer:
             verdict = self.sequences.receive(batch.actor, batch.sequence, batch.run, batch.oldest_kept)
             self._forget_held(batch.actor)
             if verdict == 'ahead':
-                self._hold(batch.actor, batch.sequence, None)
+                self._hold(batch.actor, batch.sequence, (batch.run, None, None))
             else:
                 self._let_through(batch.actor, [], [])
             raise
@@ -114,7 +114,7 @@ class Trainer:
         self._forget_held(batch.actor)
         rows, stored = [], []
         if verdict == 'ahead':
-            self._hold(batch.actor, batch.sequence, (batch, payload))
+            self._hold(batch.actor, batch.sequence, (batch.run, batch, payload))
         elif verdict in STORED:
             self._store(batch, payload, rows, stored)
             self._let_through(batch.actor, rows, stored)
@@ -150,19 +150,17 @@ class Trainer:
         held, state = self.held.get(actor), self.sequences.actors.get(actor)
         if not held:
             return
-        for sequence in [s for s, entry in held.items() if s < state.expected]:
+        for sequence in [s for s, (run, _, _) in held.items() if s < state.expected or run != state.run]:
             del held[sequence]
-        if any(entry is not None and entry[0].run != state.run for entry in held.values()):
-            held.clear()
 
     def _let_through(self, actor: str, rows: list, stored: list) -> None:
         """The held batches that are now due, in order."""
         held, state = self.held.get(actor), self.sequences.actors[actor]
         while held and state.expected in held:
-            entry = held.pop(state.expected)
+            _, batch, payload = held.pop(state.expected)
             self.sequences.receive(actor, state.expected, state.run, state.expected)
-            if entry is not None:
-                self._store(entry[0], entry[1], rows, stored)
+            if batch is not None:
+                self._store(batch, payload, rows, stored)
 
     def missing(self, actor: str) -> tuple[int, list[int]]:
         """(the highest batch of ``actor`` stored or held, the ones below it not here yet: at most
