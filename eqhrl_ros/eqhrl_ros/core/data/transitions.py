@@ -267,11 +267,11 @@ class Outbox:
             self._sent_at.pop(self.unacked.popleft().sequence, None)
         queued = set(self._again)
         due = [s for s in missing if s > received_through and now - self._sent_at.get(s, now) >= RESEND_AFTER_S]
-        due += [
-            b.sequence
-            for b in self.unacked
-            if b.sequence > self.highest_received and now - self._sent_at.get(b.sequence, now) >= ACK_WAIT_S
-        ]
+        for batch in reversed(self.unacked):  # newest first: only those above highest_received
+            if batch.sequence <= self.highest_received:
+                break
+            if now - self._sent_at.get(batch.sequence, now) >= ACK_WAIT_S:
+                due.append(batch.sequence)
         return self._queue_again(due, queued)
 
     def probe(self, now: float | None = None) -> int:
