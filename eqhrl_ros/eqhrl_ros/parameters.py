@@ -202,9 +202,10 @@ ACTOR_NODE_PARAMS = (
     ),
     Param(
         'exit_wait_s',
-        3.0,
+        6.0,
         'At exit (Ctrl-C, SIGTERM): wait up to this long for the trainer to store every transition sent '
-        '(0: do not wait); what it still lacks then is counted lost in the exit line',
+        '(0: do not wait); what it still lacks then is counted lost in the exit line. ros2 launch kills a node '
+        '10 s after its Ctrl-C',
         (0.0, 60.0),
     ),
     TORCH_THREADS,

@@ -76,6 +76,11 @@ class ActorNode(ActingNode):
         self.acks_refused = 0
         self._last_ack = time.monotonic()
         self._last_probe = 0.0
+        # Batches sent per flush tick: those sealed since the last tick and SEND_AT_ONCE more. A
+        # burst of hundreds (a backlog, or one acknowledgement naming 256 missing) would overflow
+        # the trainer's reader history, lose most of them and make another round.
+        self._send_budget = trainer_msgs.SEND_AT_ONCE
+        self._sealed_mark = 0  # outbox.next_sequence at the last tick
         weights = self.create_subscription(
             PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, self._on_weights, trainer_msgs.WEIGHTS_QOS
         )
@@ -140,6 +145,8 @@ class ActorNode(ActingNode):
             if self.outbox.age() >= self.params['flush_period_s']:
                 self.outbox.seal()
             self._resend_if_unanswered()
+            sealed, self._sealed_mark = self.outbox.next_sequence - self._sealed_mark, self.outbox.next_sequence
+            self._send_budget = trainer_msgs.SEND_AT_ONCE + sealed
             self._send()
             if self._deferred is not None and self.transitions_pub.get_subscription_count() == 0:
                 self._act_on_deferred()  # the trainer went away: act with the weights we have
@@ -149,7 +156,7 @@ class ActorNode(ActingNode):
 
     def _send(self) -> None:
         """Publish what is due (batches the trainer lacks, then sealed ones) while a trainer
-        listens, at most SEND_AT_ONCE a call; otherwise keep them (bounded)."""
+        listens, at most SEND_AT_ONCE per flush tick; otherwise keep them (bounded)."""
         outbox = self.outbox
         if not outbox.pending:
             return
@@ -168,10 +175,11 @@ class ActorNode(ActingNode):
                 f'{"; %d dropped meanwhile" % outbox.dropped_transitions if outbox.dropped_transitions else ""}'
             )
             self._trainer_away_since = None
-        for _ in range(trainer_msgs.SEND_AT_ONCE):
+        while self._send_budget > 0:
             batch = outbox.pop_oldest()
             if batch is None:
                 break
+            self._send_budget -= 1
             msg = trainer_msgs.batch_msg(batch, self.learner.scaler.low, self.learner.scaler.high)
             self.transitions_pub.publish(trainer_msgs.sign_batch(msg, self.signer))
             self.sent_batches += 1

@@ -33,10 +33,11 @@ TRANSITIONS_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliabi
 # life, as large as the largest message it held, so its depth bounds what a flood of huge batches
 # from a stranger costs (refused at once, but only once taken from that history). A batch that
 # finds it full is lost on the way, and sent again (selective repeat).
-TRANSITIONS_READER_QOS = QoSProfile(depth=20, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
+TRANSITIONS_READER_QOS = QoSProfile(depth=50, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
 # The latest weights only, kept for actors that start (or restart) later.
 WEIGHTS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# Batches an actor publishes per call: a backlog goes out over several calls, within the QoS depth.
+# Batches an actor publishes per flush tick (0.1 s): a backlog goes out over several ticks, each
+# burst within the trainer's reader depth.
 SEND_AT_ONCE = 20
 # The trainer's acknowledgements: on the (remapped) transitions topic's name with this suffix.
 ACK_SUFFIX = '_ack'
