@@ -39,6 +39,9 @@ from .acting_node import ActingNode
 from .health import OK, WARN, Check
 from .spinning import run_node
 
+# After a silence, acknowledgements ask for nothing again for this long (see _on_ack).
+REJOIN_GRACE_S = 1.0
+
 
 class ActorNode(ActingNode):
     def __init__(self, **kwargs):
@@ -76,6 +79,8 @@ class ActorNode(ActingNode):
         self.acks_refused = 0
         self._last_ack = time.monotonic()
         self._last_probe = 0.0
+        self._resend_from = 0.0  # time.monotonic() before which acknowledgements send nothing again
+        self._ack_after_grace: Optional[tuple] = None  # the last acknowledgement, not answered yet
         # Batches sent per flush tick: those sealed since the last tick and SEND_AT_ONCE more. A
         # burst of hundreds (a backlog, or one acknowledgement naming 256 missing) would overflow
         # the trainer's reader history, lose most of them and make another round.
@@ -145,6 +150,9 @@ class ActorNode(ActingNode):
             if self.outbox.age() >= self.params['flush_period_s']:
                 self.outbox.seal()
             self._resend_if_unanswered()
+            if self._ack_after_grace is not None and time.monotonic() >= self._resend_from:
+                ack, self._ack_after_grace = self._ack_after_grace, None
+                self.outbox.acknowledge(*ack)
             sealed, self._sealed_mark = self.outbox.next_sequence - self._sealed_mark, self.outbox.next_sequence
             self._send_budget = trainer_msgs.SEND_AT_ONCE + sealed
             self._send()
@@ -216,10 +224,17 @@ class ActorNode(ActingNode):
                     self.get_logger().warn(f'acknowledgement refused: {refusal}', throttle_duration_sec=5.0)
                 return
             self.acks += 1
-            through = int(msg.received_through)
-            self._last_ack = time.monotonic()
+            through, now = int(msg.received_through), time.monotonic()
+            if now - self._last_ack > ACK_WAIT_S:
+                # The first word after a silence (a cut link back): DDS is still delivering what it
+                # kept of the batches sent meanwhile. Sending those again now would duplicate them.
+                self._resend_from = now + REJOIN_GRACE_S
+            self._last_ack = now
             missing = [int(s) for s in msg.missing[:MAX_MISSING]]
-            again = self.outbox.acknowledge(through, int(msg.saved_through), missing, int(msg.highest_received))
+            ack = (through, int(msg.saved_through), missing, int(msg.highest_received))
+            resend = now >= self._resend_from
+            self._ack_after_grace = None if resend else ack  # the flush timer answers it once the grace ends
+            again = self.outbox.acknowledge(*ack, resend=resend)
             if again:
                 self.get_logger().info(
                     f'the trainer lacks {again} batch(es) after {through}: sending them again',

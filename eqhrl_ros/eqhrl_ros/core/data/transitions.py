@@ -253,11 +253,12 @@ class Outbox:
         missing=(),
         highest_received: int | None = None,
         now: float | None = None,
+        resend: bool = True,
     ) -> int:
         """A trainer's acknowledgement: batches its checkpoint holds are let go; the ones it names
         ``missing``, and the sent ones above ``highest_received`` (all it has or holds) that no
         acknowledgement covered within ACK_WAIT_S, go out again, each at most once per
-        RESEND_AFTER_S. Returns how many are queued to go again."""
+        RESEND_AFTER_S (none with ``resend`` false). Returns how many are queued to go again."""
         now = time.monotonic() if now is None else now
         self.received_through = received_through
         self.highest_received = (
@@ -265,6 +266,8 @@ class Outbox:
         )
         while self.unacked and self.unacked[0].sequence <= saved_through:
             self._sent_at.pop(self.unacked.popleft().sequence, None)
+        if not resend:
+            return 0
         queued = set(self._again)
         due = [s for s in missing if s > received_through and now - self._sent_at.get(s, now) >= RESEND_AFTER_S]
         for batch in reversed(self.unacked):  # newest first: only those above highest_received
