@@ -75,7 +75,7 @@ def test_the_experiment_runner_reads_a_params_file_without_starting_ros():
 
 
 def test_the_summarys_advice_fields_and_the_learners_counts_map_both_ways_in_one_place():
-    from eqhrl_ros.core.algorithm.learner import SUMMARY_FIELDS, AdviceCounts
+    from eqhrl_ros.core.algorithm.advice_counts import SUMMARY_FIELDS, AdviceCounts
 
     assert set(SUMMARY_FIELDS) | {'advice_failed'} <= {f.name for f in dataclasses.fields(EpisodeSummary)}
     counts = AdviceCounts(asked=5, given=3, human=2, declined=1, human_time_s=4.5, takeovers=1, takeover_steps=7)

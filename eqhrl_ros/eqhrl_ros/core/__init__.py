@@ -18,17 +18,27 @@ algorithm/  EQ-HRL itself
   config.py       every hyperparameter once (default, range, description); the modes
   equations.py    every equation of the paper (Eqs. 4-10), named as the paper names it
   networks.py     the squashed-Gaussian actor and the twin critics
-  update.py       Algorithm 1's update, once: algorithm1_update (eager, compiled and seeds together)
+  streams.py      the learner's random streams, one per purpose
+  observations.py what the networks read, checked (the seam for an image encoder)
+  policy.py       Policy: pi(.|s), the actor that acts, and E(s)
+  critics.py      Critics: the twin critics, their targets, and D(s)
+  memories.py     ReplayMemories: D and D_advising, and an update's batches from both
+  update.py       Algorithm 1's update, once: algorithm1_update (eager, compiled and stacked seeds)
   compiled_update.py algorithm1_update compiled as one program (compile_update)
+  updater.py      Updater: the temperature, the optimisers, the update's inputs, the compile, the losses
   stacked_seeds.py   StackedSeeds: many seeds' updates as one (one batched product per layer)
-  advising.py     FIFO queues, dynamic/fixed thresholds and the early-advising budget
-  learner.py      EQSACLearner: SAC, QASAC and EQSAC (Algorithm 1)
+  advice_window.py   whether advice is open now: the budgets in episodes (Eq. 7) and in seconds
+  advising.py     the gates: FIFO queues, dynamic/fixed thresholds (Eq. 10)
+  advice_counts.py   what advice cost and brought, per episode and over the run
+  learner_state.py   a saved learner state, checked
+  learner.py      EQSACLearner: SAC, QASAC and EQSAC (Algorithm 1), wired from the parts above
 experts/    whoever answers a request
   controllers.py  the built-in controllers of the shipped envs
   policy.py       an exported policy and the expert that serves it
   simulated_human.py a simulated person (reaction times, noise, skips)
   imperfect.py    delayed and weak experts (studies)
   teleop.py       a person's commands and answer window
+  takeover.py     the person's takeover rule: when their command replaces the learner's action
   factory.py      the expert a backend name stands for (above the experts it builds)
 runs/       a run from start to end
   in_process.py     the in-process training loop (one seed, or seeds together)

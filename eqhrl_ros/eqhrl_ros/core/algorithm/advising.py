@@ -9,7 +9,8 @@ from dataclasses import dataclass
 from typing import Iterable
 
 from . import equations as eq
-from .config import EXTENSION_MODES, asks_for_advice, check_value
+from .advice_window import AdviceBudget
+from .config import EXTENSION_MODES, LearnerConfig, check_value
 
 
 class FifoQueue:
@@ -18,14 +19,15 @@ class FifoQueue:
     def __init__(self, length: int, values: Iterable[float] = ()):
         if length < 1:
             raise ValueError(f'queue length must be >= 1, got {length}')
+        self._length = int(length)
         self._values: deque[float] = deque((float(v) for v in values), maxlen=length)
 
     @property
     def length(self) -> int:
-        return self._values.maxlen
+        return self._length
 
     def full(self) -> bool:
-        return len(self._values) == self._values.maxlen
+        return len(self._values) == self._length
 
     def push(self, value: float) -> None:
         self._values.append(float(value))  # the oldest value falls out once full
@@ -108,7 +110,7 @@ class AdvisingGates:
     def __init__(
         self,
         mode: str,
-        advising_budget: int,
+        advising_budget: int | AdviceBudget,
         queue_length: int = 15,
         threshold_kind: str = 'dynamic',
         fixed_d_threshold: float = 1.0,
@@ -122,7 +124,12 @@ class AdvisingGates:
         # The rules of each value live with LearnerConfig's fields (core/algorithm/config.py).
         self.mode = check_value('mode', mode)
         check_value('threshold_kind', threshold_kind)
-        self.advising_budget = check_value('advising_budget', advising_budget)
+        # The budget is the learner's (advice_window.py, its one home); gates made on their own
+        # (tests, tools) get one of their own.
+        if isinstance(advising_budget, AdviceBudget):
+            self.budget = advising_budget
+        else:
+            self.budget = AdviceBudget(LearnerConfig(mode=self.mode, advising_budget=advising_budget))
         self.threshold_kind = threshold_kind
         if mode in EXTENSION_MODES and threshold_kind != 'dynamic':
             raise ValueError(f'mode {mode} ranks D(s) and E(s) within their queues: it needs threshold_kind dynamic')
@@ -139,6 +146,10 @@ class AdvisingGates:
         self.e_queue = FifoQueue(queue_length)
 
     @property
+    def advising_budget(self) -> int:
+        return self.budget.episodes
+
+    @property
     def uses_discrepancy(self) -> bool:
         return self.mode in ('qasac', 'eqsac', 'ask_random', 'ask_median', 'joint_rank')
 
@@ -152,7 +163,7 @@ class AdvisingGates:
 
     def needs_evaluation(self, episode: int) -> bool:
         """Whether D(s), E(s) or the random draw are needed this step (skipped when they cannot matter)."""
-        return asks_for_advice(self.mode) and eq.early_advising(episode, self.advising_budget)
+        return self.budget.within_episodes(episode)
 
     def decide(
         self,
@@ -165,7 +176,7 @@ class AdvisingGates:
         """``discrepancy`` D(s) where uses_discrepancy, ``entropy`` E(s) where uses_entropy,
         ``draw`` (uniform in [0, 1)) where uses_draw; each needed only inside the budget.
         ``step``: the step's index in its episode (random_ask_schedule spreads over it)."""
-        if not asks_for_advice(self.mode) or not eq.early_advising(episode, self.advising_budget):
+        if not self.budget.within_episodes(episode):
             return GateDecision(False, within_budget=False)
         if (
             (self.uses_discrepancy and discrepancy is None)
@@ -173,8 +184,13 @@ class AdvisingGates:
             or (self.uses_draw and draw is None)
         ):
             raise ValueError(f'mode {self.mode} needs D(s), E(s) or its draw inside the budget')
+        # What the mode does not use is NaN from here on (never compared: the uses_* guards).
+        discrepancy = math.nan if discrepancy is None else float(discrepancy)
+        entropy = math.nan if entropy is None else float(entropy)
         if self.mode == 'random':
-            return GateDecision(self._random_request(episode, step, draw), within_budget=True, queues_ready=True)
+            return GateDecision(
+                self._random_request(episode, step, float(draw or 0.0)), within_budget=True, queues_ready=True
+            )
 
         if self.threshold_kind == 'fixed':
             d_threshold, e_threshold = self.fixed_d_threshold, self.fixed_e_threshold

@@ -11,7 +11,7 @@ What a user sees:
 - Its cost in seconds is reported in one log line, as is any failure, after which the
   learner stays eager. Nothing else changes: the learner draws the batches and the noise as
   for the eager update, so both compute the same numbers to float rounding
-  (tests/core/test_compiled_update.py).
+  (tests/core/algorithm/test_compiled_update.py).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from typing import Callable, Optional
 
 import torch
 
+from ..data.replay import Minibatch
 from .config import asks_for_advice
 from .update import algorithm1_update, update_noise
 
@@ -42,12 +43,12 @@ LOG = logging.getLogger('eqhrl_ros.compile')
 # into the program as constants, so two learners that differ only in gamma get two programs)
 # and torch's global state (grad mode and the like). 140 checks, 0.2 ms a call
 # (docs/performance.md).
-GUARDED_ARGUMENTS = ('weights', 'state', 'batch', 'advice', 'noise', 'hyper', 'advised', 'step')
+GUARDED_ARGUMENTS = ('weights', 'state', 'batch', 'advice', 'noise', 'constants', 'advised', 'step')
 
 
 def keep_guard(name: str, is_global: bool) -> bool:
     """Whether a guard on ``name`` (its source, as dynamo writes it: "batch[0]",
-    "hyper['gamma']", "nets[0].action_dim", "G['torch']"; '' for torch's global state) stays."""
+    "constants['gamma']", "nets[0].action_dim", "G['torch']"; '' for torch's global state) stays."""
     if is_global:
         return False
     root = name.split('[', 1)[0].split('.', 1)[0]
@@ -62,7 +63,7 @@ def _guards_to_keep(entries) -> list:
 # --------------------------------------------------------------------------- one program per setting
 
 # Dynamo keeps the programs it compiles on the function's code object, at most 8 of them
-# (torch._dynamo.config.recompile_limit); past that, a fullgraph compile fails. A learner needs
+# (torch._dynamo.config.recompile_limit); past that, a fullgraph compile fails. An updater needs
 # one or two (with and without an advice batch), but a process with learners of several
 # settings (a sweep, a benchmark) would pass 8. So each setting gets a copy of
 # algorithm1_update with a code object of its own, shared by the learners of that setting.
@@ -100,51 +101,51 @@ class CompiledUpdate:
     its ROS logger (rclpy's loggers have the same two methods).
     """
 
-    def __init__(self, learner, log=None, background: bool = True):
-        self.learner = learner
+    def __init__(self, updater, log=None, background: bool = True):
+        self.updater = updater
         self.log = log or LOG
         self.ready = False
         self.failed = ''
         self.error: Optional[BaseException] = None
         self.seconds: Optional[float] = None
         self._variants = self._advice_variants()
-        weights, state, hyper = learner.update_inputs()
+        weights, state, constants = updater.inputs()
         # loop_ordering_after_fusion off: with it, torch 2.11's inductor failed an assertion on
         # this program on CUDA; on the CPU it makes no difference in speed (docs/performance.md).
         self.function = torch.compile(
-            update_function_for(self._setting(hyper)),
+            update_function_for(self._setting(constants)),
             fullgraph=True,
             dynamic=False,
             options={'loop_ordering_after_fusion': False, 'guard_filter_fn': _guards_to_keep},
         )
         # Copies: tracing in the background must not touch the weights the learner acts and learns with.
-        copies = (copy.deepcopy(learner.update_nets), _clone(weights), _clone(state), hyper)
+        copies = (copy.deepcopy(updater.nets), _clone(weights), _clone(state), constants)
         if background:
-            self._thread = threading.Thread(target=self._warm_up, args=copies, daemon=True)
+            self._thread: Optional[threading.Thread] = threading.Thread(target=self._warm_up, args=copies, daemon=True)
             self._thread.start()
         else:
             self._thread = None
             self._warm_up(*copies)
 
-    def _setting(self, hyper: dict) -> tuple:
+    def _setting(self, constants: dict) -> tuple:
         """What the program is specialised to: the shapes, the device, the variants and the
         constants. (Its guards check all of it again; this only keeps the settings apart.)"""
-        learner, cfg = self.learner, self.learner.config
-        shapes = (learner.obs_dim, learner.action_dim, tuple(cfg.hidden), cfg.batch_size)
-        return (*shapes, str(learner.device), cfg.actor_on_advice, tuple(self._variants), repr(hyper))
+        updater, cfg = self.updater, self.updater.config
+        shapes = (updater.obs_dim, updater.action_dim, tuple(cfg.hidden), cfg.batch_size)
+        return (*shapes, str(updater.device), cfg.actor_on_advice, tuple(self._variants), repr(constants))
 
     def _advice_variants(self) -> list:
         """Whether an update has an advice batch, for every kind of update this learner makes."""
-        cfg = self.learner.config
-        if not asks_for_advice(self.learner.mode) or not cfg.dual_replay:
+        cfg = self.updater.config
+        if not asks_for_advice(cfg.mode) or not cfg.dual_replay:
             return [False]
         return [False, True]
 
-    def _warm_up(self, nets, weights, state, hyper) -> None:
+    def _warm_up(self, nets, weights, state, constants) -> None:
         start = time.perf_counter()
         try:
             with _COMPILING:
-                self._compile(nets, weights, state, hyper)
+                self._compile(nets, weights, state, constants)
         except Exception as error:  # noqa: BLE001 - any compiler failure leaves the eager update
             self.error = error  # the whole exception, for whoever wants more than the line
             self.failed = f'{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ""}'
@@ -159,20 +160,20 @@ class CompiledUpdate:
             f'{len(self._variants)} variant(s)); updates from now on run compiled'
         )
 
-    def _compile(self, nets, weights, state, hyper) -> None:
+    def _compile(self, nets, weights, state, constants) -> None:
         """One call of each variant on made-up batches of the right shapes: the first call of a
         variant compiles it."""
-        learner, size = self.learner, self.learner.config.batch_size
-        device = learner.device
+        updater, size = self.updater, self.updater.config.batch_size
+        device = updater.device
 
         def made_up_batch():
-            return (
-                torch.randn(size, learner.obs_dim, device=device),
-                torch.rand(size, learner.action_dim, device=device) * 2 - 1,
-                torch.randn(size, device=device),
-                torch.randn(size, learner.obs_dim, device=device),
-                torch.zeros(size, device=device),
-            )
+            return Minibatch(
+                obs=torch.randn(size, updater.obs_dim, device=device),
+                action=torch.rand(size, updater.action_dim, device=device) * 2 - 1,
+                reward=torch.randn(size, device=device),
+                next_obs=torch.randn(size, updater.obs_dim, device=device),
+                terminated=torch.zeros(size, device=device),
+            ).columns()
 
         for with_advice in self._variants:
             batch = made_up_batch()
@@ -180,11 +181,11 @@ class CompiledUpdate:
             sizes = [size] + ([size] if with_advice else [])
             noise = update_noise(
                 lambda shape: torch.randn(shape, device=device),
-                learner.action_dim,
+                updater.action_dim,
                 sizes,
-                learner.config.actor_on_advice,
+                updater.config.actor_on_advice,
             )
-            self.function(nets, weights, state, batch, advice, noise, hyper)
+            self.function(nets, weights, state, batch, advice, noise, constants)
 
     def wait(self, timeout: Optional[float] = None) -> bool:
         """Block until the background compile ended (tests, benchmarks); True if it is ready."""

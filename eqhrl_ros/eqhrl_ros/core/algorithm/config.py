@@ -229,7 +229,7 @@ class LearnerConfig:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}  # YAML and JSON know lists
 
 
-FIELDS = {f.name: f for f in dataclasses.fields(LearnerConfig)}
+CONFIG_FIELDS = {f.name: f for f in dataclasses.fields(LearnerConfig)}
 
 
 def ros_name(f: dataclasses.Field) -> str:
@@ -239,7 +239,7 @@ def ros_name(f: dataclasses.Field) -> str:
 def check_value(name: str, value: Any) -> Any:
     """``value`` for LearnerConfig field ``name`` if it is allowed (ints for floats become floats),
     else ValueError."""
-    return check_field(FIELDS[name], value, 'LearnerConfig')
+    return check_field(CONFIG_FIELDS[name], value, 'LearnerConfig')
 
 
 def check_fields(instance) -> None:
@@ -250,7 +250,8 @@ def check_fields(instance) -> None:
 
 def check_field(f: dataclasses.Field, value: Any, owner: str) -> Any:
     """``value`` for a field declared with hyper(), or a ValueError naming ``owner.field``."""
-    name, kind, meta = f.name, type(f.default), f.metadata
+    name, meta = f.name, f.metadata
+    kind: Any = type(f.default)
 
     def refuse(expected: str):
         raise ValueError(f'{owner}.{name} must be {expected}, got {value!r}')

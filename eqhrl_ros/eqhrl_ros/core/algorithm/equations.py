@@ -151,7 +151,7 @@ def policy_entropy_monte_carlo(mean: torch.Tensor, log_std: torch.Tensor, noise:
 
 # Fixed nodes for expected_log_jacobian (numpy's Gauss-Hermite and Gauss-Legendre rules).
 # 64 of each give the expectation to within 1e-8 over the actor's whole log-std range
-# (tests/core/test_equations.py checks it against adaptive quadrature).
+# (tests/core/algorithm/test_equations.py checks it against adaptive quadrature).
 _WIDE = 1.0  # std above which the folded rule is used
 _FOLD_END = 16.0  # log(1 + e^{-2u}) < 1e-13 past it
 _NODES: dict = {}

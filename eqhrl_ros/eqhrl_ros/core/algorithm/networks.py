@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -71,7 +73,7 @@ def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.T
     return torch.baddbmm(bias.unsqueeze(-2), x, weight.transpose(-1, -2))
 
 
-def _kaiming_linear(in_features: int, out_features: int, nonlinearity: str) -> nn.Linear:
+def _kaiming_linear(in_features: int, out_features: int, nonlinearity: Literal['relu', 'linear', 'tanh']) -> nn.Linear:
     layer = nn.Linear(in_features, out_features)
     nn.init.kaiming_uniform_(layer.weight, nonlinearity=nonlinearity)
     nn.init.zeros_(layer.bias)
@@ -129,7 +131,7 @@ class TwinCritic(nn.Module):
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
         for i, (fan_in, fan_out) in enumerate(zip(sizes[:-1], sizes[1:])):
-            nonlinearity = 'relu' if i < len(sizes) - 2 else 'linear'
+            nonlinearity: Literal['relu', 'linear'] = 'relu' if i < len(sizes) - 2 else 'linear'
             weight = torch.empty(2, fan_in, fan_out)
             for critic in range(2):
                 # kaiming_uniform_ on a [out, in] view so that fan_in is the layer's input size.

@@ -9,25 +9,28 @@ as one batched matrix product (networks.linear, TwinCritic.forward) instead of N
 ``StackedSeeds.update()`` runs the lone update's function (update.algorithm1_update) once on
 the stacked weights:
 - each seed samples its batches and draws its noise from its own streams, as its lone
-  update does (EQSACLearner.sample_update_batches, update.update_noise);
+  update does (its ReplayMemories.sample, its Updater.noise_for);
 - the loss is the sum of the seeds' losses (N x the mean over the stacked batch), whose
   gradient with respect to seed k's weights is seed k's own gradient;
 - Adam steps each seed's own parameters with that seed's own optimiser state (one fused call
   over all of them). A seed whose D_advising is still empty gets no step on the advice
   batch, as a lone run would not.
-The result equals N lone runs to float rounding (tests/core/test_stacked_seeds.py).
+The result equals N lone runs to float rounding (tests/core/algorithm/test_stacked_seeds.py).
+Each seed's Updater counts the update with the stacked update's losses (their mean over the
+seeds), so a non-finite update is counted on this path as on the lone one.
 """
 
 from __future__ import annotations
 
 import copy
-from typing import Sequence
+from typing import Any, Sequence
 
 import torch
 from torch import nn
 
-from .learner import EQSACLearner, adam_state
+from .learner import EQSACLearner
 from .update import adam_, algorithm1_update, refusal
+from .updater import named_weights, updates_after_a_step
 
 
 def batchable(learners: Sequence[EQSACLearner]) -> str:
@@ -44,7 +47,7 @@ def batchable(learners: Sequence[EQSACLearner]) -> str:
             return f'their settings differ apart from the seed ({", ".join(differ)})'
         if learner.obs_dim != learners[0].obs_dim or learner.action_dim != learners[0].action_dim:
             return 'their observation or action sizes differ'
-    return refusal(learners[0].config, 'together')
+    return refusal(learners[0].config, 'stacked')
 
 
 def _stack(modules: Sequence[nn.Module]) -> nn.Module:
@@ -73,7 +76,7 @@ class StackedSeeds:
         self.config = self.learners[0].config
         self.n = len(self.learners)
         self.action_dim = self.learners[0].action_dim
-        self.target_entropy = self.learners[0].target_entropy
+        self.updaters = [learner.updater for learner in self.learners]
         self.actor = _stack([learner.actor for learner in self.learners])
         self.critic = _stack([learner.critic for learner in self.learners])
         self.critic_target = _stack([learner.critic_target for learner in self.learners])
@@ -86,22 +89,15 @@ class StackedSeeds:
         # stacked tensors) with each seed's own optimiser state, so its checkpoint holds what
         # this batch learned.
         self._own = {}
-        for learner in self.learners:
-            learner._make_optimizers()
         for network in ('actor', 'critic'):
             self._own[network] = [
                 [getattr(learner, network).get_parameter(name) for learner in self.learners]
                 for name, _ in getattr(self, network).named_parameters()
             ]
         self._own['alpha'] = [[learner.log_alpha for learner in self.learners]]
-        weights, _, hyper = self.learners[0].update_inputs()
-        self.hyper = {**hyper, 'seeds': self.n}
-        self.weights = {
-            'actor': {k: v.detach() for k, v in self.actor.named_parameters()},
-            'critic': {k: v.detach() for k, v in self.critic.named_parameters()},
-            'critic_target': {k: v.detach() for k, v in self.critic_target.named_parameters()},
-            'log_alpha': self.log_alpha.detach(),
-        }
+        _, _, constants = self.updaters[0].inputs()
+        self.constants = {**constants, 'seeds': self.n}
+        self.weights = named_weights(self.actor, self.critic, self.critic_target, self.log_alpha)
 
     def release(self) -> None:
         """Give every seed its weights back in tensors of its own (the batch is no longer used)."""
@@ -116,7 +112,7 @@ class StackedSeeds:
         gradient to that seed's own parameter and optimiser state (only the seeds in
         ``advised``, a bool mask, when given), in one fused call."""
         take = range(self.n) if advised is None else [k for k in range(self.n) if advised[k]]
-        states = [adam_state(getattr(learner, f'{network}_optimizer')) for learner in self.learners]
+        states = [updater.optimizer_state(network) for updater in self.updaters]
         own_params, own_grads, exp_avgs, exp_avg_sqs, steps = [], [], [], [], []
         for i, grad in enumerate(grads):
             # contiguous: the gradient of a weight used transposed (networks.linear) comes in
@@ -128,11 +124,16 @@ class StackedSeeds:
                 exp_avgs.append(states[k][0][i])
                 exp_avg_sqs.append(states[k][1][i])
                 steps.append(states[k][2][i])
-        adam_(own_params, own_grads, (exp_avgs, exp_avg_sqs, steps), self.hyper[f'{network}_adam'])
+        adam_(own_params, own_grads, (exp_avgs, exp_avg_sqs, steps), self.constants[f'{network}_adam'])
 
-    def update(self) -> None:
+    def updates_after_a_step(self) -> list[dict]:
+        """Algorithm 1's inner loop after an env step of every seed (the seeds are at the same
+        step, so their D are ready together), as each lone learner's step() runs it."""
+        return updates_after_a_step(self.config, self.learners[0].ready_to_learn, self.update)
+
+    def update(self) -> dict:
         """One gradient update of every seed (Algorithm 1, inner loop): algorithm1_update on the
-        stacked weights."""
+        stacked weights. Returns the losses (the mean over the seeds) and each seed's alpha."""
         n, size, m = self.n, self.config.batch_size, self.action_dim
         device = self.log_alpha.device
         zeros = torch.zeros(size, m, device=device)
@@ -140,19 +141,19 @@ class StackedSeeds:
         advised = torch.zeros(n, dtype=torch.bool)
         for k, learner in enumerate(self.learners):
             # Each seed's own draws, in its lone update's order (the same two calls).
-            batch, advice = learner.sample_update_batches()
-            noise = learner.update_noise(batch, advice)
+            batch, advice = learner.memories.sample()
+            noise = learner.updater.noise_for(batch, advice)
             advised[k] = advice is not None
             target, actor, advice_actor = noise
             if advice is None:  # a stand-in: computed on its main batch, and its step dropped
                 target = torch.cat([target, torch.zeros_like(target)])
                 advice = batch
             noises.append((target, actor, advice_actor if advice_actor is not None else zeros))
-            batches.append(batch.fields())
-            advice_batches.append(advice.fields())
+            batches.append(batch.columns())
+            advice_batches.append(advice.columns())
         any_advice = bool(advised.any())
         stacked = [torch.stack(field).to(device) for field in zip(*batches)]
-        advice = [torch.stack(field).to(device) for field in zip(*advice_batches)] if any_advice else None
+        advice_columns = [torch.stack(field).to(device) for field in zip(*advice_batches)] if any_advice else None
         target = torch.stack([t for t, _, _ in noises])
         if not any_advice:
             target = target[:, :size]
@@ -162,16 +163,19 @@ class StackedSeeds:
             torch.stack([a for _, a, _ in noises]),
             torch.stack([b for _, _, b in noises]) if on_advice else None,
         )
-        algorithm1_update(
+        losses = algorithm1_update(
             (self.actor, self.critic),
             self.weights,
             None,
             stacked,
-            advice,
+            advice_columns,
             noise,
-            self.hyper,
+            self.constants,
             advised=advised,
             step=self._adam_each_seed,
         )
-        for learner in self.learners:
-            learner.updates += 1
+        info: dict[str, Any] = {name: float(value) for name, value in losses.items()}
+        for updater in self.updaters:
+            updater.count(info)
+        info['alpha'] = [updater.alpha for updater in self.updaters]
+        return info

@@ -26,16 +26,15 @@ import torch
 from torch.func import functional_call, grad_and_value
 from torch.optim.adam import adam as functional_adam
 
+from ..data.replay import BATCH_COLUMNS, ROW_COLUMNS
 from . import equations as eq
 
-# A batch as the update reads it: (obs, action, reward, next_obs, terminated), each with the
-# batch on its first axis ([batch, ...]), or on its second when seeds are stacked ([N, batch, ...]).
-FIELDS = ('obs', 'action', 'reward', 'next_obs', 'terminated')
-PER_ROW = {'reward', 'terminated'}  # one number per row: the batch is their last axis
+# A batch as the update reads it: its BATCH_COLUMNS (data/replay.py), each with the batch on its
+# first axis ([batch, ...]), or on its second when seeds are stacked ([N, batch, ...]).
 
 
 def refusal(config, path: str) -> str:
-    """Why ``config`` cannot take the update path ``path`` ('compiled' or 'together'); ''
+    """Why ``config`` cannot take the update path ``path`` ('compiled' or 'stacked'); ''
     when it can. The one place where an option is refused a path."""
     if config.advice_batch != 'full':
         # A D_advising batch whose size follows |D_advising| changes shape at every step: a
@@ -84,8 +83,8 @@ def gradient_and_value(loss_of: Callable, weights, has_aux: bool = False):
     with torch.enable_grad():
         out = loss_of(leaves)
     loss = out[0] if has_aux else out
-    grads = torch.autograd.grad(loss, inputs)
-    grads = dict(zip(leaves, grads)) if isinstance(weights, dict) else grads[0]
+    found = torch.autograd.grad(loss, inputs)
+    grads = dict(zip(leaves, found)) if isinstance(weights, dict) else found[0]
     if has_aux:
         return grads, (loss.detach(), out[1].detach())
     return grads, loss.detach()
@@ -119,49 +118,57 @@ def adam_(params: list, grads: list, state: tuple, settings: dict) -> None:
     )
 
 
+@torch.no_grad()
+def soft_targets(nets, weights, batch, advice, target_noise, gamma: float) -> tuple:
+    """Eq. 4's y for the batch from D and for the one from D_advising (None when there is none),
+    in one pass: a' ~ pi(.|s') from the current actor, Q from the target critics."""
+    actor_net, critic_net = nets
+    sizes = [batch[2].shape[-1]] + ([advice[2].shape[-1]] if advice is not None else [])
+    if advice is None:
+        both = batch
+    else:
+        both = [
+            torch.cat(pair, dim=-1 if name in ROW_COLUMNS else -2)
+            for name, pair in zip(BATCH_COLUMNS, zip(batch, advice))
+        ]
+    _, _, reward, next_obs, terminated = both
+    alpha = weights['log_alpha'].exp().unsqueeze(-1)
+    next_mean, next_log_std = with_weights(actor_net, weights['actor'])(next_obs)
+    next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, target_noise)
+    next_q1, next_q2 = with_weights(critic_net, weights['critic_target'])(next_obs, next_action)
+    y = eq.soft_bellman_target(reward, terminated, next_q1, next_q2, next_log_prob, alpha, gamma)
+    return (y, None) if advice is None else tuple(y.split(sizes, dim=-1))
+
+
 def algorithm1_update(
-    nets, weights, state, batch, advice, noise, hyper, advised=None, step: Optional[Callable] = None
+    nets, weights, state, batch, advice, noise, constants, advised=None, step: Optional[Callable] = None
 ) -> dict:
     """One update of Algorithm 1's inner loop, in its order. Returns the losses (tensors).
 
     ``nets``: (actor, twin critic) modules, for their structure (the weights come from
     ``weights``: 'actor', 'critic', 'critic_target' name -> tensor dicts and 'log_alpha');
     ``state``: each network's Adam state ('actor', 'critic', 'alpha': see adam_);
-    ``batch``, ``advice``: the batches from D and D_advising (FIELDS order; advice None when
-    there is none); ``noise``: update_noise's; ``hyper``: gamma, tau, target_entropy, each
+    ``batch``, ``advice``: the batches from D and D_advising (BATCH_COLUMNS order; advice None when
+    there is none); ``noise``: update_noise's; ``constants``: gamma, tau, target_entropy, each
     network's Adam settings ('<network>_adam') and 'seeds' (1, or N stacked seeds).
     Stacked seeds: ``advised`` says which seeds have advice (the others' advice batch is a
     stand-in and gets no step), and ``step(network, params, grads, advised)`` replaces adam_.
     """
     actor_net, critic_net = nets
     actor_w, critic_w, target_w = weights['actor'], weights['critic'], weights['critic_target']
-    seeds = hyper['seeds']  # the loss of N stacked seeds is their mean: N x it gives each its own gradient
+    seeds = constants['seeds']  # the loss of N stacked seeds is their mean: N x it gives each its own gradient
     losses = {}
 
     def adam_step(network, params, grads, only=None):
         if step is None:
-            adam_(params, grads, state[network], hyper[f'{network}_adam'])
+            adam_(params, grads, state[network], constants[f'{network}_adam'])
         else:
             step(network, params, grads, only)
 
     # Eq. 4 targets of both batches in one pass: the actor, alpha and the target critics stay
-    # as they are until the end of the update. a' ~ pi(.|s') from the current actor.
-    with torch.no_grad():
-        sizes = [batch[2].shape[-1]] + ([advice[2].shape[-1]] if advice is not None else [])
-        if advice is None:
-            both = batch
-        else:
-            both = [
-                torch.cat(pair, dim=-1 if name in PER_ROW else -2) for name, pair in zip(FIELDS, zip(batch, advice))
-            ]
-        _, _, reward, next_obs, terminated = both
-        target_noise, actor_noise, advice_actor_noise = noise
-        alpha = weights['log_alpha'].exp().unsqueeze(-1)
-        next_mean, next_log_std = with_weights(actor_net, actor_w)(next_obs)
-        next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, target_noise)
-        next_q1, next_q2 = with_weights(critic_net, target_w)(next_obs, next_action)
-        y = eq.soft_bellman_target(reward, terminated, next_q1, next_q2, next_log_prob, alpha, hyper['gamma'])
-        y, advice_y = (y, None) if advice is None else y.split(sizes, dim=-1)
+    # as they are until the end of the update.
+    target_noise, actor_noise, advice_actor_noise = noise
+    y, advice_y = soft_targets(nets, weights, batch, advice, target_noise, constants['gamma'])
 
     def critic_step(obs, action, y, only=None):  # Eq. 5 for Q_theta1 and Q_theta2
         def loss_of(w):
@@ -191,7 +198,7 @@ def algorithm1_update(
         adam_step('actor', list(actor_w.values()), list(grads.values()), only)
 
         def alpha_loss_of(log_alpha):
-            return seeds * eq.temperature_loss(log_alpha.unsqueeze(-1), log_prob, hyper['target_entropy'])
+            return seeds * eq.temperature_loss(log_alpha.unsqueeze(-1), log_prob, constants['target_entropy'])
 
         alpha_grad, alpha_loss = gradient_and_value(alpha_loss_of, weights['log_alpha'])
         adam_step('alpha', [weights['log_alpha']], [alpha_grad], only)
@@ -203,5 +210,5 @@ def algorithm1_update(
         losses['advice_actor_loss'], _ = actor_and_alpha_step(advice[0], advice_actor_noise, advised)
 
     # Target critics: theta^- <- tau * theta + (1 - tau) * theta^-.
-    eq.soft_update(list(target_w.values()), list(critic_w.values()), hyper['tau'])
+    eq.soft_update(list(target_w.values()), list(critic_w.values()), constants['tau'])
     return losses

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,13 +21,18 @@ class Minibatch:
         """The batch on ``device`` (itself when it is there already: no copy on CPU)."""
         if self.obs.device == device:
             return self
-        return Minibatch(*(t.to(device) for t in (self.obs, self.action, self.reward, self.next_obs, self.terminated)))
+        return Minibatch(*(getattr(self, name).to(device) for name in BATCH_COLUMNS))
 
-    def fields(self) -> tuple:
-        """(obs, action, reward, next_obs, terminated) as update.algorithm1_update reads them:
+    def columns(self) -> tuple:
+        """The columns in BATCH_COLUMNS order, as update.algorithm1_update reads them:
         contiguous (a compiled program is specialised to its inputs' layout, and these are
         column views of the buffer's rows)."""
-        return tuple(t.contiguous() for t in (self.obs, self.action, self.reward, self.next_obs, self.terminated))
+        return tuple(getattr(self, name).contiguous() for name in BATCH_COLUMNS)
+
+
+# A batch's columns, in the one order every path uses (the buffer's rows, the update, stacked seeds).
+BATCH_COLUMNS = tuple(f.name for f in dataclasses.fields(Minibatch))
+ROW_COLUMNS = {'reward', 'terminated'}  # one number per transition: the batch is their last axis
 
 
 def checked_transition(obs, action, reward, next_obs, obs_dim: int, action_dim: int):
@@ -53,8 +59,6 @@ class ReplayBuffer:
     every later update, so it is refused here with an error instead.
     """
 
-    FIELDS = ('obs', 'action', 'reward', 'next_obs', 'terminated')
-
     def __init__(self, capacity: int, obs_dim: int, action_dim: int):
         if capacity < 1:
             raise ValueError(f'replay capacity must be >= 1, got {capacity}')
@@ -65,22 +69,22 @@ class ReplayBuffer:
         # a batch is one gather (index_select) instead of five; the fields are column views.
         widths = {'obs': obs_dim, 'action': action_dim, 'reward': 1, 'next_obs': obs_dim, 'terminated': 1}
         self._columns, start = {}, 0
-        for name in self.FIELDS:
+        for name in BATCH_COLUMNS:
             self._columns[name] = (start, start + widths[name])
             start += widths[name]
         self.rows = torch.zeros(capacity, start)
         for name, view in self._split(self.rows).items():
             setattr(self, name, view)
         # numpy views on the same memory: one transition is written without tensor ops.
-        self._np = {name: getattr(self, name).numpy() for name in self.FIELDS}
+        self._np = {name: getattr(self, name).numpy() for name in BATCH_COLUMNS}
         self.position = 0
         self.size = 0
 
     def _split(self, rows: torch.Tensor) -> dict:
         """Column views of ``rows`` by field; reward and terminated are 1-D."""
         views = {name: rows[:, a:b] for name, (a, b) in self._columns.items()}
-        views['reward'] = views['reward'][:, 0]
-        views['terminated'] = views['terminated'][:, 0]
+        for name in ROW_COLUMNS:
+            views[name] = views[name][:, 0]
         return views
 
     def __len__(self) -> int:
@@ -111,7 +115,7 @@ class ReplayBuffer:
     def state_dict(self) -> dict:
         """Tensors of the stored part only, in insertion order's ring layout, plus the cursor."""
         return {
-            **{name: getattr(self, name)[: self.size].clone() for name in self.FIELDS},
+            **{name: getattr(self, name)[: self.size].clone() for name in BATCH_COLUMNS},
             'position': self.position,
             'size': self.size,
             'capacity': self.capacity,
@@ -123,7 +127,7 @@ class ReplayBuffer:
             raise ValueError(f'saved buffer holds {size} transitions, capacity is {self.capacity}')
         if not 0 <= position < self.capacity:
             raise ValueError(f'saved buffer position {position} is outside [0, {self.capacity})')
-        for name in self.FIELDS:
+        for name in BATCH_COLUMNS:
             saved = state[name]
             target = getattr(self, name)
             if tuple(saved.shape[1:]) != tuple(target.shape[1:]) or saved.shape[0] != size:
@@ -133,7 +137,7 @@ class ReplayBuffer:
                 )
             if not torch.isfinite(saved).all():
                 raise ValueError(f'saved buffer field {name!r} holds non-finite values (NaN or inf)')
-        for name in self.FIELDS:
+        for name in BATCH_COLUMNS:
             getattr(self, name)[:size] = state[name]
         self.size = size
         self.position = position

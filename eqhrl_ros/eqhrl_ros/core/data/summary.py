@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 
 def _column(fmt: str = '', name: str = ''):
@@ -19,6 +20,8 @@ def _column(fmt: str = '', name: str = ''):
 class EpisodeSummary:
     """Per-episode statistics. Every field is a column of episodes.csv, in this order, and a field
     of eqhrl_interfaces/msg/EpisodeStats.msg (tests/test_one_home.py holds the three together)."""
+
+    CSV_FIELDS: ClassVar[tuple[str, ...]]  # the columns of episodes.csv (set below the class)
 
     episode: int
     episode_return: float = field(metadata=_column('.4f', name='return'))

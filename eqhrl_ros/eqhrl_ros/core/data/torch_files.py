@@ -26,7 +26,7 @@ from .errors import CheckpointError, CheckpointWriteError
 FORMAT_VERSION = 1
 
 
-def write_file(data: bytes, tmp: str) -> None:
+def write_file(data: bytes | memoryview, tmp: str) -> None:
     fd = os.open(tmp, os.O_WRONLY | os.O_TRUNC)
     try:
         view = memoryview(data)

@@ -3,6 +3,8 @@ scaling lives in env_spec.py, without gymnasium)."""
 
 from __future__ import annotations
 
+from typing import cast
+
 import gymnasium as gym
 import numpy as np
 
@@ -38,16 +40,16 @@ def gym_spec(env_id: str, max_episode_steps: int | None = None, env: gym.Env | N
     """The EnvSpec of a gymnasium id (no episode is run): sizes, bounds, episode length and
     the built-in success rule. ``env``: an env already made for the id; ``pace``: realtime, rate_hz."""
     made = env is None
-    if made:
-        env = make_env(env_id, max_episode_steps)
+    the_env = make_env(env_id, max_episode_steps) if env is None else env
     try:
         rule, threshold = builtin_success(env_id)
-        limit = env.spec.max_episode_steps if env.spec is not None else None
+        limit = the_env.spec.max_episode_steps if the_env.spec is not None else None
+        actions = cast(gym.spaces.Box, the_env.action_space)  # make_env refuses any other kind
         return EnvSpec(
             env_id,
-            int(np.prod(env.observation_space.shape)),
-            env.action_space.low,
-            env.action_space.high,
+            int(np.prod(the_env.observation_space.shape or ())),
+            actions.low,
+            actions.high,
             action_labels=ACTION_LABELS.get(env_id, ()),
             max_episode_steps=int(max_episode_steps or limit or 0),
             success_rule=rule,
@@ -57,7 +59,7 @@ def gym_spec(env_id: str, max_episode_steps: int | None = None, env: gym.Env | N
         )
     finally:
         if made:
-            env.close()
+            the_env.close()
 
 
 def success_criterion(env_id: str) -> SuccessCriterion:

@@ -92,7 +92,7 @@ class EnvSpec:
             return NotImplemented
         return all(np.array_equal(getattr(self, f.name), getattr(other, f.name)) for f in fields(self) if f.compare)
 
-    __hash__ = None
+    __hash__ = None  # type: ignore[assignment]  # field-wise equality of arrays: not hashable
 
     @property
     def action_size(self) -> int:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..data.advice import SKIPPED, Advice, AdviceRequest
 
@@ -42,9 +43,9 @@ def unit_values(values: Sequence[float], what: str) -> np.ndarray:
     return array
 
 
-def affine(values: Sequence[float], scales: Sequence[float], offsets: Sequence[float]) -> np.ndarray:
-    values = np.asarray(values, dtype=np.float32)
-    return values * np.asarray(scales, dtype=np.float32) + np.asarray(offsets, dtype=np.float32)
+def affine(values: ArrayLike, scales: ArrayLike, offsets: ArrayLike) -> np.ndarray:
+    array = np.asarray(values, dtype=np.float32)
+    return array * np.asarray(scales, dtype=np.float32) + np.asarray(offsets, dtype=np.float32)
 
 
 def joy_command(

@@ -184,7 +184,7 @@ def load_checkpoint(learner, path, replay_path=None, check_extra=None) -> dict |
     except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as error:
         raise CheckpointError(f'{path}: does not fit this learner ({error})') from error
     if replay is not None:
-        learner.replay, learner.advice_replay = candidate_replay, candidate_advice
+        learner.memories.replay, learner.memories.advice_replay = candidate_replay, candidate_advice
     if from_previous:
         _restore_previous(previous, Path(replay_path))
     return extra

@@ -4,7 +4,7 @@ A training episode inside the advising budget mixes the learner's actions with t
 so its return is not the learner's. Every K episodes, the runner plays the policy's mean
 action (tanh of the Gaussian mean: no noise, no gates, no expert, no storing, no update) from
 the same start states, on an env of its own. It draws nothing from the learner's random
-streams, so training goes exactly as it would without it (tests/core/test_evaluation.py).
+streams, so training goes exactly as it would without it (tests/core/runs/test_evaluation.py).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import gymnasium as gym
 
@@ -32,8 +32,8 @@ class _Acting:
         self.env, self.learner, self.expert, self.on_proposal = env, learner, expert, on_proposal
         self.observe = getattr(expert, 'observe', None)
         # An expert that takes over unasked (simulated_human.SimulatedHuman with a TakeoverRule).
-        self.intervene = getattr(expert, 'intervene', None) if getattr(expert, 'takeover', None) else None
-        self.obs = None
+        self.intervene: Optional[Callable] = getattr(expert, 'intervene', None) if getattr(expert, 'takeover', None) else None
+        self.obs: Any = None  # the env's observation, after the first reset
         self.new_episode = True
 
     def reset(self, seed: Optional[int] = None) -> None:
@@ -64,11 +64,7 @@ class _Acting:
         """The simulated person's takeover of this step, inside the advising budget (the episodes and
         the person's seconds) of a mode that keeps advice, or None."""
         learner = self.learner
-        if not (
-            asks_for_advice(learner.mode)
-            and learner.episode < learner.config.advising_budget
-            and learner.person_budget_left_s > 0
-        ):
+        if self.intervene is None or not learner.advice_window().open:
             return None
         low, high = learner.scaler.low, learner.scaler.high
         request = AdviceRequest(
@@ -133,7 +129,7 @@ def _evaluate_if_due(evaluation: Optional['Evaluation'], learner: EQSACLearner, 
 
 @dataclass(eq=False)
 class SeedRun:
-    """One seed's part in train_together(): what train() takes for a lone run."""
+    """One seed's part in train_stacked(): what train() takes for a lone run."""
 
     env: gym.Env
     learner: EQSACLearner
@@ -145,7 +141,7 @@ class SeedRun:
     on_finished: Callable[[], None] | None = None  # called once its learner reaches ``episodes``
 
 
-def train_together(runs: Sequence[SeedRun], episodes: int) -> None:
+def train_stacked(runs: Sequence[SeedRun], episodes: int) -> None:
     """train() for runs that differ only in their seed, with their updates as one (stacked_seeds.py).
 
     Each run acts exactly as it would alone; after every env step of all of them, the
@@ -153,16 +149,16 @@ def train_together(runs: Sequence[SeedRun], episodes: int) -> None:
     A run leaves when its learner reaches ``episodes`` (its on_finished is then called); the
     others go on. The learners must be at the same step (fresh ones are).
     """
-    together = TrainingTogether(runs, episodes)
+    stacked = StackedSeedRuns(runs, episodes)
     try:
-        while not together.done:
-            together.step()
+        while not stacked.done:
+            stacked.step()
     finally:
-        together.close()
+        stacked.close()
 
 
-class TrainingTogether:
-    """train_together(), one env step at a time (benchmarks drive it too)."""
+class StackedSeedRuns:
+    """train_stacked(), one env step at a time (benchmarks drive it too)."""
 
     def __init__(self, runs: Sequence[SeedRun], episodes: int):
         if len({run.learner.total_steps for run in runs}) > 1:
@@ -174,9 +170,9 @@ class TrainingTogether:
                 acting = _Acting(run.env, run.learner, run.expert, run.on_proposal)
                 acting.reset(run.seed)
                 self.active.append((run, acting))
-        self.batch = self._batch()
+        self.stacked = self._stack()
 
-    def _batch(self):
+    def _stack(self):
         from ..algorithm.stacked_seeds import StackedSeeds
 
         return StackedSeeds([run.learner for run, _ in self.active]) if self.active else None
@@ -190,12 +186,9 @@ class TrainingTogether:
         ended = []
         for run, acting in self.active:
             obs, action, reward, next_obs, terminated, truncated, advised = acting.act()
-            run.learner.record(obs, action, reward, next_obs, terminated, advised)
+            run.learner.count_step(obs, action, reward, next_obs, terminated, advised)
             ended.append(terminated or truncated)
-        # Same steps, same D sizes: the learners are ready together (a lone learner updates here too).
-        if self.active[0][0].learner.ready_to_learn:
-            for _ in range(self.batch.config.updates_per_step):
-                self.batch.update()
+        self.stacked.updates_after_a_step()  # where each lone learner's step() updates
         finished = []
         for (run, acting), done in zip(self.active, ended):
             if not done:
@@ -209,19 +202,19 @@ class TrainingTogether:
             else:
                 acting.reset()
         if finished:
-            # The batch is remade of the runs that go on; the finished ones keep their weights.
-            self.batch.release()
+            # The stack is remade of the runs that go on; the finished ones keep their weights.
+            self.stacked.release()
             self.active = [(run, acting) for run, acting in self.active if run not in finished]
-            self.batch = self._batch()
+            self.stacked = self._stack()
             for run in finished:
                 if run.on_finished is not None:
                     run.on_finished()
 
     def close(self) -> None:
-        """Give every learner its weights back (the batch's stacked tensors are dropped)."""
-        if self.batch is not None:
-            self.batch.release()
-            self.batch = None
+        """Give every learner its weights back (the stacked tensors are dropped)."""
+        if self.stacked is not None:
+            self.stacked.release()
+            self.stacked = None
 
 
 @dataclass

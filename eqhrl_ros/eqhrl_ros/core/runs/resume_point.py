@@ -97,7 +97,9 @@ class ResumePoint:
             self.log(f'{self.folder}: the saved state is not resumed ({error}); the run starts over')
             self.remove()
             return False
-        # The learner has its state now; the env and the expert take theirs (checked above).
+        # The learner has its state now; the env and the expert take theirs (checked above:
+        # check() refuses a file without them, so extra is a dict here).
+        assert isinstance(extra, dict)
         env.unwrapped.np_random.bit_generator.state = extra['env_rng']
         for generator, state in zip(generators, extra['expert_rng']):
             generator.bit_generator.state = state

@@ -13,12 +13,15 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import numpy as np
 import torch
 
-from ..algorithm.learner import NETWORK_STATE, AdviceCounts, EQSACLearner
+from ..algorithm.advice_counts import AdviceCounts
+from ..algorithm.learner import EQSACLearner
+from ..algorithm.learner_state import NETWORK_STATE
+from ..algorithm.updater import non_finite
 from ..data.summary import EpisodeSummary
 from ..data.transitions import MAX_HELD_BATCHES, MAX_MISSING, STORED, SequenceTracker, TransitionBatch
 
@@ -80,7 +83,7 @@ class Trainer:
         # Batches past a missing one, per actor: {sequence: (run, batch, payload)}; batch None for
         # one refused for what it holds (never stored; the stream moves past it when it is due).
         self.held: dict[str, dict[int, tuple]] = {}
-        self._finite = None  # the networks and optimisers as they last were known finite
+        self._finite: Optional[dict] = None  # the networks and optimisers as they last were known finite
 
     def receive(self, batch: TransitionBatch, payload=None) -> Receipt:
         """Store a batch, and the ones held past it that it lets through. Only the batch due from
@@ -112,7 +115,8 @@ class Trainer:
             raise
         verdict = self.sequences.receive(batch.actor, batch.sequence, batch.run, batch.oldest_kept)
         self._forget_held(batch.actor)
-        rows, stored = [], []
+        rows: list = []
+        stored: list = []
         if verdict == 'ahead':
             self._hold(batch.actor, batch.sequence, (batch.run, batch, payload))
         elif verdict in STORED:
@@ -132,7 +136,7 @@ class Trainer:
                 bool(batch.terminated[i]),
                 bool(batch.advised[i]),
             )
-            learner.total_steps += 1  # env steps over all actors
+            learner.tally.total_steps += 1  # env steps over all actors
             if len(learner.replay) >= starts:
                 self.eligible += 1
         rows += [(self.add_episode(summary), batch.actor) for summary in batch.episodes]
@@ -148,7 +152,7 @@ class Trainer:
     def _forget_held(self, actor: str) -> None:
         """Held batches of another run of the actor, or already passed, are dropped."""
         held, state = self.held.get(actor), self.sequences.actors.get(actor)
-        if not held:
+        if not held or state is None:
             return
         for sequence in [s for s, (run, _, _) in held.items() if s < state.expected or run != state.run]:
             del held[sequence]
@@ -216,17 +220,8 @@ class Trainer:
         """An actor's finished episode as a row of the trainer's record: the index over all
         actors (what the advising budget counts), steps over all actors, the trainer's alpha."""
         learner = self.learner
-        counts = AdviceCounts.from_summary(summary)
-        row = dataclasses.replace(
-            summary,
-            episode=learner.episode,
-            total_steps=learner.total_steps,
-            alpha=learner.alpha,
-            human_time_total_s=learner.advice_total.human_time_s + summary.human_time_s,
-        )
-        learner.advice_total.add(counts)  # failures by kind stay with the actors (the row has their total)
-        learner.episode += 1
-        return row
+        counts = AdviceCounts.from_summary(summary)  # failures by kind stay with the actors (the row has their total)
+        return learner.tally.close(dataclasses.replace(summary, alpha=learner.alpha), counts)
 
     def updates_owed(self) -> int:
         """Updates due now to keep updates_per_transition."""
@@ -237,7 +232,7 @@ class Trainer:
         optimisers go back to their last finite state (the last weights sent) and it is counted."""
         info = self.learner.update()
         self.updates_here += 1
-        if not all(math.isfinite(v) for v in info.values() if isinstance(v, float)):
+        if non_finite(info):
             self.restore_finite()
             info = {**info, 'restored': True}
         return info

@@ -5,7 +5,7 @@ import dataclasses
 import pytest
 import yaml
 
-from eqhrl_ros.core.algorithm.config import FIELDS, LearnerConfig, check_value, ros_name
+from eqhrl_ros.core.algorithm.config import CONFIG_FIELDS, LearnerConfig, check_value, ros_name
 from eqhrl_ros.parameters import LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, check_section
 
 from ros_helpers import PARAMS_DIR
@@ -21,10 +21,10 @@ def test_the_ros_parameters_are_the_config_fields():
         assert param.default == default or (param.kind == 'integer_array' and param.default is None and default == [])
 
 
-@pytest.mark.parametrize('name', [n for n, f in FIELDS.items() if f.metadata['range'] and f.default != ()])
+@pytest.mark.parametrize('name', [n for n, f in CONFIG_FIELDS.items() if f.metadata['range'] and f.default != ()])
 def test_a_value_outside_the_declared_range_is_refused_by_the_config(name):
-    low, high = FIELDS[name].metadata['range']
-    kind = type(FIELDS[name].default)
+    low, high = CONFIG_FIELDS[name].metadata['range']
+    kind = type(CONFIG_FIELDS[name].default)
     check_value(name, kind(low))
     check_value(name, kind(high))
     above = high * 2 if high > 0 else 1

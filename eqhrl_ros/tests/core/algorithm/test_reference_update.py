@@ -199,7 +199,7 @@ def test_seeds_together_match_each_seeds_plain_reference(options):
     learners = [filled_learner(seed, advised_every=every, **options) for seed, every in ((5, 0), (6, 9), (7, 4))]
     why = batchable(learners)
     if options.get('advice_batch') == 'proportional':  # refused, in one place: update.refusal
-        assert why == refusal(learners[0].config, 'together') and 'proportional' in why
+        assert why == refusal(learners[0].config, 'stacked') and 'proportional' in why
         with pytest.raises(ValueError, match='proportional'):
             StackedSeeds(learners)
         return
@@ -227,7 +227,7 @@ def test_the_compiled_update_matches_the_plain_reference(options):
     )
     learner.log = None
     ref = reference_of(learner)
-    learner._make_optimizers()
+    learner.updater.make_optimizers()
     compiled = learner.start_compiling(background=False)
     assert compiled.ready, compiled.failed
     for _ in range(5):
@@ -238,7 +238,7 @@ def test_the_compiled_update_matches_the_plain_reference(options):
 
 def test_an_option_no_compiled_program_can_hold_is_refused_in_one_place():
     learner = filled_learner(mode='eqsac', advice_batch='proportional', compile_update=True)
-    assert learner.start_compiling() is None and learner.compiled_update is False
+    assert learner.start_compiling() is None and learner.compiled_update is None and learner.updater.compile_refused
     assert 'proportional' in refusal(learner.config, 'compiled')
     ref = reference_of(learner)
     for _ in range(3):  # it stays eager, and right

@@ -1,4 +1,4 @@
-"""Seeds together (core/algorithm/stacked_seeds.py, training.train_together) compute what seeds apart compute."""
+"""Seeds together (core/algorithm/stacked_seeds.py, training.train_stacked) compute what seeds apart compute."""
 
 import numpy as np
 import pytest
@@ -6,7 +6,7 @@ import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env
 from eqhrl_ros.core.algorithm.stacked_seeds import StackedSeeds, batchable
-from eqhrl_ros.core.runs.in_process import SeedRun, train, train_together
+from eqhrl_ros.core.runs.in_process import SeedRun, train, train_stacked
 
 # Small networks: an update takes milliseconds. Alone and together differ only in float rounding
 # (the same kernels at these sizes: 1e-6 apart after 200 updates here); a rounding difference
@@ -55,13 +55,13 @@ def test_an_update_together_is_each_seeds_own_update(mode, actor_on_advice):
         assert torch.allclose(weights(together), weights(single), rtol=0, atol=1e-5), seed
         # Each seed's own Adam state (step counts include the second critic steps) is its lone one.
         assert (
-            together.critic_optimizer.state_dict()['state'][0]['step']
-            == single.critic_optimizer.state_dict()['state'][0]['step']
+            together.updater.optimizers['critic'].state_dict()['state'][0]['step']
+            == single.updater.optimizers['critic'].state_dict()['state'][0]['step']
         )
         # And its random streams are where the lone run left them.
         assert torch.equal(together.rng['update'].get_state(), single.rng['update'].get_state())
         assert torch.equal(together.rng['replay'].get_state(), single.rng['replay'].get_state())
-    steps = [groups[seed][1].critic_optimizer.state_dict()['state'][0]['step'].item() for seed in groups]
+    steps = [groups[seed][1].updater.optimizers['critic'].state_dict()['state'][0]['step'].item() for seed in groups]
     if mode == 'sac':
         assert steps == [200, 200, 200]
     else:
@@ -129,7 +129,7 @@ def test_training_together_gives_each_seed_its_lone_run(env_id, episodes):
                 on_finished=lambda seed=seed: finished.append(seed),
             )
         )
-    train_together(runs, episodes)
+    train_stacked(runs, episodes)
     assert sorted(finished) == list(seeds)
     for seed, run in zip(seeds, runs):
         summaries, single = alone[seed]
@@ -155,7 +155,7 @@ def test_runs_at_different_steps_are_refused():
     train(env_a, ahead, 1, seed=0)
     fresh = EQSACLearner(3, env_b.action_space.low, env_b.action_space.high, LearnerConfig(**SMALL, seed=1))
     with pytest.raises(ValueError, match='same step'):
-        train_together([SeedRun(env_a, ahead), SeedRun(env_b, fresh)], 2)
+        train_stacked([SeedRun(env_a, ahead), SeedRun(env_b, fresh)], 2)
 
 
 def test_a_seed_learns_alone_again_after_learning_together():

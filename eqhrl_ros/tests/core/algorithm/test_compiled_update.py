@@ -86,12 +86,15 @@ def test_the_compiled_update_computes_what_the_eager_update_computes():
     assert fast.updates == eager.updates == 26
     # The optimisers' own state moved with the compiled steps (checkpoints save it): with advice,
     # two critic steps and two actor steps per update.
-    for a, b in ((eager.critic_optimizer, fast.critic_optimizer), (eager.actor_optimizer, fast.actor_optimizer)):
+    for a, b in (
+        (eager.updater.optimizers['critic'], fast.updater.optimizers['critic']),
+        (eager.updater.optimizers['actor'], fast.updater.optimizers['actor']),
+    ):
         for p, q in zip(a.param_groups[0]['params'], b.param_groups[0]['params']):
             assert float(b.state[q]['step']) == float(a.state[p]['step']) == 1 + 5 + 2 * 20
             torch.testing.assert_close(b.state[q]['exp_avg_sq'], a.state[p]['exp_avg_sq'], rtol=1e-3, atol=1e-7)
     # The random streams were drawn in the eager update's order: the next draws agree.
-    assert torch.equal(eager.noise((4,), 'update'), fast.noise((4,), 'update'))
+    assert torch.equal(eager.streams.noise((4,), 'update'), fast.streams.noise((4,), 'update'))
 
 
 @pytest.mark.slow  # the compiler
@@ -144,7 +147,7 @@ def test_learners_that_differ_only_in_a_constant_get_a_program_each():
 
 
 def test_the_guards_kept_are_those_on_the_data_and_torchs_state():
-    for name in ('batch[0]', 'advice', 'noise[2]', "hyper['gamma']", "weights['actor']['heads.weight']", ''):
+    for name in ('batch[0]', 'advice', 'noise[2]', "constants['gamma']", "weights['actor']['heads.weight']", ''):
         assert compiled.keep_guard(name, is_global=False), name
     for name in ('nets[0].action_dim', "nets[1]._modules['biases']", "__import__('torch').utils._pytree"):
         assert not compiled.keep_guard(name, is_global=False), name
@@ -259,7 +262,7 @@ def test_a_configuration_that_cannot_be_compiled_stays_eager_with_one_line():
     learner.log = log = Lines()
     for _ in range(3):
         learner.update()
-    assert learner.compiled_update is False and learner.updates == 3
+    assert learner.compiled_update is None and learner.updater.compile_refused and learner.updates == 3
     assert log.warning_lines == [
         "compile_update: advice_batch 'proportional' changes the batch size at every step; "
         'the learner stays with the eager update'

@@ -35,7 +35,7 @@ def test_cuda_works_where_there_is_a_gpu_and_is_refused_clearly_where_there_is_n
 def test_on_the_cpu_nothing_is_copied_and_the_noise_streams_are_the_learners():
     one, two = learner('cpu'), learner('cpu')
     assert one.device == torch.device('cpu')
-    assert torch.equal(one.noise((4, 1), 'update'), two.noise((4, 1), 'update'))
+    assert torch.equal(one.streams.noise((4, 1), 'update'), two.streams.noise((4, 1), 'update'))
     batch_source = one.replay
     for i in range(10):
         batch_source.add([0.0, 0.0, float(i)], [0.0], 0.0, [0.0, 0.0, 0.0], False)

@@ -149,7 +149,7 @@ def test_non_finite_transition_never_reaches_the_buffer():
 def optimiser_steps(learner):
     """How many steps each optimiser has taken (Adam's per-parameter step count)."""
     return {
-        name: int(next(iter(getattr(learner, f'{name}_optimizer').state.values()))['step'])
+        name: int(next(iter(learner.updater.optimizers[name].state.values()))['step'])
         for name in ('critic', 'actor', 'alpha')
     }
 
@@ -167,7 +167,7 @@ def test_each_update_steps_the_critics_twice_with_advice_and_the_actor_once():
     info = learner.update()
     assert optimiser_steps(learner) == {'critic': 3, 'actor': 2, 'alpha': 2}
     assert 'advice_critic_loss' in info and 'advice_actor_loss' not in info  # the actor trains on D only
-    # The order of the steps and which batch each uses: tests/core/test_reference_update.py.
+    # The order of the steps and which batch each uses: tests/core/algorithm/test_reference_update.py.
 
 
 def test_qasac_also_uses_the_advice_critic_step_but_sac_does_not():
@@ -229,18 +229,22 @@ def test_a_state_loaded_in_process_shares_no_tensor_with_the_learner_it_came_fro
     for learner in (donor, twin):
         pendulum_episode(learner, ScriptedExpert(Advice(np.array([1.0], dtype=np.float32))))
         learner.update()
-    assert donor.critic_optimizer.state  # there are moments to share
+    assert donor.updater.optimizers['critic'].state  # there are moments to share
     twin.load_state_dict(donor.state_dict())
     mine = {t.data_ptr() for t in _state_tensors(twin)}
     assert mine.isdisjoint(t.data_ptr() for t in _state_tensors(donor))
-    steps = [float(s['step']) for s in donor.critic_optimizer.state.values()]
+    steps = [float(s['step']) for s in donor.updater.optimizers['critic'].state.values()]
     twin.update()  # steps the twin alone
-    assert [float(s['step']) for s in donor.critic_optimizer.state.values()] == steps
+    assert [float(s['step']) for s in donor.updater.optimizers['critic'].state.values()] == steps
 
 
 def _state_tensors(learner):
     modules = (learner.actor, learner.critic, learner.critic_target)
-    optimizers = (learner.actor_optimizer, learner.critic_optimizer, learner.alpha_optimizer)
+    optimizers = (
+        learner.updater.optimizers['actor'],
+        learner.updater.optimizers['critic'],
+        learner.updater.optimizers['alpha'],
+    )
     return [
         *(t for m in modules for t in m.state_dict().values()),
         learner.log_alpha,

@@ -1,0 +1,70 @@
+"""A learner's saved state checked before anything of it is used: the structure and the values
+no run of this learner can produce are refused with the key that is wrong."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+
+def _tensors(value):
+    """Every tensor inside nested dicts and lists (a state dict, an optimiser's state)."""
+    if isinstance(value, torch.Tensor):
+        yield value
+    elif isinstance(value, dict):
+        for item in value.values():
+            yield from _tensors(item)
+    elif isinstance(value, (list, tuple)):
+        for item in value:
+            yield from _tensors(item)
+
+
+# The parts of a learner's state an update changes: the networks, the temperature and their optimisers.
+NETWORK_STATE = (
+    'actor',
+    'critic',
+    'critic_target',
+    'log_alpha',
+    'actor_optimizer',
+    'critic_optimizer',
+    'alpha_optimizer',
+)
+
+
+def check_state(state) -> None:
+    """Refuse a saved state whose structure or values no run of this learner can produce."""
+    if not isinstance(state, dict):
+        raise ValueError(f'a checkpoint is a dict, found {type(state).__name__}')
+    for key in ('config', 'counters', 'gates', 'rng'):
+        if not isinstance(state.get(key), dict):
+            raise ValueError(f"'{key}' must be a dict, found {type(state.get(key)).__name__}")
+    counters = state['counters']
+    for key in ('episode', 'total_steps', 'updates'):
+        value = counters.get(key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ValueError(f'counters.{key} must be an integer >= 0, found {value!r}')
+    if counters['episode'] > counters['total_steps']:
+        raise ValueError(
+            f'counters.episode {counters["episode"]} exceeds counters.total_steps '
+            f'{counters["total_steps"]} (an episode has at least one step)'
+        )
+    if not isinstance(counters.get('advice_total'), dict):
+        raise ValueError('counters.advice_total must be a dict')
+    for key in NETWORK_STATE:
+        if any(t.is_floating_point() and not torch.isfinite(t).all() for t in _tensors(state.get(key))):
+            raise ValueError(f"'{key}' holds non-finite values (NaN or inf)")
+    for key in ('d_queue', 'e_queue'):
+        values = state['gates'].get(key)
+        if not isinstance(values, list) or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+            raise ValueError(f'gates.{key} must be a list of finite numbers')
+    threshold = state['gates'].get('joint_threshold', 1.0)
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0.0 <= threshold <= 1.0:
+        raise ValueError(f'gates.joint_threshold must be a number in [0, 1], found {threshold!r}')
+
+
+def resumed_settings(saved_config: dict) -> list:
+    """The run-time (dynamic) LearnerConfig fields a checkpoint's config holds."""
+    from .config import CONFIG_FIELDS
+
+    return [name for name, f in CONFIG_FIELDS.items() if f.metadata['dynamic'] and name in saved_config]

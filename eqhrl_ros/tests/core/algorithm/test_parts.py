@@ -1,0 +1,61 @@
+"""The learner is made of parts with one job each (core/algorithm/learner.py's docstring), and
+both update paths, the lone learner's and stacked seeds', go through the same Updater interface:
+each returns its losses and counts an update whose losses are not finite."""
+
+import math
+
+import numpy as np
+import torch
+
+from eqhrl_ros.core.algorithm.config import LearnerConfig
+from eqhrl_ros.core.algorithm.learner import EQSACLearner
+from eqhrl_ros.core.algorithm.stacked_seeds import StackedSeeds
+from eqhrl_ros.core.algorithm.updater import non_finite
+
+LOSSES = {'critic_loss', 'actor_loss', 'alpha_loss'}
+
+
+def learner(seed=0, **extra):
+    config = LearnerConfig(
+        mode='eqsac', hidden=(8, 8), batch_size=8, learning_starts=10, seed=seed, compile_update=False, **extra
+    )
+    made = EQSACLearner(3, [-2.0], [2.0], config)
+    rng = np.random.default_rng(seed)
+    for i in range(12):  # fills D (a few advised: D_advising too), no update yet
+        obs, next_obs = rng.normal(size=3), rng.normal(size=3)
+        made.count_step(obs, [float(rng.uniform(-2, 2))], -1.0, next_obs, False, advised=i % 3 == 0)
+    return made
+
+
+def test_the_parts_hold_what_the_learner_shows():
+    one = learner()
+    assert one.actor is one.policy.actor and one.critic is one.critics.critic
+    assert one.replay is one.memories.replay and one.advice_replay is one.memories.advice_replay
+    assert one.log_alpha is one.updater.log_alpha and one.rng is one.streams
+    assert one.ready_to_learn and len(one.advice_replay) == 4
+
+
+def test_a_lone_update_returns_its_losses_and_counts_a_non_finite_one():
+    one = learner()
+    info = one.update()
+    assert LOSSES | {'advice_critic_loss'} <= set(info) and not non_finite(info)
+    assert one.updates == 1 and one.updater.non_finite_updates == 0
+    with torch.no_grad():
+        next(one.critic.parameters()).fill_(math.inf)  # a diverged critic
+    info = one.update()
+    assert 'critic_loss' in non_finite(info) and one.updater.non_finite_updates == 1 and one.updates == 2
+
+
+def test_stacked_seeds_return_their_losses_and_count_each_seeds_update_as_a_lone_update_does():
+    seeds = [learner(seed) for seed in (0, 1)]
+    stacked = StackedSeeds(seeds)
+    try:
+        info = stacked.updates_after_a_step()[0]  # updates_per_step 1, D ready
+        assert LOSSES | {'advice_critic_loss'} <= set(info) and not non_finite(info)
+        assert len(info['alpha']) == 2 and all(s.updates == 1 for s in seeds)
+        with torch.no_grad():
+            stacked.critic.weights[0].fill_(math.nan)
+        assert non_finite(stacked.update())
+        assert [s.updater.non_finite_updates for s in seeds] == [1, 1]  # the stacked loss is the seeds' mean
+    finally:
+        stacked.release()
