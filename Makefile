@@ -75,10 +75,11 @@ $(VENV)/.stamp-ros2-tools: $(VENV)/.stamp-deps $(ROS2_TOOLS_INSTALL)
 	bash $(ROS2_TOOLS_INSTALL) $(VENV) . .ros2-tools 2>&1 | $(PIP_QUIET)
 	touch $@
 
-# ruff: lint and format check of the whole tree (rules in ruff.toml).
+# ruff: lint and format check of the whole tree (rules in ruff.toml); mypy: types of the core (mypy.ini).
 lint: $(VENV)/.stamp-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/mypy
 
 test: system-deps setup ros2-tools lint
 	$(VENV)/bin/pytest eqhrl_ros/tests

@@ -97,13 +97,13 @@ def steps_per_second(env_id: str, devices, args) -> dict:
 
 
 def seeds_together(env_id: str, device: str, n: int, args) -> float:
-    from eqhrl_ros.core.runs.in_process import SeedRun, TrainingTogether
+    from eqhrl_ros.core.runs.in_process import SeedRun, StackedSeedRuns
 
     runs = []
     for seed in range(n):
         env = make_env(env_id)
         runs.append(SeedRun(env, _learner(env, 'eqsac', seed, args.warmup, device), heuristic_expert(env_id), seed))
-    together = TrainingTogether(runs, episodes=10**9)
+    together = StackedSeedRuns(runs, episodes=10**9)
     for _ in range(args.warmup):
         together.step()
     _sync(device)

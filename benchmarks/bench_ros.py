@@ -92,7 +92,7 @@ class Wiring:
             # Nothing steps before the executor spins. Wait until the learner's own client
             # sees the expert process's service (a probe client seeing it is not enough:
             # each client discovers it on its own), else the first steps count as 'unavailable'.
-            if not self.learner.advice_client.wait_for_service(timeout_sec=30.0):
+            if not self.learner.advice.client.wait_for_service(timeout_sec=30.0):
                 self.close()
                 raise RuntimeError("the expert process did not offer 'advise' within 30 s")
 
@@ -171,9 +171,9 @@ def advice_round_trips(output: Path, steps: int, expert: str) -> tuple[float, fl
     )
     try:
         wiring.run(200)
-        wiring.learner.advice_latencies.clear()
+        wiring.learner.advice.latencies.clear()
         wiring.run(steps)
-        latencies = list(wiring.learner.advice_latencies)
+        latencies = list(wiring.learner.advice.latencies)
         return (*percentiles_ms(latencies), len(latencies))
     finally:
         wiring.close()

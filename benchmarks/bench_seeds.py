@@ -81,18 +81,18 @@ def _step_alone(acting, learner) -> None:
 
 
 def _seeds_together(env_id, seeds, threads, args, barrier, results) -> None:
-    """One process with its seeds together (core/runs/in_process.TrainingTogether)."""
+    """One process with its seeds together (core/runs/in_process.StackedSeedRuns)."""
     import torch
 
     from eqhrl_ros.core import heuristic_expert
-    from eqhrl_ros.core.runs.in_process import SeedRun, TrainingTogether
+    from eqhrl_ros.core.runs.in_process import SeedRun, StackedSeedRuns
 
     torch.set_num_threads(threads)
     runs = []
     for seed in seeds:
         env, learner = _make(env_id, seed, args.warmup, 10**6, args.sizes)
         runs.append(SeedRun(env, learner, heuristic_expert(env_id), seed))
-    together = TrainingTogether(runs, episodes=10**9)
+    together = StackedSeedRuns(runs, episodes=10**9)
     for _ in range(args.warmup):
         together.step()
     barrier.wait()

@@ -116,7 +116,7 @@ def main() -> int:
                 print(
                     f'{now - start:7.0f} {steps:8d} {(steps - last_steps) / (now - last_time):8.1f} '
                     f'{rss:7.1f} {learner.observation_gaps:5d} {learner.repeated_observations:6d}  '
-                    f'{percentiles(list(learner.advice_latencies))}',
+                    f'{percentiles(list(learner.advice.latencies))}',
                     flush=True,
                 )
                 last_time, last_steps = now, steps
@@ -124,7 +124,7 @@ def main() -> int:
         elapsed = time.monotonic() - start
         steps = learner.learner.total_steps
         rss_end = rss_mb()
-        latencies = list(learner.advice_latencies)
+        latencies = list(learner.advice.latencies)
         gaps, repeats = learner.observation_gaps, learner.repeated_observations
         totals = learner.learner.advice_total
         learner.close()

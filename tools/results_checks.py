@@ -3,13 +3,13 @@
     .venv/bin/python tools/results_checks.py
 
 Prints, for Pendulum: same-seed differences from SAC over episodes 100-199 (mean over the
-seeds with a 95 % percentile-bootstrap interval over seeds: eqhrl_ros.stats.bootstrap,
+seeds with a 95 % percentile-bootstrap interval over seeds: eqhrl_ros.reports.stats.bootstrap,
 10,000 resamples, seeded 0), advice given per seed, and whether episodes 30-49 are
 identical across algorithms; for LunarLander: QASAC minus SAC over episodes 50-69 per seed,
 and successful episodes per run (all, and in the last 10). For the decisive study
 (docs/results/study_pendulum_decisive): whether the exact E(s) changes the answer, on the
 seeds both estimators ran (EQSAC minus its timing-matched random arm, for each estimator, and
-the difference between the two, same seeds, 95 % t intervals: eqhrl_ros.stats.t_interval).
+the difference between the two, same seeds, 95 % t intervals: eqhrl_ros.reports.stats.t_interval).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eqhrl_ros.stats import bootstrap, t_interval
+from eqhrl_ros.reports.stats import bootstrap, t_interval
 
 RESULTS = Path(__file__).resolve().parents[1] / 'docs' / 'results'
 

@@ -7,7 +7,7 @@ tests/test_docs.py fails when a declared parameter is missing from the README.
 
 from pathlib import Path
 
-from eqhrl_ros.cli.nodes import NODES, node_tables
+from eqhrl_ros.cli.node_programs import NODES, node_tables
 
 README = Path(__file__).resolve().parents[1] / 'eqhrl_ros' / 'README.md'
 
@@ -35,7 +35,7 @@ def table(title, params) -> str:
 def main():
     text = README.read_text()
     start, end = text.index('#### gym_env'), text.index('## Benchmarks')
-    # One table per parameter table of each node, in the order of cli/nodes.NODES; a table that
+    # One table per parameter table of each node, in the order of cli/node_programs.NODES; a table that
     # several nodes declare (the algorithm's) once.
     unique = {title: params for name in NODES for title, params in node_tables(name)}
     tables = '\n\n'.join(table(title, params) for title, params in unique.items())

@@ -1,4 +1,15 @@
-"""EQ-HRL for ROS 2: ``core`` holds the ROS-free learner, ``nodes`` the thin ROS adapters."""
+"""EQ-HRL for ROS 2. The package in wings, each importing only the wings above it in this list
+(tests/test_structure.py holds it, and that every module is in a wing):
+
+core/         the ROS-free learner: Algorithm 1, its parts, the experts, runs (core/__init__.py)
+files/        the YAML files it reads, where its installed files are, the MCAP record
+parameters/   every node's parameters, one table per node, read with or without ROS
+nodes/        the ROS nodes: thin adapters over core/, one job per module
+experiments/  the library of eqhrl-experiment and eqhrl-study: settings, runs, pools, plans
+reports/      what the runs' CSVs say: statistics, tables and figures
+cli/          the programs: each main parses, calls the wings above, and prints
+web/          the person's page (console.html, console.js), served by nodes/console_server.py
+"""
 
 import os
 

@@ -31,9 +31,9 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from eqhrl_ros.launching import dds_profile_env, fail_launch_on_error
+from eqhrl_ros.files.yaml_files import load_mapping
+from eqhrl_ros.nodes.launching import dds_profile_env, fail_launch_on_error
 from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, TRAINER_PARAMS, learner_section_for
-from eqhrl_ros.yaml_files import load_mapping
 
 
 def _section(data: dict, name: str) -> dict:

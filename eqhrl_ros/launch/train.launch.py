@@ -18,7 +18,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from eqhrl_ros.launching import fail_launch_on_error
+from eqhrl_ros.nodes.launching import fail_launch_on_error
 
 ENV_NODES = ('gym_env', 'double_integrator_env', 'none')
 # expert:=... -> the executable it starts (none: your own expert, started apart).

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from eqhrl_ros.cli.nodes import NODES, node_tables
+from eqhrl_ros.cli.node_programs import NODES, node_tables
 from eqhrl_ros.experiments import seed_runs
 from eqhrl_ros.nodes import messages
 

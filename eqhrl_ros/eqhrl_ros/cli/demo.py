@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..plots import plot_training, read_episodes
+from ..reports.plots import plot_training, read_episodes
 from . import train
 
 

@@ -31,28 +31,20 @@ gym_env, in the run's private ROS domain:
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
-import queue
-import signal
 import sys
-import threading
 import time
 from pathlib import Path
-
-import yaml
 
 from ..core.algorithm.config import MODES as ALGORITHMS
 from ..core.algorithm.config import PAPER_MODES
 from ..core.experts.factory import EXPERT_BACKENDS
+from ..experiments.experiment_runs import submit_runs, wait_for_runs, write_settings
 from ..experiments.gather import gather
 from ..experiments.progress import EpisodeCount
-from ..experiments.ros_runs import domain_ids
-from ..experiments.run_pool import ClusterUnavailable, progress_queue, run_pool
+from ..experiments.run_pool import ClusterUnavailable, progress_queue, run_pool, stopping_like_ctrl_c
 from ..experiments.seed_runs import (
-    group_worker,
     run_dir,
-    run_worker,
     seeds_together_by_default,
     seeds_together_refusal,
 )
@@ -68,37 +60,6 @@ def add_save_every(parser) -> None:
         help='a lone in-process run saves its state between episodes this often, and an interrupted one '
         f'continues from there when the command runs again (default {Settings.save_every_s / 60:g}; 0: never)',
     )
-
-
-@contextlib.contextmanager
-def stopping_like_ctrl_c():
-    """Inside: SIGTERM and SIGHUP (a closed terminal) end this command as Ctrl-C does, so that
-    its pool stops its workers. With the default handlers the command died at once and left
-    them running, orphaned, in the run folders. A second signal while stopping is ignored with
-    one line, so that it cannot cut the stopping short. SIGINT is left ignored where the shell
-    ignores it (a command started in the background). The handlers before are restored after."""
-
-    def again(signum, frame):
-        print(f'{signal.Signals(signum).name} again: already stopping', file=sys.stderr, flush=True)
-
-    def first(signum, frame):
-        for sig in signals:
-            signal.signal(sig, again)
-        raise KeyboardInterrupt
-
-    signals = [signal.SIGTERM, signal.SIGHUP]
-    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
-        signals.append(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread():
-        signals = []  # Python takes signals in its main thread only
-    previous = {sig: signal.getsignal(sig) for sig in signals}
-    for sig in signals:
-        signal.signal(sig, first)
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def add_cluster(parser) -> None:
@@ -195,23 +156,7 @@ def main(argv=None) -> int:
         return 2
     output = Path(args.output)
     output.mkdir(parents=True, exist_ok=True)
-    (output / 'settings.yaml').write_text(
-        yaml.safe_dump(
-            {
-                'env_id': settings.env_id,
-                'episodes': settings.episodes,
-                'max_episode_steps': settings.max_episode_steps,
-                'algorithms': args.algorithms,
-                'seeds': args.seeds,
-                'expert': settings.expert_backend,
-                'through_ros': args.through_ros,
-                'eval_every': settings.eval_every,
-                'eval_starts': settings.eval_starts,
-                'params_file': settings.params_path,
-                'learner': settings.learner,
-            }
-        )
-    )
+    write_settings(output, settings, args)
 
     todo = [(a, s) for a in args.algorithms for s in args.seeds if not (run_dir(output, a, s) / 'DONE').exists()]
     skipped = len(args.algorithms) * len(args.seeds) - len(todo)
@@ -227,49 +172,13 @@ def main(argv=None) -> int:
         flush=True,
     )
     count, start = EpisodeCount(len(todo) * settings.episodes), time.monotonic()
-    last_print = 0.0
     progress = progress_queue(args.cluster)
     try:
         with stopping_like_ctrl_c(), run_pool(jobs, args.cluster) as pool:
-            if together:
-                # Each algorithm's seeds in `jobs` shares, one process each, a share's seeds together.
-                groups = []
-                for algorithm in args.algorithms:
-                    seeds = [s for a, s in todo if a == algorithm]
-                    groups += [(algorithm, seeds[i::jobs]) for i in range(jobs) if seeds[i::jobs]]
-                tasks = [
-                    (len(seeds), pool.apply_async(group_worker, (settings, a, seeds, output, progress)))
-                    for a, seeds in groups
-                ]
-            else:
-                tasks = [
-                    (
-                        1,
-                        pool.apply_async(
-                            run_worker, (settings, a, s, run_dir(output, a, s), args.through_ros, progress, d)
-                        ),
-                    )
-                    for (a, s), d in zip(todo, domain_ids(len(todo)))
-                ]
-            finished_tasks = 0
-            while finished_tasks < len(tasks):
-                try:
-                    count.add(progress.get(timeout=0.5))
-                except queue.Empty:
-                    pass
-                newly = sum(r.ready() for _, r in tasks) - finished_tasks
-                for _, r in tasks:
-                    if r.ready() and not r.successful():
-                        r.get()  # re-raise a worker's error here
-                finished_tasks += newly
-                now = time.monotonic()
-                if now - last_print > 15.0 or newly:
-                    last_print = now
-                    runs_done = sum((run_dir(output, a, s) / 'DONE').exists() for a, s in todo)
-                    if args.cluster:  # no episode reports across hosts: finished runs only
-                        print(f'[{runs_done}/{len(todo)} runs, {(now - start) / 60:.1f} min]', flush=True)
-                    else:
-                        print(count.line(runs_done, len(todo), now - start), flush=True)
+            tasks = submit_runs(
+                pool, settings, args.algorithms, todo, output, progress, together, jobs, args.through_ros
+            )
+            wait_for_runs(tasks, todo, output, count, progress, args.cluster, start)
     except KeyboardInterrupt:
         print('\ninterrupted: finished runs are kept; run the same command to continue', file=sys.stderr)
         gather(output, args.algorithms, args.seeds)

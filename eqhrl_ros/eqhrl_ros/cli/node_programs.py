@@ -13,7 +13,7 @@ import signal
 import sys
 from dataclasses import dataclass
 
-from ..yaml_files import load_mapping
+from ..files.yaml_files import load_mapping
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 

@@ -124,6 +124,42 @@ def learner_overrides(args) -> list:
     return overrides
 
 
+def make_nodes(args, nodes: list) -> tuple[list, object]:
+    """The run's nodes, appended to ``nodes`` as they are made (so that a failure half-way still
+    destroys those made): ([env group, expert group, learner group], the learner node)."""
+    from rclpy.parameter import Parameter
+
+    from ..nodes.expert_node import ExpertNode
+    from ..nodes.gym_env_node import GymEnvNode
+    from ..nodes.learner_node import LearnerNode
+    from ..nodes.teleop_expert_node import TeleopExpertNode
+
+    groups = []  # nodes spun together by one executor: env, experts, learner
+    env_overrides = [Parameter('seed', value=args.seed)] if args.seed is not None else []
+    if args.max_steps is not None:
+        env_overrides.append(Parameter('max_episode_steps', value=args.max_steps))
+    if args.env_node == 'gym_env':
+        nodes.append(GymEnvNode(parameter_overrides=env_overrides))
+    elif args.env_node == 'double_integrator_env':
+        from ..nodes.double_integrator_env_node import DoubleIntegratorEnv
+
+        nodes.append(DoubleIntegratorEnv(parameter_overrides=env_overrides))
+    groups.append(list(nodes))
+    if args.expert_node == 'expert':
+        nodes.append(ExpertNode())
+    elif args.expert_node == 'teleop':
+        nodes.append(TeleopExpertNode())
+        if not args.no_console:
+            from ..nodes.advice_console_node import AdviceConsole
+
+            nodes.append(AdviceConsole())
+    groups.append(nodes[len(groups[0]) :])
+    learner = LearnerNode(parameter_overrides=learner_overrides(args))
+    nodes.append(learner)
+    groups.append([learner])
+    return groups, learner
+
+
 def run(args):
     """Start, spin and stop the nodes; returns the learner node (None if it never started).
 
@@ -132,16 +168,11 @@ def run(args):
     # Set before the ROS context exists: rcl reads the discovery range when it is created.
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery.upper()
     import rclpy
-    from rclpy.parameter import Parameter
 
+    from ..files.paths import params_file
+    from ..files.yaml_files import load_mapping
     from ..nodes import spinning
-    from ..nodes.expert_node import ExpertNode
-    from ..nodes.gym_env_node import GymEnvNode
-    from ..nodes.learner_node import LearnerNode
     from ..nodes.run_files import save_and_close
-    from ..nodes.teleop_expert_node import TeleopExpertNode
-    from ..paths import params_file
-    from ..yaml_files import load_mapping
 
     try:
         path = params_file(args.params)
@@ -150,32 +181,10 @@ def run(args):
         raise StartUpRefused(str(error)) from error
     stop = spinning.init(['--ros-args', '--params-file', str(path)], 'eqhrl-train')
     nodes = []
-    groups = []  # nodes spun together by one executor: env, experts, learner
     learner = None
     try:
         try:
-            env_overrides = [Parameter('seed', value=args.seed)] if args.seed is not None else []
-            if args.max_steps is not None:
-                env_overrides.append(Parameter('max_episode_steps', value=args.max_steps))
-            if args.env_node == 'gym_env':
-                nodes.append(GymEnvNode(parameter_overrides=env_overrides))
-            elif args.env_node == 'double_integrator_env':
-                from ..nodes.double_integrator_env_node import DoubleIntegratorEnv
-
-                nodes.append(DoubleIntegratorEnv(parameter_overrides=env_overrides))
-            groups.append(list(nodes))
-            if args.expert_node == 'expert':
-                nodes.append(ExpertNode())
-            elif args.expert_node == 'teleop':
-                nodes.append(TeleopExpertNode())
-                if not args.no_console:
-                    from ..nodes.advice_console_node import AdviceConsole
-
-                    nodes.append(AdviceConsole())
-            groups.append(nodes[len(groups[0]) :])
-            learner = LearnerNode(parameter_overrides=learner_overrides(args))
-            nodes.append(learner)
-            groups.append([learner])
+            groups, learner = make_nodes(args, nodes)
         except spinning.start_up_errors() as error:
             raise StartUpRefused(str(error)) from error
         executors = []

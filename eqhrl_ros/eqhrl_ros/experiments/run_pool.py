@@ -17,6 +17,9 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import signal
+import sys
+import threading
 
 
 class ClusterUnavailable(RuntimeError):
@@ -120,3 +123,34 @@ def run_pool(jobs: int, cluster: str = ''):
 def progress_queue(cluster: str):
     """A queue the runs report episodes to: a Manager's on this machine, none across hosts."""
     return NoProgress() if cluster else mp.Manager().Queue()
+
+
+@contextlib.contextmanager
+def stopping_like_ctrl_c():
+    """Inside: SIGTERM and SIGHUP (a closed terminal) end this command as Ctrl-C does, so that
+    its pool stops its workers. With the default handlers the command died at once and left
+    them running, orphaned, in the run folders. A second signal while stopping is ignored with
+    one line, so that it cannot cut the stopping short. SIGINT is left ignored where the shell
+    ignores it (a command started in the background). The handlers before are restored after."""
+
+    def again(signum, frame):
+        print(f'{signal.Signals(signum).name} again: already stopping', file=sys.stderr, flush=True)
+
+    def first(signum, frame):
+        for sig in signals:
+            signal.signal(sig, again)
+        raise KeyboardInterrupt
+
+    signals = [signal.SIGTERM, signal.SIGHUP]
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signals.append(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread():
+        signals = []  # Python takes signals in its main thread only
+    previous = {sig: signal.getsignal(sig) for sig in signals}
+    for sig in signals:
+        signal.signal(sig, first)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

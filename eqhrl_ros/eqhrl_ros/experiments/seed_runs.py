@@ -94,7 +94,7 @@ def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, pr
 
 def load_prior_into(learner, sources) -> int:
     """Earlier runs' advised transitions into D and D_advising (the learner node's prior)."""
-    from ..mcap_record import load_prior
+    from ..files.mcap_record import load_prior
 
     prior = load_prior(sources, learner.obs_dim, learner.scaler.low, learner.scaler.high)
     return learner.add_prior(
@@ -108,11 +108,12 @@ def write_advice_record(directory: Path, learner, action_space) -> None:
     reads. (A learner node's record holds much more: README, "The record".)"""
     import numpy as np
 
+    from ..core.data.replay import BATCH_COLUMNS
     from ..core.data.transitions import TransitionBatch, batch_fields
-    from ..mcap_record import RECORD_NAME, McapRecord
+    from ..files.mcap_record import RECORD_NAME, McapRecord
 
     memory, n = learner.advice_replay, len(learner.advice_replay)
-    columns = [getattr(memory, name)[:n].numpy() for name in memory.FIELDS]
+    columns = [getattr(memory, name)[:n].numpy() for name in BATCH_COLUMNS]
     batch = TransitionBatch('in_process', 0, *columns[:4], columns[4] > 0.5, np.ones(n, bool))
     record = McapRecord(directory / RECORD_NAME)
     try:
@@ -158,7 +159,7 @@ def run_together(settings: Settings, algorithm: str, seeds, output: Path, progre
     A seed's DONE is written as soon as it finishes."""
     import torch
 
-    from ..core.runs.in_process import train_together
+    from ..core.runs.in_process import train_stacked
 
     torch.set_num_threads(1)  # one process per core
     start = time.monotonic()
@@ -170,7 +171,7 @@ def run_together(settings: Settings, algorithm: str, seeds, output: Path, progre
             directory = run_dir(output, algorithm, seed)
             run.on_finished = lambda d=directory: (d / 'DONE').write_text(f'{time.monotonic() - start:.1f}\n')
             runs.append(run)
-        train_together(runs, settings.episodes)
+        train_stacked(runs, settings.episodes)
     finally:
         for close in closers:
             close()

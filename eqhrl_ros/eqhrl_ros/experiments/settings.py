@@ -10,8 +10,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..paths import params_file
-from ..yaml_files import load_mapping
+from ..files.paths import params_file
+from ..files.yaml_files import load_mapping
 
 DEFAULT_EPISODES = 200  # --episodes where neither it nor the params file's max_episodes is set
 
@@ -101,7 +101,7 @@ def load_settings(args) -> Settings:
 def check_prior(sources, settings: Settings) -> None:
     """Refuse, before anything runs, a prior that is missing or was made on other spaces."""
     from ..core import make_env
-    from ..mcap_record import RecordError, load_prior
+    from ..files.mcap_record import RecordError, load_prior
 
     env = make_env(settings.env_id, settings.max_episode_steps)
     try:

@@ -29,8 +29,8 @@ from mcap.writer import CompressionType, Writer
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import serialize_dynamic
 
-from .core.data.transitions import BatchError, batch_from_fields
-from .core.runs.records import RECORD_FILES
+from ..core.data.transitions import BatchError, batch_from_fields
+from ..core.runs.records import RECORD_FILES
 
 RECORD_NAME = 'record.mcap'
 FLUSH_PERIOD_S = 1.0

@@ -4,21 +4,18 @@ turning each observation into a transition. What becomes of a transition is the 
 the learner node learns from it at once (Algorithm 1 in lock-step), an actor node sends it to
 a trainer (nodes/actor_node.py).
 
-Executor design: nothing in this node ever blocks waiting for another node. When
-the gates fire, the advice request goes out with ``call_async``; whichever comes
-first, the response (a done-callback) or a one-shot timeout timer, decides the
-action. So a slow or absent expert cannot wedge the env, the statistics or
-shutdown, under a single-threaded executor or a multi-threaded one. (A synchronous
-``call`` inside a subscription callback deadlocks a single-threaded executor.)
+Its jobs, each in a part of its own:
+- the advice requests (nodes/advice_client.py): nothing in this node ever blocks waiting for
+  another node;
+- the person's takeover (core/experts/takeover.py: the rule; this node feeds it the commands);
+- the health it reports on /diagnostics (nodes/acting_health.py);
+- following the env's steps into transitions, across gaps, restarts and stalls (here).
 """
 
 from __future__ import annotations
 
-import itertools
 import threading
 import time
-from collections import Counter, deque
-from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
@@ -28,18 +25,20 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
-from eqhrl_interfaces.srv import Advise
 
-from ..core.algorithm.config import asks_for_advice
-from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, LearnerConfig, Proposal
+from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, LearnerConfig
 from ..core.data.advice import Advice
 from ..core.envs.spec import EnvSpec
+from ..core.experts.takeover import DeadmanTakeover, PersonCommand
 from ..parameters import LEARNER_CONFIG_PARAMS
-from . import advise_msgs, messages
+from . import messages
+from .acting_health import acting_checks
+from .advice_client import AdviceClient, PendingAdvice
 from .env_info import EnvInfoWatcher, configured_spec, shown
-from .health import OK, WARN, Check, Health
+from .health import WARN, Check, Health
+from .messages import printable_name
 from .params import choices_validator, declare, reject_unknown_overrides
-from .recording import NodeRecord, introspect
+from .recording import NodeRecord
 from .spinning import steady_clock
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -48,32 +47,6 @@ QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 # 100 small messages bound the backlog a flood can leave (tests/nodes/test_faults.py).
 OBSERVATION_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-
-
-@dataclass
-class PendingAdvice:
-    token: int
-    proposal: Proposal
-    key: tuple  # (env episode, env step) the advice is for
-    timer: object
-    sent: float = 0.0  # time.monotonic() when the request went out
-
-
-# Expert names come from other nodes: cap them before they reach a log line or a count.
-EXPERT_NAME_MAX = 64
-EXPERT_NAMES_KEPT = 8
-
-
-def printable_name(name: str) -> str:
-    """``name`` as one safe log token: printable ASCII only, at most EXPERT_NAME_MAX characters."""
-    text = ''.join(c if c.isprintable() and c.isascii() else '?' for c in (name or '')[: EXPERT_NAME_MAX + 1])
-    if len(text) > EXPERT_NAME_MAX:
-        text = text[: EXPERT_NAME_MAX - 3] + '...'
-    return text or '(unnamed)'
-
-
-# A person's command older than this is not taken over with (the page closed, the link cut).
-TAKEOVER_STALE_S = 0.5
 
 
 class ActingNode(Node):
@@ -112,8 +85,8 @@ class ActingNode(Node):
         # The person's command (teleop_expert passes it on): a takeover when it departs from ours.
         person = self.create_subscription(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, self._on_person_command, 10)
         self._person_topic = person.topic_name
-        self._person: Optional[tuple] = None  # (action, deadman, take_over, time.monotonic())
-        self._taking_over_since: Optional[float] = None  # time.monotonic() of the last step taken over
+        self._person: Optional[PersonCommand] = None
+        self.takeover: Optional[DeadmanTakeover] = None  # made with the learner (its action bounds)
         # The person's STOP holds the env: the episode is paused (not abandoned), and its record
         # says for how long (EpisodeSummary.stops, stopped_s).
         self._stop_topic = self.create_subscription(
@@ -121,30 +94,23 @@ class ActingNode(Node):
         ).topic_name
         self._stopped_since: Optional[float] = None  # time.monotonic() when the current stop began
         self.early_observations = 0  # observations before the spaces were known (ignored)
-        self.advice_client = self.create_client(Advise, 'advise')
-        introspect(self.advice_client, self)  # every call on advise/_service_event (ros2 bag, the record)
         self.recording: Optional[NodeRecord] = None  # record: true (the learner node)
 
         self._lock = threading.RLock()  # callbacks may run on several threads
+        # Timers on the steady clock: with use_sim_time and a /clock that stops (or never
+        # starts), ROS time stands still, and an advice timeout or a stall must still fire.
+        self._steady = steady_clock()
+        self.advice = AdviceClient(self, self.params, self._lock, self._steady, self._resolve)
         self._state: Optional[np.ndarray] = None  # s_t the last action answered
         self._key: Optional[tuple] = None  # its (env episode, env step)
         self._last_action: Optional[np.ndarray] = None
         self._last_advised = False
-        self._pending: Optional[PendingAdvice] = None
-        self._token = 0
         self.dropped_messages = 0
         self.stalls = 0  # times no observation came for stall_timeout_s mid-episode
         self._stalled_since: Optional[float] = None
         self.observation_gaps = 0  # an observation that skipped steps (a message was lost)
         self.repeated_observations = 0  # the env re-sent an observation (our action did not arrive in time)
-        self.advice_latencies: deque = deque(maxlen=100_000)  # seconds, request to answer
-        self.experts_heard: Counter = Counter()  # expert_name -> advice answers this episode
-        self._advise_servers = 1
-        self._servers_checked = 0.0
         self._last_observation_time = time.monotonic()
-        # Timers on the steady clock: with use_sim_time and a /clock that stops (or never
-        # starts), ROS time stands still, and an advice timeout or a stall must still fire.
-        self._steady = steady_clock()
         self.create_timer(0.25, self._check_stall, clock=self._steady)
         self.done = False
         self.summaries: list[EpisodeSummary] = []
@@ -154,59 +120,10 @@ class ActingNode(Node):
         self.health = Health(self, self.health_checks)
 
     def health_checks(self) -> list:
-        """The expert, the env and the budget, for /diagnostics (nodes/health.py)."""
-        learner = self.learner
-        if learner is None:
+        """The expert, the env and the budget, for /diagnostics (nodes/acting_health.py)."""
+        if self.learner is None:
             return [Check('env', WARN, f'waiting for env_info on {self.env_info.topic}')]
-        with self._lock:
-            done, current = learner.advice_total, learner.episode_advice
-            asked, given = done.asked + current.asked, done.given + current.given
-            timeouts = done.failed['timeout'] + current.failed['timeout']
-            declined = done.declined + current.declined
-            recent = list(itertools.islice(reversed(self.advice_latencies), 1000))  # the last 1,000 answers
-            stalled = self._stalled_since
-        cfg = self.config
-        episodes_left = max(0, cfg.advising_budget - learner.episode)
-        advising = asks_for_advice(cfg.mode) and episodes_left > 0 and learner.person_budget_left_s > 0
-        servers = self.count_services(self.advice_client.srv_name)
-        p50, p99 = (f'{v:.0f}' for v in np.percentile(np.asarray(recent) * 1000, (50, 99))) if recent else ('-', '-')
-        values = {
-            'advise servers': servers,
-            'asked': asked,
-            'given': given,
-            'declined': declined,
-            'timeouts': timeouts,
-            'answer latency p50 ms (last 1,000)': p50,
-            'answer latency p99 ms (last 1,000)': p99,
-        }
-        if not advising:
-            expert = Check('expert', OK, 'not asking (mode sac, or the budget is used up)', values)
-        elif not self.params['advice_enabled']:
-            expert = Check('expert', OK, 'advice paused (advice_enabled false)', values)
-        elif servers == 0:
-            expert = Check('expert', WARN, "no node serves 'advise': the learner acts alone", values)
-        elif asked >= 10 and timeouts > asked / 2:
-            expert = Check('expert', WARN, f'{timeouts} of {asked} requests timed out', values)
-        else:
-            expert = Check('expert', OK, f'{servers} expert(s) reachable', values)
-        if self._stopped_since is not None:
-            env = Check('env', WARN, f'STOPPED by the person for {time.monotonic() - self._stopped_since:.1f} s')
-        elif stalled is not None:
-            env = Check(
-                'env', WARN, f'no observation for {time.monotonic() - stalled:.1f} s (paused, stopped or starved)'
-            )
-        else:
-            env = Check('env', OK, 'observations arrive')
-        env.values = {'steps': learner.total_steps, 'episode': learner.episode, 'stalls': self.stalls}
-        seconds = learner.person_budget_left_s
-        budget = Check(
-            'budget',
-            OK,
-            f'{episodes_left} episodes of advice left'
-            + (f", {seconds:.0f} s of the person's" if seconds < float('inf') else ''),
-            {'episodes left': episodes_left, 'person seconds spent': f'{learner.human_time_total_s:.1f}'},
-        )
-        return [expert, env, budget]
+        return acting_checks(self)
 
     def _before_start(self) -> None:
         """The subclass's own set-up, before the learner can exist (its output folder)."""
@@ -219,12 +136,13 @@ class ActingNode(Node):
         )
         learner.log = self.get_logger()  # compile_update's one line
         self._prepare(learner)
+        takeover = DeadmanTakeover(learner.scaler, self.config.takeover_threshold)
         with self._lock:
             self._action_out = messages.action_out(learner.action_dim)  # rewritten per step
             self._observation_reader = messages.SerializedReader(
                 messages.observation_layouts(spec.observation_size), 'observation'
             )
-            self.spec, self.learner = spec, learner
+            self.spec, self.learner, self.takeover = spec, learner, takeover
         self.get_logger().info(
             f'{self.config.mode} on {shown(spec.name)} ({spec.source}): obs {spec.observation_size}, '
             f'action {spec.action_size}, success {spec.success_rule}, '
@@ -281,10 +199,10 @@ class ActingNode(Node):
             if key == self._key:
                 self.repeated_observations += 1
                 # The env sent the same observation again: our action did not reach it.
-                if self._pending is None and self._last_action is not None:
+                if self.advice.pending is None and self._last_action is not None:
                     self._publish_action(self._last_action)
                 return
-            if self._pending is not None:
+            if self.advice.pending is not None:
                 self._observe_while_waiting(env_step, key)
                 return
 
@@ -351,7 +269,7 @@ class ActingNode(Node):
         if env_step.done:
             # The episode ends before the answer: counted as such (not the person's timeout), and
             # said at once, so that the page and teleop_expert end the request too.
-            pending = self._take_pending(self._pending.token)
+            pending = self.advice.take_pending()
             self.learner.resolve_advice(pending.proposal, failure='episode_ended')  # acted on already
             self._publish_recorded(
                 self.request_pub,
@@ -406,26 +324,9 @@ class ActingNode(Node):
         deadman = bool(fields.get('deadman', [0.0])[0])
         take_over = bool(fields.get('take_over', [0.0])[0])
         with self._lock:
-            self._person = (action, deadman, take_over, time.monotonic())
+            self._person = PersonCommand(action, deadman, take_over, time.monotonic())
             if self.recording is not None:
                 self.recording.write(self._person_topic, msg)
-
-    def _takeover(self, proposal: Proposal):
-        """The person's action when they take this step over, else None. With the deadman held
-        and a fresh command: the take-over button, or a command that departs from the learner's
-        action by more than takeover_threshold ([-1, 1] units); then for as long as the deadman
-        stays held. Released, control is the learner's again at the next step."""
-        person, learner = self._person, self.learner
-        if person is None or len(person[0]) != learner.action_dim:
-            return None
-        action, deadman, take_over, at = person
-        if not deadman or time.monotonic() - at > TAKEOVER_STALE_S:
-            return None
-        if self._taking_over_since is not None or take_over:
-            return action
-        threshold = self.config.takeover_threshold
-        apart = np.abs(learner.normalize(action) - learner.normalize(proposal.action)).max()
-        return action if threshold > 0 and apart > threshold else None
 
     def _act(self, obs: np.ndarray, key: tuple) -> None:
         self._state, self._key = obs, key
@@ -436,68 +337,32 @@ class ActingNode(Node):
                 self.gate_pub.publish(gate)
             if self.recording is not None:  # every decision, published or not
                 self.recording.write(self.gate_pub.topic_name, gate)
-        person = self._takeover(proposal)
-        if person is not None:  # the person is in charge: no request this step, their action goes
-            now = time.monotonic()
-            starts = self._taking_over_since is None
-            seconds = 0.0 if starts else min(now - self._taking_over_since, TAKEOVER_STALE_S)
-            resolution = self.learner.take_over(proposal, person, seconds, starts)
-            self._taking_over_since = now if resolution.outcome == 'taken over' else None
-            if starts and self._taking_over_since is not None:
+        now = time.monotonic()
+        taken = self.takeover.person_drives(self._person, proposal.action, now)
+        if taken is not None:  # the person is in charge: no request this step, their action goes
+            resolution = self.learner.take_over(proposal, taken.action, taken.seconds, taken.starts)
+            self.takeover.taken(now, accepted=resolution.outcome == 'taken over')
+            if taken.starts and self.takeover.taking_over:
                 self.get_logger().info(
                     f'the person takes over at episode {self.learner.episode}, step {self.learner.episode_step}'
                 )
             self._finish_step(*resolution.action_and_advised())
             return
-        if self._taking_over_since is not None:
-            self._taking_over_since = None
+        if self.takeover.hand_back():
             self.get_logger().info('the person hands control back to the learner')
         if not (proposal.decision.fire and self.params['advice_enabled']):
             self._finish_step(proposal.action, advised=False)
             return
-        if not self.advice_client.service_is_ready():
+        if not self.advice.ready():
             self._finish_step(*self.learner.resolve_advice(proposal, failure='unavailable').action_and_advised())
             return
-        self._token += 1
-        token = self._token
-        request = advise_msgs.request_msg(proposal.request, self.params['advice_timeout_s'])
-        timer = self.create_timer(
-            self.params['advice_timeout_s'], lambda: self._on_advice_timeout(token), clock=self._steady
-        )
-        self._check_advise_servers()
-        self._pending = PendingAdvice(token, proposal, key, timer, time.monotonic())
+        self.advice.ask(proposal, key)
         self._publish_recorded(
             self.request_pub, messages.advice_request_msg('pending', proposal.request, self.params['advice_timeout_s'])
         )
-        future = self.advice_client.call_async(request)
-        future.add_done_callback(lambda f: self._on_advice_response(token, f))
-
-    def _check_advise_servers(self) -> None:
-        """Warn when several nodes serve 'advise': rclpy keeps the first answer to a request
-        and drops the others, so with accept_expert set, a request the other server answers
-        first counts as 'untrusted' even if the accepted expert answers it too."""
-        now = time.monotonic()
-        if now - self._servers_checked < 5.0:
-            return
-        self._servers_checked = now
-        servers = self.count_services(self.advice_client.srv_name)
-        if servers > 1 and servers != self._advise_servers:
-            self.get_logger().warn(
-                f"{servers} nodes serve '{self.advice_client.srv_name}': the first answer "
-                'to each request is used, the others are dropped'
-            )
-        self._advise_servers = servers
-
-    def _take_pending(self, token: int) -> Optional[PendingAdvice]:
-        pending = self._pending
-        if pending is None or pending.token != token:
-            return None  # already resolved (a late answer after the timeout, or the reverse)
-        self._pending = None
-        self.destroy_timer(pending.timer)
-        return pending
 
     def _resolve(self, pending: PendingAdvice, advice: Optional[Advice] = None, failure: str = '') -> None:
-        """Count the outcome, tell the person's UI, and act."""
+        """A request ended (advice_client.py): count the outcome, tell the person's UI, and act."""
         resolution = self.learner.resolve_advice(pending.proposal, advice, failure)
         human = advice is not None and advice.human
         if resolution.outcome == 'declined' and resolution.detail:
@@ -516,39 +381,6 @@ class ActingNode(Node):
             ),
         )
         self._finish_step(*resolution.action_and_advised())
-
-    def _on_advice_timeout(self, token: int) -> None:
-        with self._lock:
-            pending = self._take_pending(token)
-            if pending is None:
-                return
-            self._resolve(pending, failure='timeout')
-
-    def _on_advice_response(self, token: int, future) -> None:
-        with self._lock:
-            pending = self._take_pending(token)
-            if pending is None:
-                return
-            self.advice_latencies.append(time.monotonic() - pending.sent)
-            try:
-                response = future.result()
-            except Exception as error:
-                self.get_logger().warn(f'advice call failed: {error!r}', throttle_duration_sec=5.0)
-                self._resolve(pending, failure='error')
-                return
-            name = printable_name(response.expert_name)
-            if name in self.experts_heard or len(self.experts_heard) < EXPERT_NAMES_KEPT:
-                self.experts_heard[name] += 1
-            else:
-                self.experts_heard['(others)'] += 1
-            accept = self.params['accept_expert']
-            if accept and response.expert_name != accept:
-                self.get_logger().warn(
-                    f"ignored advice from '{name}' (accept_expert is '{accept}')", throttle_duration_sec=5.0
-                )
-                self._resolve(pending, failure='untrusted')
-            else:
-                self._resolve(pending, advise_msgs.advice_from_response(response, name))
 
     def _finish_step(self, action: np.ndarray, advised: bool) -> None:
         self._last_action = np.asarray(action, dtype=np.float32)
@@ -579,7 +411,7 @@ class ActingNode(Node):
             if (
                 self.done
                 or self._state is None
-                or self._pending is not None
+                or self.advice.pending is not None
                 or self._stalled_since is not None
                 or self._stopped_since is not None  # the person's STOP: a pause, not a stall
             ):
@@ -621,7 +453,7 @@ class ActingNode(Node):
         self._episode_done(summary)
         failed = self.learner.advice_total.failed
         failures = ', '.join(f'{k} {v}' for k, v in failed.items() if v)
-        experts = ', '.join(f'{name} {n}' for name, n in self.experts_heard.items())
+        experts = ', '.join(f'{name} {n}' for name, n in self.advice.experts_heard.items())
         person = (
             f'  person {summary.human_time_s:.1f} s (total {summary.human_time_total_s:.1f} s)'
             if summary.human_time_total_s
@@ -633,7 +465,7 @@ class ActingNode(Node):
             else ''
         )
         stopped = f'  stopped {summary.stops}x ({summary.stopped_s:.1f} s)' if summary.stops else ''
-        self.experts_heard.clear()
+        self.advice.experts_heard.clear()
         self.get_logger().info(
             f'episode {summary.episode:4d}  return {summary.episode_return:9.2f}  len {summary.length:4d}  '
             f'advice {summary.advice_given}/{summary.advice_asked}'

@@ -304,7 +304,7 @@ class ActorNode(ActingNode):
         published = Time.from_msg(msg.stamp, clock_type=self.get_clock().clock_type)
         self.weights_latencies.append((self.get_clock().now() - published).nanoseconds / 1e9)
         # Eq. 7's budget counts episodes over all actors: the trainer's count, or ours if larger.
-        self.learner.episode = max(self.learner.episode, int(msg.episodes))
+        self.learner.tally.episode = max(self.learner.episode, int(msg.episodes))
         self._steps_on_weights = 0
         self._act_on_deferred()
 

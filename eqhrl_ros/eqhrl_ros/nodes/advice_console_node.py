@@ -1,40 +1,27 @@
 """advice_console: the person's page in a browser, for teleop_expert (source: array).
 
-The node serves one page (aiohttp, in its own thread with its own asyncio loop) and talks
-to it over one websocket per open page:
+This node is the ROS side; the page and its web server, with the security that keeps strangers
+off it, are console_server.py. Over one websocket per open page it sends
 - to the page: the env's frames (JPEG, from the image topic), the learner's requests
   (``learner/advice_request``), episode statistics (``learner/episode_stats``), the env's
-  spaces (``env_info``) and the learner's advising parameters;
+  spaces (``env_info``), the learner's advising parameters and whether advice is open now
+  (core/algorithm/advice_window.py, computed from those parameters and statistics);
 - from the page: the person's command, deadman, answer and skip (keyboard or gamepad),
   published on ``teleop_command`` exactly as keyboard_teleop publishes it, and parameter
   sets on the learner (pause advice, budget), range-checked by the learner itself.
 
 Whoever reaches the page can steer the robot: it binds to localhost unless ``host`` says
-otherwise, and then a ``token`` is required in the page's address. Every request must name
-in its ``Host`` header an address or a name this console serves (an IP address, localhost,
-this machine's name, or one of ``allowed_hosts``), so that a web site whose name is made to
-resolve to this machine (DNS rebinding) is refused; and a websocket from a page of another
-origin is refused, so a web site open in the same browser cannot steer. Connections are
-limited in number, in total and per client, and idle or half-open ones are closed
-(connection_guard.py), so that a flood of them cannot lock the person out of the page.
+otherwise, and then a ``token`` is required in the page's address.
 """
 
 from __future__ import annotations
 
-import asyncio
-import hmac
-import io
-import ipaddress
-import json
 import math
 import threading
 import time
-from importlib import resources
 from socket import gethostname
 from typing import Optional
 
-import numpy as np
-from aiohttp import WSMsgType, web
 from rcl_interfaces.msg import ParameterType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -44,12 +31,13 @@ from std_msgs.msg import Bool, Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 
+from ..core.algorithm.advice_window import advice_window
 from ..core.algorithm.config import check_value
 from ..core.data.signing import CommandSeal, signer_from
 from ..core.envs.spec import EnvSpec
 from ..parameters import CONSOLE_PARAMS
 from . import messages
-from .connection_guard import ConnectionGuard, GuardedProtocol
+from .console_server import ConsoleServer, host_allowed, host_name, is_loopback  # noqa: F401 (the tests' names)
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .params import declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
@@ -59,60 +47,12 @@ OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
 # The learner parameters the page shows and may set.
 LEARNER_CONTROLS = ('advice_enabled', 'advising_budget', 'advising_budget_s')
 # Read, not set: what the page says about the run's end.
-LEARNER_SHOWN = (*LEARNER_CONTROLS, 'max_episodes')
+LEARNER_SHOWN = (*LEARNER_CONTROLS, 'max_episodes', 'mode')
 # teleop_expert's: how long the person has per request and how a command becomes an action.
 TELEOP_SETTINGS = ('answer_window_s', 'axes', 'scales', 'offsets')
 # A page's input older than this is not the person's any more (the tab was closed or hidden).
 INPUT_STALE_S = 1.0
-MAX_PAGE_MESSAGE = 4096  # bytes; the page sends small JSON only
 EPISODES_KEPT = 10_000
-
-
-def is_loopback(host: str) -> bool:
-    if host == 'localhost':
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-def host_name(host_header: str) -> str:
-    """The name or address of a Host header, without the port ('[::1]:8080' -> '::1')."""
-    host = host_header.strip().lower()
-    if host.startswith('['):
-        return host[1 : host.index(']')] if ']' in host else host
-    return host.rsplit(':', 1)[0] if host.count(':') == 1 else host
-
-
-def host_allowed(host_header: str, names) -> bool:
-    """A Host header a page of this console can carry: an IP address (a browser that was given
-    the address itself, which DNS rebinding cannot produce), or one of ``names``."""
-    host = host_name(host_header)
-    try:
-        ipaddress.ip_address(host)
-        return True
-    except ValueError:
-        return host in names
-
-
-def jpeg(frame: Image, quality: int) -> Optional[bytes]:
-    """An rgb8/bgr8/mono8 sensor_msgs/Image as JPEG bytes (None for other encodings)."""
-    from PIL import Image as PILImage  # pillow (a matplotlib dependency)
-
-    channels = {'rgb8': 3, 'bgr8': 3, 'mono8': 1}.get(frame.encoding)
-    if channels is None or frame.height == 0 or frame.width == 0:
-        return None
-    pixels = np.frombuffer(bytes(frame.data), np.uint8)
-    if pixels.size < frame.step * frame.height:
-        return None
-    rows = pixels[: frame.step * frame.height].reshape(frame.height, frame.step)
-    array = rows[:, : frame.width * channels].reshape(frame.height, frame.width, channels)
-    if frame.encoding == 'bgr8':
-        array = array[:, :, ::-1]
-    out = io.BytesIO()
-    PILImage.fromarray(array.squeeze()).save(out, format='JPEG', quality=quality)
-    return out.getvalue()
 
 
 class PageInput:
@@ -144,11 +84,8 @@ class AdviceConsole(Node):
         }
         signer = signer_from(p['key_file'])  # KeyFileError (a ValueError): refused at start-up
         self.seal = CommandSeal(signer) if signer else None
-        self.guard = ConnectionGuard(
-            p['max_connections'], p['max_connections_per_client'], p['header_timeout_s'], self._log_throttled
-        )
-        self._lock = threading.Lock()
-        self._changed = threading.Condition(self._lock)
+        self.lock = threading.Lock()
+        self._changed = threading.Condition(self.lock)
         self.version = 0  # bumped on every change the page must see
         self.spec: Optional[EnvSpec] = None
         self.request: Optional[dict] = None
@@ -160,7 +97,6 @@ class AdviceConsole(Node):
         self.frame_number = 0
         self.input = PageInput()
         self.pages = 0  # open websockets
-        self._sockets: set = set()  # (web thread only) closed at shutdown
         self.published = 0
 
         self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
@@ -179,16 +115,17 @@ class AdviceConsole(Node):
         self.create_timer(1.0 / p['rate_hz'], self._publish_held, clock=steady)
         self.create_timer(1.0, self._refresh_learner_params, clock=steady)
 
-        self._loop = asyncio.new_event_loop()
-        self._runner: Optional[web.AppRunner] = None
-        self._server_ready = threading.Event()
-        self._server_error: Optional[BaseException] = None
-        self._thread = threading.Thread(target=self._serve, name='advice_console_http', daemon=True)
-        self._thread.start()
-        self._server_ready.wait(10.0)
-        if self._server_error is not None:
-            raise OSError(f'cannot serve on {p["host"]}:{p["port"]}: {self._server_error}')
+        self.server = ConsoleServer(self, p, self.allowed_names, self.get_logger().warning)
+        self.server.start()
         self.get_logger().info(f'the person opens {self.url} (whoever reaches it can steer the robot)')
+
+    @property
+    def guard(self):
+        return self.server.guard
+
+    @property
+    def port(self) -> int:
+        return self.server.port
 
     @property
     def url(self) -> str:
@@ -204,13 +141,13 @@ class AdviceConsole(Node):
         self._changed.notify_all()
 
     def _on_env(self, spec: EnvSpec) -> None:
-        with self._lock:
+        with self.lock:
             self.spec = spec
             self.input.command = [0.0] * spec.action_size
             self._bump()
 
     def _on_request(self, msg: AdviceRequest) -> None:
-        with self._lock:
+        with self.lock:
             self.request = {
                 'outcome': OUTCOME_NAMES.get(msg.outcome, '?'),
                 'detail': msg.detail,
@@ -233,7 +170,7 @@ class AdviceConsole(Node):
             self._bump()
 
     def _on_stats(self, msg: EpisodeStats) -> None:
-        with self._lock:
+        with self.lock:
             self.episodes.append(
                 {
                     'episode': msg.episode,
@@ -251,14 +188,14 @@ class AdviceConsole(Node):
             self._bump()
 
     def _on_frame(self, msg: Image) -> None:
-        with self._lock:
+        with self.lock:
             self.frame = msg
             self.frame_number += 1
             self._changed.notify_all()
 
     def _publish_held(self) -> None:
         """Keep the person's command fresh on teleop_command while a page is open and live."""
-        with self._lock:
+        with self.lock:
             live = self.pages and self.input.command and time.monotonic() - self.input.received < INPUT_STALE_S
             if live:
                 self._publish(False, False)
@@ -296,7 +233,7 @@ class AdviceConsole(Node):
                 read[name] = [float(v) for v in value.double_array_value]
         if set(read) != set(TELEOP_SETTINGS):
             return
-        with self._lock:
+        with self.lock:
             if read != self.teleop:
                 self.teleop = read
                 self._bump()
@@ -314,7 +251,9 @@ class AdviceConsole(Node):
                 read[name] = value.integer_value
             elif value.type == ParameterType.PARAMETER_DOUBLE:
                 read[name] = value.double_value
-        with self._lock:
+            elif value.type == ParameterType.PARAMETER_STRING:
+                read[name] = value.string_value
+        with self.lock:
             if read != self.learner_params:
                 self.learner_params = read
                 self._bump()
@@ -322,14 +261,14 @@ class AdviceConsole(Node):
     # ------------------------------------------------------------------ the page's input
 
     def _on_stop(self, msg: Bool) -> None:
-        with self._lock:
+        with self.lock:
             if bool(msg.data) != self.stopped:
                 self.stopped = bool(msg.data)
                 self._bump()
 
     def set_stop(self, stopped: bool) -> None:
         """STOP (or release it): published at once, latched, for every env node on the graph."""
-        with self._lock:
+        with self.lock:
             self.stopped = stopped
             self._bump()
         self.stop_pub.publish(Bool(data=stopped))
@@ -344,7 +283,7 @@ class AdviceConsole(Node):
             self.set_stop(data['stopped'])
             return None
         if kind == 'input':
-            with self._lock:
+            with self.lock:
                 size = len(self.input.command)
                 command = data.get('command')
                 if not isinstance(command, list) or len(command) != size:
@@ -391,6 +330,7 @@ class AdviceConsole(Node):
             'request': request,
             'episodes': self.episodes[-500:],
             'learner': self.learner_params,
+            'advice_window': self.advice_window(),
             'require_deadman': self.params['require_deadman'],
             'stopped': self.stopped,
             # The person's seconds on requests of episodes whose statistics have not come yet.
@@ -400,6 +340,20 @@ class AdviceConsole(Node):
             'command': list(self.input.command),
             'key_step': self.params['step'],
         }
+
+    def advice_window(self) -> Optional[dict]:
+        """(with the lock held) Whether advice is open now, as the learner decides it
+        (advice_window.py), from its parameters and its finished episodes; None until known."""
+        learner = self.learner_params
+        if not {'mode', 'advising_budget', 'advising_budget_s'} <= learner.keys():
+            return None
+        last = self.episodes[-1] if self.episodes else None
+        episode = last['episode'] + 1 if last else 0  # the episode running now
+        spent = (last['human_time_total_s'] if last else 0.0) + sum(self.person_s_open.values())
+        window = advice_window(
+            learner['mode'], learner['advising_budget'], learner['advising_budget_s'], episode, spent
+        )
+        return window.to_dict()
 
     def set_learner_parameter(self, name: str, value) -> tuple[bool, str]:
         """Set one of LEARNER_CONTROLS on the learner (from the web thread); (ok, reason)."""
@@ -434,160 +388,18 @@ class AdviceConsole(Node):
             return False, 'the learner did not answer within 5 s'
         result = future.result().results[0]
         if result.successful:
-            with self._lock:
+            with self.lock:
                 self.learner_params[name] = value
                 self._bump()
         return result.successful, result.reason
 
-    # ------------------------------------------------------------------ web side (own thread)
-
-    def _serve(self) -> None:
-        asyncio.set_event_loop(self._loop)
-        try:
-            self._loop.run_until_complete(self._start_server())
-        except BaseException as error:  # the port is taken, the host is unknown: said at start-up
-            self._server_error = error
-            self._server_ready.set()
-            return
-        self._server_ready.set()
-        self._loop.run_forever()
-
-    def _log_throttled(self, text: str) -> None:
-        self.get_logger().warning(text)
-
-    async def _start_server(self) -> None:
-        app = web.Application(client_max_size=MAX_PAGE_MESSAGE, middlewares=[self._check_host])
-        app.router.add_get('/', self._page)
-        app.router.add_get('/console.js', self._script)
-        app.router.add_get('/ws', self._websocket)
-        # A short keep-alive: a connection that made its request and then idles gives its place back.
-        self._runner = web.AppRunner(app, access_log=None, keepalive_timeout=5.0)
-        await self._runner.setup()
-        server = self._runner.server
-        self._server = await self._loop.create_server(
-            lambda: GuardedProtocol(self.guard, server), self.params['host'], self.params['port']
-        )
-        self.port = self._server.sockets[0].getsockname()[1]  # the port given, or the one chosen for port 0
-
-    @web.middleware
-    async def _check_host(self, request: web.Request, handler):
-        if not host_allowed(request.host, self.allowed_names):
-            # DNS rebinding: another site's name resolved to this machine. Its page must not load.
-            raise web.HTTPForbidden(
-                text=f'advice_console: {host_name(request.host)!r} is not a name this console serves '
-                '(open it by its address, or add the name to allowed_hosts)'
-            )
-        return await handler(request)
-
-    def _authorized(self, request: web.Request) -> bool:
-        token = self.params['token']
-        return not token or hmac.compare_digest(request.query.get('token', ''), token)
-
-    async def _page(self, request: web.Request) -> web.Response:
-        if not self._authorized(request):
-            raise web.HTTPForbidden(text='advice_console: a token is required (?token=...)')
-        return web.Response(text=_static('console.html'), content_type='text/html')
-
-    async def _script(self, request: web.Request) -> web.Response:
-        # The script holds no secret and steers nothing by itself: served without the token.
-        return web.Response(text=_static('console.js'), content_type='application/javascript')
-
-    async def _websocket(self, request: web.Request) -> web.WebSocketResponse:
-        if not self._authorized(request):
-            raise web.HTTPForbidden(text='advice_console: a token is required (?token=...)')
-        origin = request.headers.get('Origin')
-        if origin is not None and origin != f'{request.scheme}://{request.host}':
-            # A page of another site, open in the same browser, must not steer the robot.
-            raise web.HTTPForbidden(text=f'advice_console: websocket from another origin ({origin}) refused')
-        socket = web.WebSocketResponse(max_msg_size=MAX_PAGE_MESSAGE, heartbeat=10.0)
-        await socket.prepare(request)
-        self._sockets.add(socket)
-        with self._lock:
-            self.pages += 1
-        sender = asyncio.ensure_future(self._send_updates(socket))
-        try:
-            async for message in socket:
-                if message.type != WSMsgType.TEXT:
-                    continue
-                await self._on_page_message(socket, message.data)
-        finally:
-            sender.cancel()
-            self._sockets.discard(socket)
-            with self._lock:
-                self.pages -= 1
-        return socket
-
-    async def _on_page_message(self, socket: web.WebSocketResponse, text: str) -> None:
-        try:
-            data = json.loads(text)
-            if not isinstance(data, dict):
-                raise ValueError('not an object')
-        except ValueError:
-            await socket.send_json({'type': 'error', 'error': 'messages must be JSON objects'})
-            return
-        if data.get('type') == 'set':
-            ok, reason = await self._loop.run_in_executor(
-                None, self.set_learner_parameter, data.get('name'), data.get('value')
-            )
-            await socket.send_json(
-                {'type': 'set_result', 'name': data.get('name'), 'value': data.get('value'), 'ok': ok, 'reason': reason}
-            )
-            return
-        error = self.take_input(data)
-        if error:
-            await socket.send_json({'type': 'error', 'error': error})
-
-    async def _send_updates(self, socket: web.WebSocketResponse) -> None:
-        """State when it changes (and 5 times a second while a request is pending, for its
-        countdown); frames at most image_rate_hz."""
-        sent_version, sent_frame, last_frame_time, last_state_time = -1, 0, 0.0, 0.0
-        frame_period = 1.0 / self.params['image_rate_hz']
-        while not socket.closed:
-            now = time.monotonic()
-            with self._lock:
-                pending = self.request is not None and self.request['outcome'] == 'pending'
-                state = None
-                if self.version != sent_version or (pending and now - last_state_time > 0.2):
-                    state, sent_version, last_state_time = self.state(), self.version, now
-                frame = None
-                if self.frame_number != sent_frame and now - last_frame_time >= frame_period:
-                    frame, sent_frame, last_frame_time = self.frame, self.frame_number, now
-            if state is not None:
-                await socket.send_str(json.dumps(state))
-            if frame is not None:
-                data = await self._loop.run_in_executor(None, jpeg, frame, self.params['jpeg_quality'])
-                if data:
-                    await socket.send_bytes(data)
-            await asyncio.sleep(0.03)
-
     def destroy_node(self) -> None:
-        if self._loop.is_running():
-
-            async def stop():
-                for page in list(self._sockets):  # the page shows "disconnected" and retries
-                    await page.close(code=1001, message=b'advice_console is stopping')
-                if getattr(self, '_server', None) is not None:
-                    self._server.close()
-                if self._runner is not None:
-                    await self._runner.cleanup()
-
-            try:
-                asyncio.run_coroutine_threadsafe(stop(), self._loop).result(timeout=5.0)
-            except Exception:  # already stopping: the thread is a daemon either way
-                pass
-            self._loop.call_soon_threadsafe(self._loop.stop)
-            self._thread.join(timeout=5.0)
-        if not self._thread.is_alive() and not self._loop.is_closed():
-            self._loop.close()
+        self.server.stop()
         super().destroy_node()
 
 
 def _finite(value: float) -> Optional[float]:
     return float(value) if math.isfinite(value) else None  # JSON has no NaN (QASAC's E(s))
-
-
-def _static(name: str) -> str:
-    return resources.files('eqhrl_ros').joinpath('web', name).read_text()
 
 
 def main(args=None):

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, resumed_settings
+from ..core.algorithm.learner import EpisodeSummary, EQSACLearner
+from ..core.algorithm.learner_state import resumed_settings
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
 from ..parameters import LEARNER_NODE_PARAMS
@@ -53,7 +54,7 @@ class LearnerNode(RunFiles, ActingNode):
 
     def _load_prior(self, learner: EQSACLearner) -> None:
         """Earlier runs' advice into D and D_advising (a record that does not fit refuses the start)."""
-        from ..mcap_record import RecordError, load_prior
+        from ..files.mcap_record import RecordError, load_prior
 
         try:
             prior = load_prior(self.params['prior'], learner.obs_dim, learner.scaler.low, learner.scaler.high)
@@ -67,13 +68,13 @@ class LearnerNode(RunFiles, ActingNode):
         )
 
     def _open_recording(self, learner: EQSACLearner) -> None:
-        from ..mcap_record import record_path
+        from ..files.mcap_record import record_path
         from .recording import NodeRecord
 
         path = record_path(self.output_dir, resume=self.params['resume'])
         metadata = {'mode': self.config.mode, 'seed': self.config.seed, 'episode': learner.episode}
         self.recording = NodeRecord(self, path, metadata)
-        self.recording.tap_service(self.advice_client.srv_name, self.advice_client.srv_type)
+        self.recording.tap_service(self.advice.client.srv_name, self.advice.client.srv_type)
         self.recording.tap_images(IMAGE_TOPIC)
         self._transitions_topic = self.resolve_topic_name('~/transitions')
         self._recorded: list = []  # this episode's transitions, written at its end as one TransitionBatch
@@ -83,11 +84,11 @@ class LearnerNode(RunFiles, ActingNode):
         """The budgets the run had at its save, as this node's parameters (what ros2 param get says)."""
         from rclpy.parameter import Parameter
 
-        from ..core.algorithm.config import FIELDS, ros_name
+        from ..core.algorithm.config import CONFIG_FIELDS, ros_name
 
         changed = []
         for name in resumed_settings(learner.config.to_dict()):
-            param = ros_name(FIELDS[name])
+            param = ros_name(CONFIG_FIELDS[name])
             value = getattr(learner.config, name)
             if self.has_parameter(param) and self.get_parameter(param).value != value:
                 changed.append(Parameter(param, value=value))

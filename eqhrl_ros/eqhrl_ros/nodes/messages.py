@@ -406,3 +406,16 @@ def advice_request_msg(
         observation=np.asarray(request.observation, dtype=np.float32).tolist(),
         proposed_action=np.asarray(request.proposed_action, dtype=np.float32).tolist(),
     )
+
+
+# Expert names come from other nodes: cap them before they reach a log line or a count.
+EXPERT_NAME_MAX = 64
+EXPERT_NAMES_KEPT = 8
+
+
+def printable_name(name: str) -> str:
+    """``name`` as one safe log token: printable ASCII only, at most EXPERT_NAME_MAX characters."""
+    text = ''.join(c if c.isprintable() and c.isascii() else '?' for c in (name or '')[: EXPERT_NAME_MAX + 1])
+    if len(text) > EXPERT_NAME_MAX:
+        text = text[: EXPERT_NAME_MAX - 3] + '...'
+    return text or '(unnamed)'

@@ -41,7 +41,7 @@ class NodeRecord:
     node does not otherwise hear (its messages are written as they arrive, undecoded)."""
 
     def __init__(self, node, path, metadata: Optional[dict] = None):
-        from ..mcap_record import FLUSH_PERIOD_S, McapRecord  # here: nodes that never record never load mcap
+        from ..files.mcap_record import FLUSH_PERIOD_S, McapRecord  # here: nodes that never record never load mcap
 
         self.node = node
         self.file = McapRecord(path, metadata=metadata)

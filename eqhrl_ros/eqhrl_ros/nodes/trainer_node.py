@@ -37,11 +37,11 @@ from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
 from ..core.runs.trainer import TRAINER_CSV_FIELDS, BatchLimits, Trainer
 from ..parameters import LEARNER_CONFIG_PARAMS, TRAINER_PARAMS
-from . import messages, trainer_msgs
-from .acting_node import printable_name
+from . import messages, trainer_health, trainer_msgs
 from .env_info import configured_spec
 from .graph_trust import GRAPH_CACHE_S, full_name
-from .health import OK, WARN, Check, Health
+from .health import Health
+from .messages import printable_name
 from .params import choices_validator, declare, reject_unknown_overrides
 from .run_files import RunFiles, save_and_close
 from .spinning import run_node, steady_clock, stop_with_error
@@ -93,8 +93,8 @@ class TrainerNode(RunFiles, Node):
         self.refused_batches = 0
         self.weights_published = 0
         self.summaries: list[tuple[EpisodeSummary, str]] = []
-        self._silent: set = set()
-        self._report_mark = (time.monotonic(), 0, 0)  # (time, transitions, updates) at the last report
+        self.silent_actors: set = set()  # warned about once, until they send again
+        self.report_mark = (time.monotonic(), 0, 0)  # (time, transitions, updates) at the last report
 
         self.weights_pub = self.create_publisher(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, trainer_msgs.WEIGHTS_QOS)
         self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', STATS_QOS)
@@ -135,7 +135,7 @@ class TrainerNode(RunFiles, Node):
             self.csv_path, TRAINER_CSV_FIELDS, keep_before=learner.episode if p['resume'] else None
         )
         if p['record']:
-            from ..mcap_record import record_path
+            from ..files.mcap_record import record_path
             from .recording import NodeRecord
 
             path = record_path(self.output_dir, resume=p['resume'])
@@ -262,8 +262,8 @@ class TrainerNode(RunFiles, Node):
                 'asked for',
                 throttle_duration_sec=5.0,
             )
-        if batch.actor in self._silent:
-            self._silent.discard(batch.actor)
+        if batch.actor in self.silent_actors:
+            self.silent_actors.discard(batch.actor)
             self.get_logger().info(f'actor {actor} is sending again')
         for row, who in rows:
             self._on_episode(row, who)
@@ -416,63 +416,13 @@ class TrainerNode(RunFiles, Node):
         self.weights_published += 1
 
     def health_checks(self) -> list:
-        """The actors and the learning, for /diagnostics (nodes/health.py)."""
-        trainer = self.trainer
-        if trainer is None:
-            return [Check('actors', WARN, 'waiting for the first batch (or env_id) to know the spaces')]
-        now, limit = time.monotonic(), self.params['actor_silence_s']
-        sequences = dict(trainer.sequences.actors)
-        silent = sorted(printable_name(a) for a, s in sequences.items() if now - s.last_heard > limit)
-        values = {
-            'actors': len(sequences),
-            'silent': len(silent),
-            'batches lost': trainer.sequences.lost,
-            'batches refused': self.refused_batches,
-            'batches dropped (inbox full)': self.dropped_batches,
-        }
-        if not sequences:
-            actors = Check('actors', WARN, 'no actor has sent transitions yet', values)
-        elif silent:
-            actors = Check('actors', WARN, f'silent for over {limit:g} s: {", ".join(silent[:5])}', values)
-        else:
-            actors = Check('actors', OK, f'{len(sequences)} actor(s) sending', values)
-        learning = Check(
-            'learning',
-            WARN if trainer.restored else OK,
-            f'networks restored {trainer.restored} times after non-finite updates' if trainer.restored else 'learning',
-            {'updates': self.learner.updates, 'weights sent': self.weights_published, 'owed': trainer.updates_owed()},
-        )
-        return [actors, learning]
+        """The actors and the learning, for /diagnostics (nodes/trainer_health.py)."""
+        return trainer_health.trainer_checks(self)
 
     def _report(self) -> None:
-        # Without the lock: counters only (ints, read whole); the learning thread keeps going.
         if self._refused_bytes:
             self._give_back_flood_memory()
-        if self.trainer is None:
-            return
-        now, transitions, updates = time.monotonic(), self.learner.total_steps, self.learner.updates
-        then, before_t, before_u = self._report_mark
-        self._report_mark = (now, transitions, updates)
-        seconds = max(now - then, 1e-9)
-        sequences = self.trainer.sequences.actors
-        self.get_logger().info(
-            f'{transitions} transitions from {len(sequences)} actor(s) '
-            f'({(transitions - before_t) / seconds:.1f}/s), '
-            f'{updates} updates ({(updates - before_u) / seconds:.1f}/s), {self.trainer.updates_owed()} owed, '
-            f'weights v{updates} sent {self.weights_published} times, '
-            f'{self.trainer.sequences.lost} batches lost, '
-            f'{sum(s.out_of_order for s in sequences.values())} held past a gap, '
-            f'{sum(s.duplicates for s in sequences.values())} received twice, {self.refused_batches} refused, '
-            f'{self.dropped_batches} dropped (inbox full)'
-        )
-        limit = self.params['actor_silence_s']
-        for actor, state in list(sequences.items()):
-            if actor not in self._silent and now - state.last_heard > limit:
-                self._silent.add(actor)
-                self.get_logger().warn(
-                    f'actor {printable_name(actor)} has sent nothing for {now - state.last_heard:.1f} s '
-                    '(stopped, paused or cut off); the others go on'
-                )
+        trainer_health.report(self)
 
 
 def _take_the_last_batches(node: TrainerNode) -> None:

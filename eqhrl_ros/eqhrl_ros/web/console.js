@@ -85,9 +85,11 @@ function onState(message) {
   const last = state.episodes[state.episodes.length - 1];
   // Finished episodes' seconds, and those of the requests answered since (the budget runs down now).
   const spent = (last ? last.human_time_total_s : 0) + (state.person_s_open || 0);
-  const budgetS = learner.advising_budget_s;
+  // What is left is the learner's rule (core/algorithm/advice_window.py), as the console node computes it.
+  const open = state.advice_window;
   $('person').textContent = `your time: ${spent.toFixed(1)} s over ${state.episodes.length} episodes` +
-    (budgetS > 0 ? `; your budget ${budgetS.toFixed(0)} s: ${Math.max(0, budgetS - spent).toFixed(1)} s left` : '');
+    (open && open.seconds_left !== null
+      ? `; your budget ${learner.advising_budget_s.toFixed(0)} s: ${open.seconds_left.toFixed(1)} s left` : '');
 }
 
 function showRequest() {
@@ -98,10 +100,9 @@ function showRequest() {
   const last = state.episodes[state.episodes.length - 1];
   const done = last ? last.episode + 1 : 0;  // episodes finished (the page keeps only the last 500)
   const over = learner.max_episodes > 0 && done >= learner.max_episodes;
-  const spent = done >= (learner.advising_budget ?? Infinity) ||
-    (learner.advising_budget_s > 0 && last && last.human_time_total_s >= learner.advising_budget_s);  // as the learner counts
+  const open = state.advice_window;  // null until the learner's parameters are known
   const ended = over ? `the run has finished (${done} episodes): nothing more will be asked`
-    : (spent ? 'advice is over: the advising budget is used up; the learner goes on alone' : '');
+    : (open && !open.open ? `advice is over: ${open.why_closed}; the learner goes on alone` : '');
   $('run-state').textContent = ended;
   if (!r) { box.className = ''; box.textContent = ended || 'no request yet'; return; }
   const key = `${r.episode}/${r.step}`;

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 from eqhrl_ros.cli import experiment, report
-from eqhrl_ros.experiments import gather, progress, seed_runs
+from eqhrl_ros.experiments import gather, seed_runs
 from eqhrl_ros.experiments.settings import load_settings
+from eqhrl_ros.reports import run_report
 
 
 def read(path):
@@ -98,7 +99,7 @@ def write_synthetic(folder):
 
 def test_report_table_shows_the_known_values(tmp_path):
     write_synthetic(tmp_path / 'runs')
-    table = {row['algorithm']: row for row in report.summarize(report.read_runs([tmp_path / 'runs']), -200.0)}
+    table = {row['algorithm']: row for row in run_report.summarize(run_report.read_runs([tmp_path / 'runs']), -200.0)}
     sac, eqsac = table['sac'], table['eqsac']
     assert sac['final_return'] == pytest.approx((-200.0, 100.0))
     assert sac['advice_given'] == (0.0, 0.0) and sac['reached'] == 1  # only seed 0 is above -200
@@ -108,7 +109,7 @@ def test_report_table_shows_the_known_values(tmp_path):
     assert eqsac['final_success'] == pytest.approx((1.0, 0.0))
     assert eqsac['success'] == pytest.approx((0.5, 0.0))
     assert eqsac['reached'] == 2 and 17 <= eqsac['episodes_to_threshold'][0] <= 21
-    text = report.format_table(list(table.values()), -200.0)
+    text = run_report.format_table(list(table.values()), -200.0)
     assert '| EQSAC | 2 | 40 | 4 ± 1 | 8 ± 2 | 0.0 ± 0.0 | 100 ± 0 % | 50 ± 0 % |' in text
     assert '(1 of 2 runs reached it)' in text
 
@@ -135,7 +136,7 @@ def test_report_reads_the_advice_free_evaluation(tmp_path):
                         writer.writerow(
                             [algorithm, seed, episode, start, base + 100 * seed + 2.5 * episode + start, 100, 0]
                         )
-    evals = report.read_eval([tmp_path / 'runs'])
+    evals = run_report.read_eval([tmp_path / 'runs'])
     assert evals['eqsac'][10] == pytest.approx([-274.0, -174.0])  # each seed's mean over its 3 starts
     assert evals['sac'][20] == pytest.approx([-349.0, -249.0])
     assert report.main([str(tmp_path / 'runs'), '--output', str(tmp_path / 'out')]) == 0
@@ -148,7 +149,7 @@ def test_report_refuses_a_folder_without_results(tmp_path, capsys):
 
 
 def test_episodes_to_reach_is_nan_when_never_reached():
-    assert math.isnan(report.episodes_to_reach(np.full(30, -500.0), -200.0))
+    assert math.isnan(run_report.episodes_to_reach(np.full(30, -500.0), -200.0))
 
 
 @pytest.mark.slow
@@ -308,15 +309,6 @@ def test_an_interrupted_run_continues_from_its_last_save_and_writes_what_an_unin
     assert sum(int(r['advice_given']) for r in rows) > 0 and sum(int(r['advice_failed']) for r in rows) > 0
 
 
-def test_the_progress_line_counts_a_resumed_runs_earlier_episodes_as_done_and_times_only_this_process():
-    count = progress.EpisodeCount(total=20)  # two runs of 10 episodes
-    for message in [('eqsac', 0, 6, -1.0), ('sac', 0, 0, -2.0), ('eqsac', 0, 7, -1.0), ('sac', 0, 1, -2.0)]:
-        count.add(message)  # eqsac seed 0 resumed after episode 6; sac seed 0 fresh
-    assert count.done == 10
-    # 4 episodes in 40 s here: the 10 left take 100 s
-    assert count.line(0, 2, 40.0) == '[10/20 episodes, 0/2 runs]  50.0%  eta   1.7 min'
-
-
 def test_a_save_of_another_run_is_not_resumed(tmp_path, capsys):
     """A resume point made with other settings is reported and removed; the run starts over."""
     import torch
@@ -402,7 +394,11 @@ def _stop_and_check_workers_end(command, tmp_path, sig):
             time.sleep(0.5)
             workers = [p for p in _children(process.pid) if 'spawn_main' in Path(f'/proc/{p}/cmdline').read_text()]
         assert len(workers) >= 2, 'the pool never started'
-        time.sleep(2)  # the workers are training
+        # The workers are training: a run has finished episodes.
+        while time.monotonic() < deadline and not any(
+            len(path.read_text().splitlines()) > 1 for path in tmp_path.rglob('seed*/episodes.csv')
+        ):
+            time.sleep(0.2)
         workers = _children(process.pid)  # and the Manager's server and multiprocessing's resource tracker
         process.send_signal(sig)
         assert process.wait(timeout=60) == 130  # as after Ctrl-C
@@ -440,7 +436,7 @@ def test_a_terminated_study_stops_its_workers_with_it(tmp_path):
 def test_a_recorded_experiment_seeds_the_next_with_its_advice(tmp_path, capsys):
     """--record keeps each in-process run's advised transitions; --prior puts all of them into
     the next runs' D and D_advising (seen here in the record the next run writes in turn)."""
-    from eqhrl_ros.mcap_record import load_prior
+    from eqhrl_ros.files.mcap_record import load_prior
 
     params_file = tmp_path / 'tiny.yaml'
     params_file.write_text(
@@ -482,7 +478,7 @@ def test_a_recorded_experiment_seeds_the_next_with_its_advice(tmp_path, capsys):
 
 def test_a_run_through_ros_carries_record_and_prior_to_the_learner(tmp_path):
     from eqhrl_ros.experiments.ros_runs import train_command
-    from eqhrl_ros.mcap_record import McapRecord
+    from eqhrl_ros.files.mcap_record import McapRecord
 
     record = McapRecord(tmp_path / 'record.mcap')  # an empty record on Pendulum's spaces is a valid prior
     fields = {'observation_size': 3, 'action_low': [-2.0], 'action_high': [2.0]}

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from eqhrl_ros.yaml_files import MAX_DEPTH, YamlFileError, load_mapping
+from eqhrl_ros.files.yaml_files import MAX_DEPTH, YamlFileError, load_mapping
 
 BIN = Path(sys.executable).parent
 
@@ -79,7 +79,7 @@ def test_the_worst_files_cost_little_memory(tmp_path):
     space, not the forking parent's) stays under 100 MB."""
     paths = [write(tmp_path, name, HOSTILE[name][0]) for name in ('billion_laughs', 'deep_lists')]
     probe = (
-        'import sys\nfrom eqhrl_ros.yaml_files import load_mapping\n'
+        'import sys\nfrom eqhrl_ros.files.yaml_files import load_mapping\n'
         'try:\n    load_mapping(sys.argv[1])\nexcept ValueError:\n    pass\nelse:\n    sys.exit(3)\n'
         "print([l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1])\n"
     )

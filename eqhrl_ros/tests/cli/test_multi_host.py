@@ -12,7 +12,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -91,7 +90,7 @@ def test_two_actors_on_another_host_feed_a_trainer_through_a_link_cut(two_hosts,
         start_in(
             trainer_ns, actors_ip, tmp_path, 'trainer', 'trainer', '--ros-args', *ALGORITHM,
             '-p', f'output_dir:={out}', '-p', 'weights_every_updates:=5', '-p', 'checkpoint_every_episodes:=0',
-            '-p', 'report_period_s:=2.0', '-p', 'actors:=[/a0/actor, /a1/actor]',
+            '-p', 'report_period_s:=2.0', '-p', 'actor_silence_s:=1.0', '-p', 'actors:=[/a0/actor, /a1/actor]',
         )
     ]  # fmt: skip
     for i in range(2):
@@ -119,10 +118,13 @@ def test_two_actors_on_another_host_feed_a_trainer_through_a_link_cut(two_hosts,
         assert wait_for(from_each, 180), text(processes[0])[-3000:]
         assert wait_for(lambda: all('weights from trainer' in text(a) for a in actors), 120), text(actors[0])[-3000:]
 
-        # The link is cut for 3 s (the actors' host loses its interface), then comes back.
+        # The link is cut (the actors' host loses its interface) until the trainer has reported
+        # both actors silent, then comes back.
         before = len(rows(out / 'episodes.csv'))
+        warned = text(processes[0]).count('has sent nothing for')
         ip('-n', actors_ns, 'link', 'set', actors_if, 'down')
-        time.sleep(3.0)
+        silent = lambda: text(processes[0]).count('has sent nothing for') >= warned + 2  # noqa: E731
+        assert wait_for(silent, 60), text(processes[0])[-3000:]
         ip('-n', actors_ns, 'link', 'set', actors_if, 'up')
         assert wait_for(lambda: from_each(before), 180), text(processes[0])[-3000:]
         episodes = [int(r['episode']) for r in rows(out / 'episodes.csv')]

@@ -291,7 +291,7 @@ def test_a_node_that_saves_nothing_does_not_say_it_is_finishing_a_save(capfd):
 def test_a_record_cut_by_kill_9_reads_up_to_its_last_chunk(tmp_path):
     """The record closes its chunk every second: what a kill -9 leaves (no index, no summary)
     reads up to its last whole chunk, episodes in order."""
-    from eqhrl_ros.mcap_record import read_record
+    from eqhrl_ros.files.mcap_record import read_record
 
     out = tmp_path / 'run'
     args = ['--params', 'demo', '--episodes', '200', '--max-steps', '20', '--output', str(out), '--record']

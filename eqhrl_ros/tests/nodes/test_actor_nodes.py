@@ -10,7 +10,7 @@ import pytest
 import rclpy
 
 from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
-from eqhrl_ros.mcap_record import read_record
+from eqhrl_ros.files.mcap_record import read_record
 from eqhrl_ros.nodes import trainer_msgs
 from eqhrl_ros.nodes.actor_node import ActorNode
 from eqhrl_ros.nodes.expert_node import ExpertNode
@@ -179,7 +179,7 @@ def _one_transition_batch(reward):
 
 
 def test_actor_and_trainer_help_lists_their_parameters():
-    from eqhrl_ros.cli.nodes import help_text
+    from eqhrl_ros.cli.node_programs import help_text
 
     assert 'batch_transitions' in help_text('actor') and 'updates_per_transition' in help_text('trainer')
 

@@ -140,8 +140,8 @@ def test_the_expert_node_plays_a_person_with_the_simulated_human_backend(harness
     assert totals.given == totals.human > 0 and totals.failed['timeout'] > 0
     assert totals.given + totals.failed['timeout'] == totals.asked
     # The person's time was waited out for real: each answer came after its reaction time.
-    assert min(learner.advice_latencies) > 0.05
-    assert totals.human_time_s == pytest.approx(sum(learner.advice_latencies), abs=0.05 * totals.asked)
+    assert min(learner.advice.latencies) > 0.05
+    assert totals.human_time_s == pytest.approx(sum(learner.advice.latencies), abs=0.05 * totals.asked)
 
 
 def test_a_request_the_episode_ends_is_ended_at_once_everywhere_and_not_counted_as_a_timeout(
@@ -258,7 +258,7 @@ def test_the_person_takes_over_unasked_and_hands_back_by_releasing_the_deadman(h
     assert applied[-10:] == [-2.0] * 10  # the person's action, step after step
     person.destroy_timer(hold)
     release = person.create_timer(0.02, lambda: pub.publish(messages.person_command_msg([-2.0], False, False)))
-    assert harness.spin_until(lambda: learner._person is not None and not learner._person[1], timeout=10)
+    assert harness.spin_until(lambda: learner._person is not None and not learner._person.deadman, timeout=10)
     steps, start = taken.takeover_steps, len(applied)  # the release has arrived
     assert harness.spin_until(lambda: len(applied) > start + 40, timeout=10)
     assert learner.learner.episode_advice.takeover_steps <= steps + 1  # the learner's again within one step

@@ -10,7 +10,7 @@ import pytest
 import rclpy
 from std_msgs.msg import Bool
 
-from eqhrl_ros.mcap_record import McapRecord, RecordError, load_prior, read_record
+from eqhrl_ros.files.mcap_record import McapRecord, RecordError, load_prior, read_record
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode

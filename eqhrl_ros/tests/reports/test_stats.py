@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from eqhrl_ros.stats import bootstrap, iqm, iqm_estimate, paired_difference, performance_profile
+from eqhrl_ros.reports.stats import bootstrap, iqm, iqm_estimate, paired_difference, performance_profile
 
 
 def test_iqm_is_the_mean_of_the_middle_half():
@@ -47,7 +47,7 @@ def test_performance_profile_is_the_fraction_above_each_score():
 
 
 def test_sign_flip_p_is_exact_for_few_seeds_and_matches_the_t_test_for_many():
-    from eqhrl_ros.stats import sign_flip_p
+    from eqhrl_ros.reports.stats import sign_flip_p
 
     # Three differences of one sign: of 8 sign patterns, 2 are as extreme (all + and all -).
     assert sign_flip_p([1.0, 2.0, 3.0]) == pytest.approx(0.25)
@@ -58,7 +58,7 @@ def test_sign_flip_p_is_exact_for_few_seeds_and_matches_the_t_test_for_many():
 
 
 def test_tost_says_equivalent_only_when_the_90_percent_interval_is_inside_the_margin():
-    from eqhrl_ros.stats import t_interval, tost_p
+    from eqhrl_ros.reports.stats import t_interval, tost_p
 
     rng = np.random.default_rng(1)
     tight = rng.normal(0.3, 2.0, 40)
@@ -69,14 +69,14 @@ def test_tost_says_equivalent_only_when_the_90_percent_interval_is_inside_the_ma
 
 
 def test_holm_adjusts_in_step_down_order():
-    from eqhrl_ros.stats import holm
+    from eqhrl_ros.reports.stats import holm
 
     assert holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
     assert holm([0.5]) == [0.5]
 
 
 def test_a_paired_test_gives_a_verdict():
-    from eqhrl_ros.stats import paired_test
+    from eqhrl_ros.reports.stats import paired_test
 
     a = {s: 10.0 + s % 3 for s in range(30)}
     same = paired_test(a, {s: v + 0.1 * (-1) ** s for s, v in a.items()}, margin=5.0)

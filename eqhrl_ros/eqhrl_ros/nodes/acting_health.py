@@ -1,0 +1,60 @@
+"""What an acting node (learner or actor) reports on /diagnostics: the expert, the env, the budget."""
+
+from __future__ import annotations
+
+import itertools
+import time
+
+import numpy as np
+
+from .health import OK, WARN, Check
+
+
+def acting_checks(node) -> list:
+    """The three checks of an ActingNode whose learner exists (nodes/health.py shows them)."""
+    learner = node.learner
+    with node._lock:
+        done, current = learner.advice_total, learner.episode_advice
+        asked, given = done.asked + current.asked, done.given + current.given
+        timeouts = done.failed['timeout'] + current.failed['timeout']
+        declined = done.declined + current.declined
+        recent = list(itertools.islice(reversed(node.advice.latencies), 1000))  # the last 1,000 answers
+        stalled = node._stalled_since
+        window = learner.advice_window()
+    servers = node.advice.servers()
+    p50, p99 = (f'{v:.0f}' for v in np.percentile(np.asarray(recent) * 1000, (50, 99))) if recent else ('-', '-')
+    values = {
+        'advise servers': servers,
+        'asked': asked,
+        'given': given,
+        'declined': declined,
+        'timeouts': timeouts,
+        'answer latency p50 ms (last 1,000)': p50,
+        'answer latency p99 ms (last 1,000)': p99,
+    }
+    if not window.open:
+        expert = Check('expert', OK, f'not asking: {window.why_closed}', values)
+    elif not node.params['advice_enabled']:
+        expert = Check('expert', OK, 'advice paused (advice_enabled false)', values)
+    elif servers == 0:
+        expert = Check('expert', WARN, "no node serves 'advise': the learner acts alone", values)
+    elif asked >= 10 and timeouts > asked / 2:
+        expert = Check('expert', WARN, f'{timeouts} of {asked} requests timed out', values)
+    else:
+        expert = Check('expert', OK, f'{servers} expert(s) reachable', values)
+    if node._stopped_since is not None:
+        env = Check('env', WARN, f'STOPPED by the person for {time.monotonic() - node._stopped_since:.1f} s')
+    elif stalled is not None:
+        env = Check('env', WARN, f'no observation for {time.monotonic() - stalled:.1f} s (paused, stopped or starved)')
+    else:
+        env = Check('env', OK, 'observations arrive')
+    env.values = {'steps': learner.total_steps, 'episode': learner.episode, 'stalls': node.stalls}
+    seconds = window.seconds_left
+    budget = Check(
+        'budget',
+        OK,
+        f'{window.episodes_left} episodes of advice left'
+        + (f", {seconds:.0f} s of the person's" if seconds < float('inf') else ''),
+        {'episodes left': window.episodes_left, 'person seconds spent': f'{learner.human_time_total_s:.1f}'},
+    )
+    return [expert, env, budget]

@@ -1,0 +1,130 @@
+"""The acting node's side of the advise service: one request at a time, never waited for.
+
+The request goes out with ``call_async``; whichever comes first, the response (a done-callback)
+or a one-shot timeout timer on the steady clock, ends it and calls ``on_end(pending, advice,
+failure)`` (under the node's lock). So a slow or absent expert cannot wedge the env, the
+statistics or shutdown, under a single-threaded executor or a multi-threaded one. (A synchronous
+``call`` inside a subscription callback deadlocks a single-threaded executor.)
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter, deque
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+from eqhrl_interfaces.srv import Advise
+
+from ..core.algorithm.learner import Proposal
+from . import advise_msgs
+from .messages import EXPERT_NAMES_KEPT, printable_name
+from .recording import introspect
+
+
+@dataclass
+class PendingAdvice:
+    token: int
+    proposal: Proposal
+    key: tuple  # (env episode, env step) the advice is for
+    timer: object
+    sent: float = 0.0  # time.monotonic() when the request went out
+
+
+class AdviceClient:
+    """Asks the 'advise' service; ``on_end`` gets each request's end (answer, timeout or error)."""
+
+    def __init__(self, node, params: dict, lock, clock, on_end: Callable):
+        self.node = node
+        self.params = params  # the node's live parameters: advice_timeout_s, accept_expert
+        self.lock = lock
+        self.clock = clock
+        self.on_end = on_end
+        self.client = node.create_client(Advise, 'advise')
+        introspect(self.client, node)  # every call on advise/_service_event (ros2 bag, the record)
+        self.pending: Optional[PendingAdvice] = None
+        self._token = 0
+        self.latencies: deque = deque(maxlen=100_000)  # seconds, request to answer
+        self.experts_heard: Counter = Counter()  # expert_name -> advice answers this episode
+        self._servers = 1
+        self._servers_checked = 0.0
+
+    @property
+    def service_name(self) -> str:
+        return self.client.srv_name
+
+    def ready(self) -> bool:
+        return self.client.service_is_ready()
+
+    def servers(self) -> int:
+        return self.node.count_services(self.client.srv_name)
+
+    def ask(self, proposal: Proposal, key: tuple) -> None:
+        """Send the proposal's request; its end comes to on_end."""
+        self._token += 1
+        token = self._token
+        timeout = self.params['advice_timeout_s']
+        request = advise_msgs.request_msg(proposal.request, timeout)
+        timer = self.node.create_timer(timeout, lambda: self._on_timeout(token), clock=self.clock)
+        self._check_servers()
+        self.pending = PendingAdvice(token, proposal, key, timer, time.monotonic())
+        future = self.client.call_async(request)
+        future.add_done_callback(lambda f: self._on_response(token, f))
+
+    def _check_servers(self) -> None:
+        """Warn when several nodes serve 'advise': rclpy keeps the first answer to a request
+        and drops the others, so with accept_expert set, a request the other server answers
+        first counts as 'untrusted' even if the accepted expert answers it too."""
+        now = time.monotonic()
+        if now - self._servers_checked < 5.0:
+            return
+        self._servers_checked = now
+        servers = self.servers()
+        if servers > 1 and servers != self._servers:
+            self.node.get_logger().warn(
+                f"{servers} nodes serve '{self.client.srv_name}': the first answer "
+                'to each request is used, the others are dropped'
+            )
+        self._servers = servers
+
+    def take_pending(self, token: Optional[int] = None) -> Optional[PendingAdvice]:
+        """The open request, ended here (its timer gone); None when ``token`` is not the open one
+        (already ended: a late answer after the timeout, or the reverse)."""
+        pending = self.pending
+        if pending is None or (token is not None and pending.token != token):
+            return None
+        self.pending = None
+        self.node.destroy_timer(pending.timer)
+        return pending
+
+    def _on_timeout(self, token: int) -> None:
+        with self.lock:
+            pending = self.take_pending(token)
+            if pending is not None:
+                self.on_end(pending, failure='timeout')
+
+    def _on_response(self, token: int, future) -> None:
+        with self.lock:
+            pending = self.take_pending(token)
+            if pending is None:
+                return
+            self.latencies.append(time.monotonic() - pending.sent)
+            try:
+                response = future.result()
+            except Exception as error:
+                self.node.get_logger().warn(f'advice call failed: {error!r}', throttle_duration_sec=5.0)
+                self.on_end(pending, failure='error')
+                return
+            name = printable_name(response.expert_name)
+            if name in self.experts_heard or len(self.experts_heard) < EXPERT_NAMES_KEPT:
+                self.experts_heard[name] += 1
+            else:
+                self.experts_heard['(others)'] += 1
+            accept = self.params['accept_expert']
+            if accept and response.expert_name != accept:
+                self.node.get_logger().warn(
+                    f"ignored advice from '{name}' (accept_expert is '{accept}')", throttle_duration_sec=5.0
+                )
+                self.on_end(pending, failure='untrusted')
+            else:
+                self.on_end(pending, advise_msgs.advice_from_response(response, name))

@@ -1,0 +1,251 @@
+"""The advice console's web server: one page and its websocket, served by aiohttp in a thread
+of its own with its own asyncio loop, and everything that keeps strangers off it.
+
+Whoever reaches the page can steer the robot. So every request must name in its ``Host``
+header an address or a name this console serves (an IP address, localhost, this machine's name,
+or one of ``allowed_hosts``), so that a web site whose name is made to resolve to this machine
+(DNS rebinding) is refused; a ``token``, where set, is required in the page's address; a
+websocket from a page of another origin is refused, so a web site open in the same browser
+cannot steer; and connections are limited in number, in total and per client, with idle or
+half-open ones closed (connection_guard.py), so that a flood of them cannot lock the person out.
+
+The ROS side (advice_console_node.py) is the ``console``: the server reads its state() under its
+lock when its version changes, hands it the page's input (take_input) and parameter sets
+(set_learner_parameter), and sends its camera frames as JPEG.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import io
+import ipaddress
+import json
+import threading
+import time
+from importlib import resources
+from typing import Optional
+
+import numpy as np
+from aiohttp import WSMsgType, web
+from sensor_msgs.msg import Image
+
+from .connection_guard import ConnectionGuard, GuardedProtocol
+
+MAX_PAGE_MESSAGE = 4096  # bytes; the page sends small JSON only
+
+
+def is_loopback(host: str) -> bool:
+    if host == 'localhost':
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def host_name(host_header: str) -> str:
+    """The name or address of a Host header, without the port ('[::1]:8080' -> '::1')."""
+    host = host_header.strip().lower()
+    if host.startswith('['):
+        return host[1 : host.index(']')] if ']' in host else host
+    return host.rsplit(':', 1)[0] if host.count(':') == 1 else host
+
+
+def host_allowed(host_header: str, names) -> bool:
+    """A Host header a page of this console can carry: an IP address (a browser that was given
+    the address itself, which DNS rebinding cannot produce), or one of ``names``."""
+    host = host_name(host_header)
+    try:
+        ipaddress.ip_address(host)
+        return True
+    except ValueError:
+        return host in names
+
+
+def jpeg(frame: Image, quality: int) -> Optional[bytes]:
+    """An rgb8/bgr8/mono8 sensor_msgs/Image as JPEG bytes (None for other encodings)."""
+    from PIL import Image as PILImage  # pillow (a matplotlib dependency)
+
+    channels = {'rgb8': 3, 'bgr8': 3, 'mono8': 1}.get(frame.encoding)
+    if channels is None or frame.height == 0 or frame.width == 0:
+        return None
+    pixels = np.frombuffer(bytes(frame.data), np.uint8)
+    if pixels.size < frame.step * frame.height:
+        return None
+    rows = pixels[: frame.step * frame.height].reshape(frame.height, frame.step)
+    array = rows[:, : frame.width * channels].reshape(frame.height, frame.width, channels)
+    if frame.encoding == 'bgr8':
+        array = array[:, :, ::-1]
+    out = io.BytesIO()
+    PILImage.fromarray(array.squeeze()).save(out, format='JPEG', quality=quality)
+    return out.getvalue()
+
+
+def _static(name: str) -> str:
+    return resources.files('eqhrl_ros').joinpath('web', name).read_text()
+
+
+class ConsoleServer:
+    """The page's HTTP server for ``console`` (module docstring); ``start()`` raises OSError when
+    it cannot serve (the port taken, the host unknown)."""
+
+    def __init__(self, console, params: dict, allowed_names: set, log_warning):
+        self.console = console
+        self.params = params
+        self.allowed_names = allowed_names
+        self.guard = ConnectionGuard(
+            params['max_connections'], params['max_connections_per_client'], params['header_timeout_s'], log_warning
+        )
+        self.port = 0
+        self._loop = asyncio.new_event_loop()
+        self._runner: Optional[web.AppRunner] = None
+        self._server = None
+        self._server_ready = threading.Event()
+        self._server_error: Optional[BaseException] = None
+        self._sockets: set = set()  # (web thread only) closed at shutdown
+        self._thread = threading.Thread(target=self._serve, name='advice_console_http', daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+        self._server_ready.wait(10.0)
+        if self._server_error is not None:
+            raise OSError(f'cannot serve on {self.params["host"]}:{self.params["port"]}: {self._server_error}')
+
+    def _serve(self) -> None:
+        asyncio.set_event_loop(self._loop)
+        try:
+            self._loop.run_until_complete(self._start_server())
+        except BaseException as error:  # the port is taken, the host is unknown: said at start-up
+            self._server_error = error
+            self._server_ready.set()
+            return
+        self._server_ready.set()
+        self._loop.run_forever()
+
+    async def _start_server(self) -> None:
+        app = web.Application(client_max_size=MAX_PAGE_MESSAGE, middlewares=[self._check_host])
+        app.router.add_get('/', self._page)
+        app.router.add_get('/console.js', self._script)
+        app.router.add_get('/ws', self._websocket)
+        # A short keep-alive: a connection that made its request and then idles gives its place back.
+        self._runner = web.AppRunner(app, access_log=None, keepalive_timeout=5.0)
+        await self._runner.setup()
+        server = self._runner.server
+        self._server = await self._loop.create_server(
+            lambda: GuardedProtocol(self.guard, server), self.params['host'], self.params['port']
+        )
+        self.port = self._server.sockets[0].getsockname()[1]  # the port given, or the one chosen for port 0
+
+    @web.middleware
+    async def _check_host(self, request: web.Request, handler):
+        if not host_allowed(request.host, self.allowed_names):
+            # DNS rebinding: another site's name resolved to this machine. Its page must not load.
+            raise web.HTTPForbidden(
+                text=f'advice_console: {host_name(request.host)!r} is not a name this console serves '
+                '(open it by its address, or add the name to allowed_hosts)'
+            )
+        return await handler(request)
+
+    def _authorized(self, request: web.Request) -> bool:
+        token = self.params['token']
+        return not token or hmac.compare_digest(request.query.get('token', ''), token)
+
+    async def _page(self, request: web.Request) -> web.Response:
+        if not self._authorized(request):
+            raise web.HTTPForbidden(text='advice_console: a token is required (?token=...)')
+        return web.Response(text=_static('console.html'), content_type='text/html')
+
+    async def _script(self, request: web.Request) -> web.Response:
+        # The script holds no secret and steers nothing by itself: served without the token.
+        return web.Response(text=_static('console.js'), content_type='application/javascript')
+
+    async def _websocket(self, request: web.Request) -> web.WebSocketResponse:
+        if not self._authorized(request):
+            raise web.HTTPForbidden(text='advice_console: a token is required (?token=...)')
+        origin = request.headers.get('Origin')
+        if origin is not None and origin != f'{request.scheme}://{request.host}':
+            # A page of another site, open in the same browser, must not steer the robot.
+            raise web.HTTPForbidden(text=f'advice_console: websocket from another origin ({origin}) refused')
+        socket = web.WebSocketResponse(max_msg_size=MAX_PAGE_MESSAGE, heartbeat=10.0)
+        await socket.prepare(request)
+        self._sockets.add(socket)
+        with self.console.lock:
+            self.console.pages += 1
+        sender = asyncio.ensure_future(self._send_updates(socket))
+        try:
+            async for message in socket:
+                if message.type != WSMsgType.TEXT:
+                    continue
+                await self._on_page_message(socket, message.data)
+        finally:
+            sender.cancel()
+            self._sockets.discard(socket)
+            with self.console.lock:
+                self.console.pages -= 1
+        return socket
+
+    async def _on_page_message(self, socket: web.WebSocketResponse, text: str) -> None:
+        try:
+            data = json.loads(text)
+            if not isinstance(data, dict):
+                raise ValueError('not an object')
+        except ValueError:
+            await socket.send_json({'type': 'error', 'error': 'messages must be JSON objects'})
+            return
+        if data.get('type') == 'set':
+            ok, reason = await self._loop.run_in_executor(
+                None, self.console.set_learner_parameter, data.get('name'), data.get('value')
+            )
+            await socket.send_json(
+                {'type': 'set_result', 'name': data.get('name'), 'value': data.get('value'), 'ok': ok, 'reason': reason}
+            )
+            return
+        error = self.console.take_input(data)
+        if error:
+            await socket.send_json({'type': 'error', 'error': error})
+
+    async def _send_updates(self, socket: web.WebSocketResponse) -> None:
+        """State when it changes (and 5 times a second while a request is pending, for its
+        countdown); frames at most image_rate_hz."""
+        sent_version, sent_frame, last_frame_time, last_state_time = -1, 0, 0.0, 0.0
+        frame_period = 1.0 / self.params['image_rate_hz']
+        while not socket.closed:
+            now = time.monotonic()
+            console = self.console
+            with console.lock:
+                pending = console.request is not None and console.request['outcome'] == 'pending'
+                state = None
+                if console.version != sent_version or (pending and now - last_state_time > 0.2):
+                    state, sent_version, last_state_time = console.state(), console.version, now
+                frame = None
+                if console.frame_number != sent_frame and now - last_frame_time >= frame_period:
+                    frame, sent_frame, last_frame_time = console.frame, console.frame_number, now
+            if state is not None:
+                await socket.send_str(json.dumps(state))
+            if frame is not None:
+                data = await self._loop.run_in_executor(None, jpeg, frame, self.params['jpeg_quality'])
+                if data:
+                    await socket.send_bytes(data)
+            await asyncio.sleep(0.03)
+
+    def stop(self) -> None:
+        """Close the pages (they show \"disconnected\" and retry), the server and its thread."""
+        if self._loop.is_running():
+
+            async def stop():
+                for page in list(self._sockets):  # the page shows "disconnected" and retries
+                    await page.close(code=1001, message=b'advice_console is stopping')
+                if getattr(self, '_server', None) is not None:
+                    self._server.close()
+                if self._runner is not None:
+                    await self._runner.cleanup()
+
+            try:
+                asyncio.run_coroutine_threadsafe(stop(), self._loop).result(timeout=5.0)
+            except Exception:  # already stopping: the thread is a daemon either way
+                pass
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join(timeout=5.0)
+        if not self._thread.is_alive() and not self._loop.is_closed():
+            self._loop.close()

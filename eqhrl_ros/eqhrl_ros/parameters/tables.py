@@ -1,0 +1,241 @@
+"""The machinery of the parameter tables: Param, the tables derived from the core's dataclasses,
+the parameters every node takes, and checking a params file's sections as the nodes would.
+
+No ROS here: the nodes declare these through nodes/params.py (rclpy checks each value against
+its descriptor), while the command-line programs, the launch files and --help read them without
+starting ROS (eqhrl-experiment checks a params file's sections with check_section).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Optional
+
+from ..core.algorithm.config import INT_MAX, LearnerConfig, ros_name
+from ..core.experts.simulated_human import HumanLimits
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    default: Any
+    description: str
+    range: Optional[tuple] = None  # (low, high) for numbers, inclusive
+    choices: Optional[tuple] = None  # allowed strings
+    dynamic: bool = False  # may change while the node runs
+    # For a parameter with no default (default None): its type, e.g. 'double_array'. rclpy
+    # declares it typed and unset (an empty list would be typed as bytes); its value is None
+    # until a params file or -p sets it.
+    kind: Optional[str] = None
+
+
+def params_of(declared) -> tuple[Param, ...]:
+    """ROS parameters for the fields of a dataclass declared with core.algorithm.config.hyper()."""
+
+    def param(f):
+        if f.default == ():  # an empty list would be typed as bytes: declared typed and unset
+            return Param(
+                ros_name(f),
+                None,
+                f.metadata['description'],
+                f.metadata['range'],
+                kind='integer_array',
+                dynamic=f.metadata['dynamic'],
+            )
+        return Param(
+            ros_name(f),
+            list(f.default) if isinstance(f.default, tuple) else f.default,
+            f.metadata['description'],
+            f.metadata['range'],
+            f.metadata['choices'],
+            f.metadata['dynamic'],
+        )
+
+    return tuple(param(f) for f in dataclasses.fields(declared))
+
+
+# Parameters of the learner that map one-to-one onto core.LearnerConfig fields: derived
+# from the fields' declarations (core/algorithm/config.py), never written here.
+LEARNER_CONFIG_PARAMS = params_of(LearnerConfig)
+# The simulated person's limits (expert backend simulated_human): core/experts/simulated_human.py.
+HUMAN_LIMIT_PARAMS = params_of(HumanLimits)
+
+# The env's spaces, for an env node that publishes no env_info. Every node accepts them, so
+# that a params file's shared `/**:` section can set them for all nodes at once.
+SPACE_PARAMS = (
+    Param(
+        'observation_size',
+        0,
+        'Observation size, for an env node that publishes no env_info (0: from env_id or env_info); '
+        'with action_low and action_high',
+        (0, INT_MAX),
+    ),
+    Param(
+        'action_low',
+        None,
+        'Action lower bounds in env units, one per dimension (unset: from env_id or env_info)',
+        kind='double_array',
+    ),
+    Param(
+        'action_high',
+        None,
+        'Action upper bounds in env units, one per dimension (unset: from env_id or env_info)',
+        kind='double_array',
+    ),
+)
+# env_id and the spaces: what every node but gym_env accepts about the env.
+ENV_PARAMS = (
+    Param(
+        'env_id',
+        '',
+        'Gymnasium env id, a shortcut for its spaces and success rule (empty: from env_info, or the spaces '
+        'given as parameters)',
+    ),
+    *SPACE_PARAMS,
+    Param(
+        'env_node',
+        '',
+        'The node whose env_info to take (full name); empty: the node publishing observation. An env_info '
+        'while another node publishes it too is held, not obeyed',
+    ),
+)
+# What a params file's shared `/**:` section may set: every node accepts these.
+SHARED_PARAM_NAMES = ('env_id', *(p.name for p in SPACE_PARAMS), 'use_sim_time')
+
+# What the learner and the actor nodes share: acting and asking for advice (nodes/acting.py).
+ACTING_PARAMS = (
+    *ENV_PARAMS,
+    Param('advice_enabled', True, 'Ask the expert when the gates fire (off: the gates are only logged)', dynamic=True),
+    Param('advice_timeout_s', 0.5, 'Seconds to wait for the expert before acting alone', (0.001, 600.0), dynamic=True),
+    Param('accept_expert', '', 'Accept advice only from this expert name (empty: any)', dynamic=True),
+    Param(
+        'stall_timeout_s',
+        5.0,
+        'Warn when no observation came for this long mid-episode (the env paused, '
+        'died or is starved); the episode continues if its next step comes',
+        (0.1, 86400.0),
+        dynamic=True,
+    ),
+    Param('publish_gate_debug', False, 'Publish every gate decision on ~/gate_debug', dynamic=True),
+)
+TORCH_THREADS = Param('torch_threads', 0, 'torch intra-op threads (0: torch default)', (0, 256))
+KEY_FILE = Param(
+    'key_file',
+    '',
+    "A file holding this deployment's shared secret: what this node sends is signed with it, and what it "
+    'receives unsigned or signed otherwise is refused (HMAC-SHA256; integrity, no secrecy). Empty: no key',
+)
+
+
+def describe(*tables: tuple[Param, ...]) -> str:
+    """The parameters of a node as help text: name, default, range or choices, description."""
+    lines = []
+    for param in (p for table in tables for p in table):
+        bounds = ''
+        if param.range is not None:
+            bounds = (
+                f' [{param.range[0]:g}, {param.range[1]:g}]'
+                if isinstance(param.default, float)
+                else f' [{param.range[0]}, {param.range[1]}]'
+            )
+        elif param.choices:
+            bounds = f' ({"|".join(param.choices)})'
+        default = (
+            '(unset)'
+            if param.default is None
+            else repr(param.default)
+            if isinstance(param.default, str)
+            else str(param.default).lower()
+            if isinstance(param.default, bool)
+            else str(param.default)
+        )
+        lines.append(f'  {param.name}{" *" if param.dynamic else ""} = {default}{bounds}')
+        lines.append(f'      {param.description}')
+    return '\n'.join(lines)
+
+
+# Parameters every rclpy node declares itself.
+BUILT_IN = ('use_sim_time', 'start_type_description_service')
+
+
+def check_section(node_name: str, values: dict, *tables: tuple[Param, ...]) -> None:
+    """Refuse a params-file section as the node would at start-up: an unknown name, a value
+    of another type than the default's, out of range or outside the choices. For readers of
+    a params file that start no node (eqhrl-experiment's in-process runs)."""
+    by_name = {p.name: p for table in tables for p in table}
+    unknown = sorted(set(values) - set(by_name) - set(BUILT_IN))
+    if unknown:
+        raise ValueError(
+            f"unknown parameter(s) for node '{node_name}': {', '.join(unknown)}; known: {', '.join(sorted(by_name))}"
+        )
+    for name, value in values.items():
+        param = by_name.get(name)
+        if param is None:
+            continue
+        if param.kind == 'double_array':
+            if not (
+                isinstance(value, list)
+                and value
+                and all(isinstance(v, float) or (isinstance(v, int) and not isinstance(v, bool)) for v in value)
+            ):
+                raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected a list of numbers")
+            continue
+        if param.kind == 'integer_array':
+            if not (isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
+                raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected a list of integers")
+            continue
+        if param.kind == 'string_array':
+            if not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
+                raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected a list of strings")
+            continue
+        kind = type(param.default)
+        same = (
+            isinstance(value, kind) and not (kind is int and isinstance(value, bool))
+            if kind is not list
+            else isinstance(value, list)
+        )
+        if not same:
+            raise ValueError(
+                f"parameter '{name}' of node '{node_name}' is {value!r}; expected a "
+                f'{kind.__name__} like {param.default!r}'
+            )
+        if param.range is not None and not param.range[0] <= value <= param.range[1]:
+            raise ValueError(
+                f"parameter '{name}' of node '{node_name}' is {value!r}; expected [{param.range[0]}, {param.range[1]}]"
+            )
+        if param.choices and value not in param.choices:
+            raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected one of {param.choices}")
+
+
+def file_section(data: dict, node_name: str) -> dict:
+    """A node's parameters from a parsed params file, as rcl gives them to the node: its own
+    section and the shared `/**` section, applied in the order they appear in the file (a key
+    in both takes the value of the later one)."""
+
+    def values(key):
+        section = data.get(key) or {}
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not isinstance(params or {}, dict):
+            raise ValueError(f"params file section '{key}' must hold a ros__parameters mapping")
+        return dict(params or {})
+
+    unknown = sorted(set(values('/**')) - set(SHARED_PARAM_NAMES))
+    if unknown:
+        raise ValueError(
+            f"the shared '/**' section holds {', '.join(unknown)}, which not every node accepts; "
+            f"shared keys: {', '.join(SHARED_PARAM_NAMES)} (put the others in the node's own section)"
+        )
+    merged = {}
+    for key in data:  # the file's order (yaml keeps it)
+        if key in ('/**', node_name, f'/{node_name}'):
+            merged.update(values(key))
+    return merged
+
+
+def default_of(table: tuple[Param, ...], name: str) -> Any:
+    """The default of parameter ``name`` in ``table`` (KeyError if it has none there)."""
+    for param in table:
+        if param.name == name:
+            return param.default
+    raise KeyError(f'no parameter {name!r} in this table')
