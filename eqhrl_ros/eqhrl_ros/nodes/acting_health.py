@@ -19,7 +19,7 @@ def acting_checks(node) -> list:
         timeouts = done.failed['timeout'] + current.failed['timeout']
         declined = done.declined + current.declined
         recent = list(itertools.islice(reversed(node.advice.latencies), 1000))  # the last 1,000 answers
-        stalled = node._stalled_since
+        stalled = node.tracking.stalled_since
         window = learner.advice_window()
     servers = node.advice.servers()
     p50, p99 = (f'{v:.0f}' for v in np.percentile(np.asarray(recent) * 1000, (50, 99))) if recent else ('-', '-')
@@ -42,8 +42,8 @@ def acting_checks(node) -> list:
         expert = Check('expert', WARN, f'{timeouts} of {asked} requests timed out', values)
     else:
         expert = Check('expert', OK, f'{servers} expert(s) reachable', values)
-    if node._stopped_since is not None:
-        env = Check('env', WARN, f'STOPPED by the person for {time.monotonic() - node._stopped_since:.1f} s')
+    if node.tracking.stopped_since is not None:
+        env = Check('env', WARN, f'STOPPED by the person for {time.monotonic() - node.tracking.stopped_since:.1f} s')
     elif stalled is not None:
         env = Check('env', WARN, f'no observation for {time.monotonic() - stalled:.1f} s (paused, stopped or starved)')
     else:

@@ -9,7 +9,8 @@ Its jobs, each in a part of its own:
   another node;
 - the person's takeover (core/experts/takeover.py: the rule; this node feeds it the commands);
 - the health it reports on /diagnostics (nodes/acting_health.py);
-- following the env's steps into transitions, across gaps, restarts and stalls (here).
+- what each observation means for the episode, across gaps, restarts, stalls and stops
+  (nodes/episode_tracking.py); turning them into transitions (here).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from . import messages
 from .acting_health import acting_checks
 from .advice_client import AdviceClient, PendingAdvice
 from .env_info import EnvInfoWatcher, configured_spec, shown
+from .episode_tracking import EpisodeTracking
 from .health import WARN, Check, Health
 from .messages import printable_name
 from .params import choices_validator, declare, reject_unknown_overrides
@@ -92,7 +94,6 @@ class ActingNode(Node):
         self._stop_topic = self.create_subscription(
             Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS
         ).topic_name
-        self._stopped_since: Optional[float] = None  # time.monotonic() when the current stop began
         self.early_observations = 0  # observations before the spaces were known (ignored)
         self.recording: Optional[NodeRecord] = None  # record: true (the learner node)
 
@@ -101,16 +102,11 @@ class ActingNode(Node):
         # starts), ROS time stands still, and an advice timeout or a stall must still fire.
         self._steady = steady_clock()
         self.advice = AdviceClient(self, self.params, self._lock, self._steady, self._resolve)
-        self._state: Optional[np.ndarray] = None  # s_t the last action answered
-        self._key: Optional[tuple] = None  # its (env episode, env step)
+        self.tracking = EpisodeTracking(self.get_logger())  # the step acted on, gaps, stalls, stops
         self._last_action: Optional[np.ndarray] = None
         self._last_advised = False
         self.dropped_messages = 0
-        self.stalls = 0  # times no observation came for stall_timeout_s mid-episode
-        self._stalled_since: Optional[float] = None
-        self.observation_gaps = 0  # an observation that skipped steps (a message was lost)
         self.repeated_observations = 0  # the env re-sent an observation (our action did not arrive in time)
-        self._last_observation_time = time.monotonic()
         self.create_timer(0.25, self._check_stall, clock=self._steady)
         self.done = False
         self.summaries: list[EpisodeSummary] = []
@@ -118,6 +114,14 @@ class ActingNode(Node):
             self, configured_spec(p), self._configure, working=lambda: bool(self.learner and self.learner.total_steps)
         )
         self.health = Health(self, self.health_checks)
+
+    @property
+    def stalls(self) -> int:
+        return self.tracking.stalls
+
+    @property
+    def observation_gaps(self) -> int:
+        return self.tracking.observation_gaps
 
     def health_checks(self) -> list:
         """The expert, the env and the budget, for /diagnostics (nodes/acting_health.py)."""
@@ -183,12 +187,9 @@ class ActingNode(Node):
             if self.learner is None:
                 self.early_observations += 1  # the env re-sends it; acted on once the spaces are known
                 return
-            self._last_observation_time = time.monotonic()
+            self.tracking.observed()
             if self.recording is not None:
                 self.recording.write_raw(self._observation_topic, Float32MultiArray, data)
-            if self._stalled_since is not None:
-                self.get_logger().info(f'observations are back after {time.monotonic() - self._stalled_since:.1f} s')
-                self._stalled_since = None
             try:
                 env_step = messages.parse_observation(self._observation_reader.values(data), self.learner.obs_dim)
             except messages.MessageError as error:
@@ -196,7 +197,7 @@ class ActingNode(Node):
                 self.get_logger().error(f'dropped observation: {error}', throttle_duration_sec=5.0)
                 return
             key = (env_step.episode, env_step.step)
-            if key == self._key:
+            if key == self.tracking.key:
                 self.repeated_observations += 1
                 # The env sent the same observation again: our action did not reach it.
                 if self.advice.pending is None and self._last_action is not None:
@@ -206,65 +207,23 @@ class ActingNode(Node):
                 self._observe_while_waiting(env_step, key)
                 return
 
-            if self._follows(key):
+            if self.tracking.follows(key):
                 if self._store(env_step):
                     return  # the episode ended; the env's reset message starts the next
             else:
-                self._start_from(env_step, key)
+                self.tracking.start_from(self.learner, env_step, key)
             if env_step.done:
                 # A final observation with no predecessor we acted on: nothing to store or act on.
-                self._key = key
-                self._state = None
+                self.tracking.key = key
+                self.tracking.state = None
                 return
             self._act(env_step.obs, key)
-
-    def _start_from(self, env_step: messages.EnvStep, key: tuple) -> None:
-        """An observation that does not continue the transition we acted on. What the
-        record gets: a new env episode (step 0) abandons an unfinished one of ours (no row,
-        its index reused: the env restarted); a later step of the same env episode marks
-        ours interrupted (a message was lost); any other step > 0 is a mid-episode start,
-        also marked interrupted. No transition is ever made across the gap."""
-        same_episode = self._key is not None and key[0] == self._key[0] and key[1] > self._key[1]
-        if env_step.step == 0:
-            if self.learner.episode_step > 0:
-                self.get_logger().warn(
-                    f'the env started a new episode: abandoning episode '
-                    f'{self.learner.episode} after {self.learner.episode_step} steps '
-                    '(no row is written; the index is reused)'
-                )
-            self.learner.abandon_episode()  # a fresh start, also of an interrupted mark
-            return
-        if same_episode and self.learner.episode_step > 0:
-            self.observation_gaps += 1
-            self.get_logger().warn(
-                f'observation {key} does not follow {self._key}: episode '
-                f'{self.learner.episode} continues, marked interrupted',
-                throttle_duration_sec=5.0,
-            )
-        else:
-            if self.learner.episode_step > 0:
-                self.get_logger().warn(
-                    f'observation {key} is from another env episode than {self._key}: '
-                    f'abandoning episode {self.learner.episode}',
-                    throttle_duration_sec=5.0,
-                )
-                self.learner.abandon_episode()
-            self.get_logger().info(
-                f'joining the env mid-episode at {key}: episode {self.learner.episode} is marked interrupted',
-                throttle_duration_sec=5.0,
-            )
-        self.learner.mark_interrupted()
-
-    def _follows(self, key: tuple) -> bool:
-        return (
-            key[1] > 0 and self._state is not None and self._key is not None and key == (self._key[0], self._key[1] + 1)
-        )
 
     def _observe_while_waiting(self, env_step: messages.EnvStep, key: tuple) -> None:
         """A real-time env keeps stepping with the held (previous) action while the person
         decides: those are real transitions, stored as such; the advice, when it comes,
         applies to the latest observation. (A lock-step env sends nothing meanwhile.)"""
-        if not self._follows(key) or self._last_action is None:
+        if not self.tracking.follows(key) or self._last_action is None:
             return
         if env_step.done:
             # The episode ends before the answer: counted as such (not the person's timeout), and
@@ -279,13 +238,13 @@ class ActingNode(Node):
             )
         self._last_advised = False
         if not self._store(env_step):
-            self._state, self._key = env_step.obs, key
+            self.tracking.state, self.tracking.key = env_step.obs, key
 
     def _store(self, env_step: messages.EnvStep) -> bool:
         """Hand on the transition the message completes; returns True when the episode ended."""
         try:
             summary = self._transition(
-                self._state,
+                self.tracking.state,
                 self._last_action,
                 env_step.reward,
                 env_step.obs,
@@ -300,8 +259,8 @@ class ActingNode(Node):
             return False
         if summary is None:
             return False
-        self._key = (env_step.episode, env_step.step)
-        self._state = None
+        self.tracking.key = (env_step.episode, env_step.step)
+        self.tracking.state = None
         self._on_episode_end(summary)
         return True
 
@@ -329,7 +288,7 @@ class ActingNode(Node):
                 self.recording.write(self._person_topic, msg)
 
     def _act(self, obs: np.ndarray, key: tuple) -> None:
-        self._state, self._key = obs, key
+        self.tracking.state, self.tracking.key = obs, key
         proposal = self.learner.propose(obs)
         if self.params['publish_gate_debug'] or self.recording is not None:
             gate = messages.gate_msg(self.learner.episode, self.learner.episode_step, proposal.decision)
@@ -388,7 +347,7 @@ class ActingNode(Node):
         self._publish_action(self._last_action)
 
     def _publish_action(self, action: np.ndarray) -> None:
-        self._publish_recorded(self.action_pub, self._action_out.fill(action, *self._key))
+        self._publish_recorded(self.action_pub, self._action_out.fill(action, *self.tracking.key))
 
     def _publish_recorded(self, publisher, msg) -> None:
         """Publish, and write into the record when there is one."""
@@ -403,47 +362,16 @@ class ActingNode(Node):
     # ------------------------------------------------------------------ a vanished env
 
     def _check_stall(self) -> None:
-        """Say, once per silence, that the env has gone quiet. Nothing is dropped here: a
-        paused or starved env (or this process itself starved) comes back with the next step
-        of the same episode, which then simply continues; an env that restarted comes back
-        with step 0, which abandons the unfinished episode (see _start_from)."""
         with self._lock:
-            if (
-                self.done
-                or self._state is None
-                or self.advice.pending is not None
-                or self._stalled_since is not None
-                or self._stopped_since is not None  # the person's STOP: a pause, not a stall
-            ):
-                return
-            silent = time.monotonic() - self._last_observation_time
-            if silent < self.params['stall_timeout_s']:
-                return
-            self.stalls += 1
-            self._stalled_since = self._last_observation_time
-            self.get_logger().warn(
-                f'no observation for {silent:.1f} s in episode {self.learner.episode} (step '
-                f'{self.learner.episode_step}): waiting for the env; the episode continues if its next '
-                'step comes, and is abandoned if the env starts a new one'
-            )
+            if not self.done:
+                waiting = self.advice.pending is not None
+                self.tracking.check_stall(self.learner, waiting, self.params['stall_timeout_s'])
 
     def _on_stop(self, msg: Bool) -> None:
-        """The person's STOP pressed or released: the episode current at the release is paused for
-        as long as it held (a stop latched before the env's spaces were known counts when released)."""
         with self._lock:
             if self.recording is not None:
                 self.recording.write(self._stop_topic, msg)
-            now = time.monotonic()
-            if bool(msg.data) and self._stopped_since is None:
-                self._stopped_since = now
-                if self.learner is not None:
-                    self.get_logger().warn(f'STOPPED by the person: episode {self.learner.episode} paused')
-            elif not msg.data and self._stopped_since is not None:
-                held, self._stopped_since = now - self._stopped_since, None
-                self._last_observation_time = now  # the env steps again from now: no stall before
-                if self.learner is not None:
-                    self.learner.note_stopped(held, starts=True)
-                    self.get_logger().info(f'stop released after {held:.1f} s: episode {self.learner.episode} goes on')
+            self.tracking.stop(bool(msg.data), self.learner)
 
     # ------------------------------------------------------------------ episodes
 

@@ -118,7 +118,7 @@ class ActorNode(ActingNode):
         if limit and learning and self._steps_on_weights >= limit:
             # The env waits for our answer (lock-step); we wait for the trainer's next weights.
             # No previous action to re-send meanwhile: a re-sent observation gets nothing.
-            self._state, self._key, self._last_action = obs, key, None
+            self.tracking.state, self.tracking.key, self._last_action = obs, key, None
             self._deferred = (obs, key)
             self.weights_waits += 1
             return

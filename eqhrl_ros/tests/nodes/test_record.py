@@ -31,7 +31,7 @@ def recorded_run(harness, ros_context, out, episodes=4, images=False, on_start=N
     if on_start is not None:
         # The learner has heard the latched STOP (a fixed wait lost it under load: only the
         # release was in the record).
-        assert harness.spin_until(lambda: learner._stopped_since is not None, timeout=30)
+        assert harness.spin_until(lambda: learner.tracking.stopped_since is not None, timeout=30)
         on_start()
     assert harness.spin_until(lambda: learner.done, timeout=90)
     learner.close()

@@ -134,7 +134,7 @@ def test_a_stop_pauses_the_learners_episode_and_its_record_says_how_long(harness
     stop = stopper(harness)
     assert harness.spin_until(lambda: env.steps_taken >= 20, timeout=20)
     stop.publish(Bool(data=True))
-    assert harness.spin_until(lambda: env.stopped and learner._stopped_since is not None)
+    assert harness.spin_until(lambda: env.stopped and learner.tracking.stopped_since is not None)
     harness.spin_until(lambda: False, timeout=1.0)  # past stall_timeout_s: still no stall
     assert learner.stalls == 0 and learner.learner.episode == 0
     stop.publish(Bool(data=False))
