@@ -1,8 +1,35 @@
+import importlib.util
+import json
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
+from setuptools.command.build_py import build_py
 
 package_name = 'eqhrl_ros'
+HERE = Path(__file__).resolve().parent
+
+
+def git_state() -> dict:
+    """The source tree's commit and whether it has changes not committed, as every run folder
+    names them (eqhrl_ros/core/runs/provenance.py, read here by its path: the package is not
+    importable while it is being built)."""
+    spec = importlib.util.spec_from_file_location('provenance', HERE / package_name / 'core/runs/provenance.py')
+    provenance = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(provenance)
+    return provenance.git_state(HERE)
+
+
+class BuildWithCommit(build_py):
+    """The package as built, with eqhrl_ros/build_info.json: git_state() of its source tree
+    ({} where it is not a git checkout)."""
+
+    def run(self):
+        super().run()
+        target = Path(self.build_lib) / package_name / 'build_info.json'
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(json.dumps(git_state()) + '\n')
+
 
 setup(
     name=package_name,
@@ -24,6 +51,7 @@ setup(
     description='EQ-HRL human-in-the-loop reinforcement learning for ROS 2.',
     license='Apache-2.0',
     tests_require=['pytest'],
+    cmdclass={'build_py': BuildWithCommit},
     entry_points={
         'console_scripts': [
             'gym_env = eqhrl_ros.cli.node_programs:gym_env',

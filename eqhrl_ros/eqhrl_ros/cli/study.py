@@ -25,7 +25,10 @@ learner settings and expert:
   per step inside the budget in seed k; the run waits for that one to finish. With
   ``match_timing: episode``, the arm instead asks in each episode exactly as many times as the
   named arm did in that episode of seed k, at random steps of it (random_ask_schedule): matched
-  in number and in timing.
+  in number and in timing. With ``match_timing: steps`` (an extension; the named arm needs
+  ``gate_trace``), each episode asks at the steps the named arm asked at in that episode of seed k,
+  moved round the episode by a random offset (random_ask_steps): matched in number, gaps and runs
+  of requests; the report's placement table checks it.
 - ``match`` and ``thins`` (mode ask_random): the arm's random_ask_rate for seed k is the
   ``match`` arm's requests over the ``thins`` arm's (e.g. EQSAC's over QASAC's): the ask gate
   thinned by chance to about the number of requests the entropy gate let through.

@@ -45,6 +45,7 @@ runs/       a run from start to end
   trainer.py      Trainer: learning fed by actor nodes (acting and learning apart)
   checkpoint.py   checkpoints with their replay memories
   resume_point.py a lone in-process run saved between episodes and resumed exactly
+  provenance.py   what made a run: its commit, version and tree state (provenance.yaml)
   records.py      a run's folder: episodes.csv and where saves go
   evaluation.py   the advice-free evaluation of a policy
 """

@@ -8,6 +8,7 @@ import numbers
 import time
 from pathlib import Path
 
+from ..core.runs.provenance import note_provenance
 from .ros_runs import run_through_ros
 from .settings import Settings, learner_config, make_expert
 
@@ -216,10 +217,11 @@ def run_worker(settings, algorithm, seed, directory, through_ros, progress, doma
     directory.mkdir(parents=True, exist_ok=True)
     (directory / 'DONE').unlink(missing_ok=True)
     start = time.monotonic()
-    if through_ros:
+    if through_ros:  # the learner node notes what made it (core/runs/provenance.py)
         run_through_ros(settings, algorithm, seed, directory, progress, domain_id)
         elapsed = time.monotonic() - start
     else:
+        note_provenance(directory)
         elapsed = run_in_process(settings, algorithm, seed, directory, progress, domain_id)
     (directory / 'DONE').write_text(f'{elapsed:.1f}\n')
     if not through_ros:
@@ -235,6 +237,7 @@ def group_worker(settings, algorithm, seeds, output, progress) -> tuple:
         directory = run_dir(output, algorithm, seed)
         directory.mkdir(parents=True, exist_ok=True)
         (directory / 'DONE').unlink(missing_ok=True)
+        note_provenance(directory)
     start = time.monotonic()
     run_together(settings, algorithm, seeds, output, progress)
     return algorithm, tuple(seeds), time.monotonic() - start

@@ -29,7 +29,7 @@ PLAN_KEYS = {
 }
 GROUP_KEYS = {'name', 'seeds', 'arms', 'description'}
 ARM_KEYS = {'mode', 'learner', 'expert', 'match', 'match_timing', 'thins', 'gate_trace', 'label'}
-MATCH_TIMINGS = ('rate', 'episode')
+MATCH_TIMINGS = ('rate', 'episode', 'steps')
 
 
 @dataclass
@@ -41,7 +41,9 @@ class Arm:
     learner: dict = field(default_factory=dict)
     expert: dict = field(default_factory=dict)
     match: str = ''
-    match_timing: str = 'rate'  # mode random: 'rate' (requests per step) or 'episode' (per-episode counts)
+    # mode random: 'rate' (requests per step), 'episode' (per-episode counts) or 'steps' (the
+    # matched run's requests in each episode, moved by a random offset: random_ask_steps)
+    match_timing: str = 'rate'
     thins: str = ''  # mode ask_random: the rate is match's requests over this arm's
     gate_trace: bool = False
     label: str = ''  # how tables and figures name it (default: the arm's name)
@@ -135,6 +137,11 @@ def load_plan(name_or_path: str) -> Plan:
             raise ValueError(f'{path}: arm {arm.name!r}: thins is for mode ask_random')
         if arm.match_timing != 'rate' and arm.mode != 'random':
             raise ValueError(f'{path}: arm {arm.name!r}: match_timing is for mode random')
+        if arm.match_timing == 'steps' and not any(a.name == arm.match and a.gate_trace for a in arms):
+            raise ValueError(
+                f'{path}: arm {arm.name!r}: match_timing steps reads the steps {arm.match!r} asked at from its '
+                'gates.csv: give that arm gate_trace: true'
+            )
         for key, other in (('match', arm.match), ('thins', arm.thins)):
             if not other:
                 continue

@@ -28,6 +28,21 @@ def requests_per_episode(run: Path, budget: int) -> list[tuple[int, int]]:
     return [rows.get(e, (0, 0)) for e in range(max(rows) + 1)] if rows else []
 
 
+def requested_steps(run: Path, budget: int) -> list[int]:
+    """random_ask_steps of a finished run with a gate trace: for each of its first ``budget``
+    episodes, its length and the steps it asked at, then -1."""
+    fired: dict = {}
+    with (run / 'gates.csv').open(newline='') as f:
+        for row in csv.DictReader(f):
+            if int(row['episode']) < budget and int(float(row['fire'])):
+                fired.setdefault(int(row['episode']), []).append(int(row['step']))
+    flat = []
+    for episode, (_, length) in enumerate(requests_per_episode(run, budget)):
+        flat += [max(1, length), *sorted(set(fired.get(episode, ())))]
+        flat.append(-1)
+    return flat
+
+
 def matched_rate(run: Path, budget: int) -> tuple[float, int, int]:
     """(requests per step, requests, steps) inside the first ``budget`` episodes of a finished run."""
     episodes = requests_per_episode(run, budget)
@@ -104,6 +119,10 @@ def ready_settings(plan: Plan, arm: Arm, seed: int, output: Path, settings: dict
         rate = min(1.0, asked / thin_asked) if thin_asked else 0.0
         learner = {'random_ask_rate': rate}
         record.update(thins=arm.thins, thinned_requests=thin_asked, random_ask_rate=rate)
+    elif arm.match_timing == 'steps':
+        steps = requested_steps(matched, budget_of(settings[arm.match]))
+        learner = {'random_ask_steps': steps}
+        record.update(random_ask_steps=steps)
     elif arm.match_timing == 'episode':
         schedule = [a for a, _ in requests_per_episode(matched, budget_of(settings[arm.match]))]
         learner = {'random_ask_schedule': schedule, 'random_ask_horizon': own.max_episode_steps}

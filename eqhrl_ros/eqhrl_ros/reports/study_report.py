@@ -20,6 +20,7 @@ from .study_tables import (
     frontier_table,
     gate_rates,
     person_table,
+    placement_table,
     stated_tests,
     timing_table,
 )
@@ -106,6 +107,9 @@ def report_sections(
     placed = frontier_table(arms, scores)
     if placed:
         sections += ['', '## The effort frontier: each gate against random requests at the same count', '', placed]
+    placement = placement_table(folder, arms)
+    if placement:
+        sections += ['', '## Where the matched arms asked, beside the runs they are matched to', '', placement]
     rates = gate_rates(folder, updates_from, {name: c.queue_length for name, c in configs.items()})
     if rates:
         sections += ['', '## How often the gates opened inside the budget', '', rates]

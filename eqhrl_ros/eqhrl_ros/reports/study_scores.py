@@ -145,6 +145,9 @@ ADVISING_ONLY = {
     'threshold_kind',
     'fixed_d_threshold',
     'fixed_e_threshold',
+    'random_ask_schedule',
+    'random_ask_steps',
+    'request_refractory_steps',
 }
 
 

@@ -243,3 +243,52 @@ def frontier_table(arms: list, scores: dict) -> str:
             f'| {p.gain:+.1f} [{p.low:+.1f}, {p.high:+.1f}] | {above[0]} | {above[1]} |'
         )
     return '\n'.join(lines)
+
+
+def clustered_share(steps_by_episode: dict, within: int = 2) -> float:
+    """The share of requests with another request of the same episode at most ``within`` steps away."""
+    near = total = 0
+    for steps in steps_by_episode.values():
+        ordered = sorted(steps)
+        for i, step in enumerate(ordered):
+            total += 1
+            near += (i > 0 and step - ordered[i - 1] <= within) or (
+                i + 1 < len(ordered) and ordered[i + 1] - step <= within
+            )
+    return near / total if total else float('nan')
+
+
+def placement_table(folder: Path, arms: list) -> str:
+    """Whether each matched arm asked where its reference's placement says (both with a gate
+    trace): requests in all, the episodes whose counts agree, and the clustering of requests
+    (the share within 2 steps of another) of the reference and of the matched arm."""
+    if not (folder / 'gates.csv').exists():
+        return ''
+    fired: dict = defaultdict(lambda: defaultdict(list))  # (arm, seed) -> episode -> steps asked at
+    for row in read_csv(folder / 'gates.csv'):
+        runs = fired[(row['arm'], int(row['seed']))]
+        runs.setdefault(int(row['episode']), [])
+        if int(float(row['fire'])):
+            runs[int(row['episode'])].append(int(row['step']))
+    lines = [
+        '| arm | matched to | seeds | requests (arm / reference) | episodes with the same count '
+        '| within 2 steps of another: reference | arm |',
+        '|---|---|---|---|---|---|---|',
+    ]
+    for arm in arms:
+        seeds = sorted(s for a, s in fired if a == arm.name and (arm.match, s) in fired) if arm.match else []
+        if not seeds:
+            continue
+        ours = {s: fired[(arm.name, s)] for s in seeds}
+        theirs = {s: fired[(arm.match, s)] for s in seeds}
+        same = sum(len(ours[s].get(e, [])) == len(steps) for s in seeds for e, steps in theirs[s].items())
+        episodes = sum(len(theirs[s]) for s in seeds)
+        asked = sum(len(v) for s in seeds for v in ours[s].values())
+        reference = sum(len(v) for s in seeds for v in theirs[s].values())
+        ref_share = clustered_share({(s, e): v for s in seeds for e, v in theirs[s].items()})
+        arm_share = clustered_share({(s, e): v for s in seeds for e, v in ours[s].items()})
+        lines.append(
+            f'| {arm.label} | {arm.match} | {len(seeds)} | {asked} / {reference} | {same} of {episodes} '
+            f'| {100 * ref_share:.0f} % | {100 * arm_share:.0f} % |'
+        )
+    return '\n'.join(lines) if len(lines) > 2 else ''

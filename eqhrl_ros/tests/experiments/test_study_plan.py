@@ -42,3 +42,51 @@ def test_a_cloned_runs_time_comes_from_its_done_mark_not_the_files_times(tmp_pat
     (run / 'STARTED').touch()  # a clone or a copy: both marks written at the same moment
     (run / 'DONE').write_text('90.0\n')  # as run_worker writes it: the run's seconds
     assert study_runs.run_minutes(run) == pytest.approx(1.5)
+
+
+def test_a_step_matched_arm_takes_the_steps_its_reference_asked_at_from_its_gate_trace(tmp_path):
+    import csv
+
+    run = tmp_path / 'eqsac' / 'seed0'
+    run.mkdir(parents=True)
+    with (run / 'episodes.csv').open('w', newline='') as f:
+        writer = csv.writer(f)
+        writer.writerow(['episode', 'advice_asked', 'length'])
+        writer.writerows([[0, 2, 10], [1, 0, 8], [2, 1, 10]])
+    with (run / 'gates.csv').open('w', newline='') as f:
+        writer = csv.writer(f)
+        writer.writerow(['episode', 'step', 'fire'])
+        writer.writerows([[0, s, int(s in (3, 4))] for s in range(10)] + [[1, s, 0] for s in range(8)])
+        writer.writerows([[2, s, int(s == 9)] for s in range(10)])
+    steps = study_runs.requested_steps(run, budget=2)  # episode 2 is past the budget
+    assert steps == [10, 3, 4, -1, 8, -1]
+    from eqhrl_ros.core.algorithm.advising import step_patterns
+
+    assert step_patterns(tuple(steps)) == [(10, (3, 4)), (8, ())]
+
+
+def test_a_step_matched_arm_needs_a_reference_with_a_gate_trace(tmp_path):
+    plan = {
+        'name': 'p',
+        'params': 'pendulum',
+        'episodes': 2,
+        'groups': [
+            {
+                'name': 'g',
+                'seeds': [0],
+                'arms': {
+                    'eqsac': {'mode': 'eqsac'},
+                    'random': {'mode': 'random', 'match': 'eqsac', 'match_timing': 'steps'},
+                },
+            }
+        ],
+    }
+    import yaml
+
+    path = tmp_path / 'plan.yaml'
+    path.write_text(yaml.safe_dump(plan, sort_keys=False))
+    with pytest.raises(ValueError, match='gate_trace'):
+        study_plan.load_plan(str(path))
+    plan['groups'][0]['arms']['eqsac']['gate_trace'] = True
+    path.write_text(yaml.safe_dump(plan, sort_keys=False))
+    assert [a.match_timing for a in study_plan.load_plan(str(path)).arms] == ['rate', 'steps']

@@ -69,3 +69,24 @@ def test_the_effort_frontier_places_each_gate_against_chance_at_its_request_coun
     assert 'outside its range' in table and '| gate | 6 | 20 |' in table
     assert plot_frontier(arms, scores, tmp_path / 'frontier.png') and (tmp_path / 'frontier.png').stat().st_size > 0
     assert frontier(arms[:2] + arms[3:], scores)[0] == [line[0]] and not frontier_table(arms[:2] + arms[3:], scores)
+
+
+def test_the_placement_table_shows_whether_a_matched_arm_asked_as_clustered_as_its_reference(tmp_path):
+    import csv
+
+    from eqhrl_ros.reports.study_scores import ArmInfo
+    from eqhrl_ros.reports.study_tables import clustered_share, placement_table
+
+    assert clustered_share({0: [3, 4, 10], 1: [0]}) == 0.5  # 3 and 4 are near; 10 and 0 alone
+    rows = []
+    for seed in (0, 1):
+        for step in range(20):
+            rows.append(['eqsac', seed, 0, step, int(step in (5, 6, 7))])  # a clustered reference
+            rows.append(['random', seed, 0, step, int(step in (1, 9, 15))])  # as many, spread out
+    with (tmp_path / 'gates.csv').open('w', newline='') as f:
+        writer = csv.writer(f)
+        writer.writerow(['arm', 'seed', 'episode', 'step', 'fire'])
+        writer.writerows(rows)
+    arms = [ArmInfo('eqsac', 'EQSAC', 'g', 'eqsac', ''), ArmInfo('random', 'random', 'g', 'random', 'eqsac')]
+    table = placement_table(tmp_path, arms)
+    assert '| random | eqsac | 2 | 6 / 6 | 2 of 2 | 100 % | 0 % |' in table

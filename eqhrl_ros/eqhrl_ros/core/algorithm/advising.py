@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 from collections import deque
@@ -11,6 +12,25 @@ from typing import Iterable
 from . import equations as eq
 from .advice_window import AdviceBudget
 from .config import EXTENSION_MODES, LearnerConfig, check_value
+
+
+def step_patterns(flat: tuple) -> list:
+    """random_ask_steps as [(length, steps)] per episode, or ValueError naming what is wrong."""
+    patterns, block = [], []
+    for value in flat:
+        if value != -1:
+            block.append(value)
+            continue
+        if not block or block[0] < 1:
+            raise ValueError(f'random_ask_steps: each episode starts with its length (>= 1), found {block[:1]}')
+        length, steps = block[0], block[1:]
+        if any(not 0 <= s < length for s in steps) or len(set(steps)) != len(steps):
+            raise ValueError(f'random_ask_steps: the steps of an episode of {length} are distinct, in [0, {length})')
+        patterns.append((length, tuple(steps)))
+        block = []
+    if block:
+        raise ValueError('random_ask_steps: the last episode is not ended by -1')
+    return patterns
 
 
 class FifoQueue:
@@ -55,12 +75,15 @@ class GateDecision:
     # mode joint_rank: the rank product of D(s) and E(s) and the threshold it was held against
     joint_rank: float = float('nan')
     joint_threshold: float = float('nan')
+    refractory: bool = False  # the gates fired, but a request of this episode was too few steps ago
 
     @property
     def reason(self) -> str:
         """Why the gates fired or not, in words (made only when someone reads it)."""
         if not self.within_budget:
             return "outside the advising budget (Eq. 7) or the person's seconds, or mode sac"
+        if self.refractory:
+            return 'the gates fired, but a request was made too few steps ago (request_refractory_steps)'
         if not self.queues_ready:
             return 'queues filling'
         has_d, has_e = not math.isnan(self.discrepancy), not math.isnan(self.entropy)
@@ -90,6 +113,9 @@ class AdvisingGates:
       ``random_ask_schedule``, exactly schedule[e] requests in episode e (while it lasts), at
       steps drawn uniformly among its first ``random_ask_horizon``: a baseline matched to
       another run episode by episode, so that it asks when that run asked, at other states.
+      With ``random_ask_steps`` (an extension), matched step by step: each episode asks at the
+      steps the other run asked at, moved round the episode's length by a random offset, so the
+      count, the gaps between requests and their runs are that run's, the place is chance's.
     - ``ask_random`` (baseline): asks when D(s) > max(D_queue) and a uniform draw is below
       ``random_ask_rate``: the ask gate thinned at random, where EQSAC thins it by E(s).
     Extensions beyond the paper (labelled so in every table):
@@ -120,6 +146,8 @@ class AdvisingGates:
         random_ask_horizon: int = 200,
         gate_target_rate: float = 0.015,
         gate_threshold_step: float = 0.01,
+        random_ask_steps: tuple = (),
+        request_refractory_steps: int = 0,
     ):
         # The rules of each value live with LearnerConfig's fields (core/algorithm/config.py).
         self.mode = check_value('mode', mode)
@@ -139,6 +167,11 @@ class AdvisingGates:
         self.random_ask_schedule = check_value('random_ask_schedule', random_ask_schedule)
         self.random_ask_horizon = check_value('random_ask_horizon', random_ask_horizon)
         self._scheduled_episode, self._scheduled_asked = -1, 0  # requests made so far in that episode
+        self.step_patterns = step_patterns(check_value('random_ask_steps', random_ask_steps))
+        self._shifted_episode = -1
+        self._shifted_steps: frozenset[int] = frozenset()  # the steps to ask at in that episode
+        self.request_refractory_steps = check_value('request_refractory_steps', request_refractory_steps)
+        self._last_request = (-1, 0)  # (episode, step) of the last request made
         self.gate_target_rate = check_value('gate_target_rate', gate_target_rate)
         self.gate_threshold_step = check_value('gate_threshold_step', gate_threshold_step)
         self.joint_threshold = 1.0  # mode joint_rank: starts at EQSAC's rule
@@ -165,7 +198,23 @@ class AdvisingGates:
         """Whether D(s), E(s) or the random draw are needed this step (skipped when they cannot matter)."""
         return self.budget.within_episodes(episode)
 
-    def decide(
+    def decide(self, episode: int, discrepancy=None, entropy=None, draw=None, step: int = 0) -> GateDecision:
+        """Whether to ask now (_decide: the mode's rule), then request_refractory_steps (an
+        extension): no request within that many steps after the last one of the episode."""
+        decision = self._decide(episode, discrepancy, entropy, draw, step)
+        if not decision.fire:
+            return decision
+        last_episode, last_step = self._last_request
+        if (
+            self.request_refractory_steps
+            and last_episode == episode
+            and step - last_step <= self.request_refractory_steps
+        ):
+            return dataclasses.replace(decision, fire=False, refractory=True)
+        self._last_request = (episode, step)
+        return decision
+
+    def _decide(
         self,
         episode: int,
         discrepancy: float | None = None,
@@ -259,6 +308,8 @@ class AdvisingGates:
         )
 
     def _random_request(self, episode: int, step: int, draw: float) -> bool:
+        if self.step_patterns:
+            return self._shifted_request(episode, step, draw)
         if not self.random_ask_schedule:
             return draw < self.random_ask_rate
         if episode != self._scheduled_episode:
@@ -270,6 +321,17 @@ class AdvisingGates:
         fire = left > 0 and draw * max(1, self.random_ask_horizon - step) < left
         self._scheduled_asked += int(fire)
         return fire
+
+    def _shifted_request(self, episode: int, step: int, draw: float) -> bool:
+        """random_ask_steps: the episode's pattern moved round its length by an offset drawn with
+        the episode's first draw (the same count, gaps and runs, at a random place)."""
+        if episode != self._shifted_episode:
+            self._shifted_episode, self._shifted_steps = episode, frozenset()
+            if episode < len(self.step_patterns):
+                length, steps = self.step_patterns[episode]
+                offset = min(int(draw * length), length - 1)
+                self._shifted_steps = frozenset((s + offset) % length for s in steps)
+        return step in self._shifted_steps
 
     def state_dict(self) -> dict:
         return {

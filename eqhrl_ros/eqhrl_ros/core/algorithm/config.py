@@ -156,6 +156,14 @@ class LearnerConfig:
         'uniformly among its first random_ask_horizon; a baseline matched in timing. Empty: random_ask_rate',
         range=(0, 100_000),
     )
+    random_ask_steps: tuple[int, ...] = hyper(
+        (),
+        'Mode random, matched step by step (an extension): per episode from the first, its length L and '
+        'the steps another run asked at, each episode ended by -1 (L, s1, s2, ..., -1, L, ..., -1). It asks '
+        'at (s + o) mod L, o drawn uniformly once per episode: the same count, gaps and runs of requests, '
+        'at a random place. Overrides random_ask_schedule and random_ask_rate. Empty: not used',
+        range=(-1, INT_MAX),
+    )
     random_ask_horizon: int = hyper(
         200,
         'Mode random with random_ask_schedule: the steps of an episode its requests are spread over',
@@ -170,6 +178,12 @@ class LearnerConfig:
     )
     gate_threshold_step: float = hyper(
         0.01, 'Mode joint_rank: how far its threshold moves per step toward gate_target_rate', range=(1e-6, 1.0)
+    )
+    request_refractory_steps: int = hyper(
+        0,
+        'An extension, for any mode that asks: no request within this many steps after the last one of '
+        'the same episode (a gate that cannot cluster its requests); 0: off, as in the paper',
+        range=(0, INT_MAX),
     )
     takeover_threshold: float = hyper(
         0.0,

@@ -48,7 +48,7 @@ from .memories import ReplayMemories
 from .networks import SquashedGaussianActor, TwinCritic
 from .observations import VectorObservation
 from .policy import Policy
-from .streams import RandomStreams
+from .streams import RandomStreams, stream_seeds
 from .updater import Updater, updates_after_a_step
 
 
@@ -89,7 +89,7 @@ def initial_networks(obs_dim: int, action_dim: int, config: LearnerConfig, devic
     """(actor, twin critic) initialised from the seed without disturbing the caller's global RNG,
     on the CPU: the same initial weights on every device."""
     with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(config.seed)
+        torch.manual_seed(stream_seeds(config.seed)['networks'])
         actor = SquashedGaussianActor(obs_dim, action_dim, config.hidden).to(device)
         critic = TwinCritic(obs_dim, action_dim, config.hidden).to(device)
     return actor, critic
@@ -109,6 +109,8 @@ def gates_for(config: LearnerConfig, budget: AdviceBudget) -> AdvisingGates:
         cfg.random_ask_horizon,
         cfg.gate_target_rate,
         cfg.gate_threshold_step,
+        cfg.random_ask_steps,
+        cfg.request_refractory_steps,
     )
 
 

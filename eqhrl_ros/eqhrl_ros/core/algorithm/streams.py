@@ -3,10 +3,20 @@ noise of the policy's own actions, and every path of the update draws the same n
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
-# Every stream a learner draws from, in the order they are seeded (seed + i).
+# Every stream a learner draws from; 'networks' seeds the networks' first weights.
 STREAMS = ('act', 'update', 'replay', 'entropy', 'warmup', 'request')
+
+
+def stream_seeds(seed: int) -> dict:
+    """A 64-bit seed per stream (and 'networks'), spawned from ``seed`` by numpy's SeedSequence:
+    independent of each other and of every other seed's (seeding stream i with seed + i, as this
+    package did until 2026-12, made seed k's update stream seed k+1's action stream)."""
+    names = (*STREAMS, 'networks')
+    children = np.random.SeedSequence(int(seed)).spawn(len(names))
+    return {name: int(child.generate_state(1, np.uint64)[0]) for name, child in zip(names, children)}
 
 
 class RandomStreams:
@@ -14,7 +24,8 @@ class RandomStreams:
 
     def __init__(self, seed: int, device: torch.device):
         self.device = device
-        self.generators = {name: torch.Generator().manual_seed(seed + i) for i, name in enumerate(STREAMS)}
+        seeds = stream_seeds(seed)
+        self.generators = {name: torch.Generator().manual_seed(seeds[name]) for name in STREAMS}
 
     def __getitem__(self, name: str) -> torch.Generator:
         return self.generators[name]

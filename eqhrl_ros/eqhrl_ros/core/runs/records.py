@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 from ..data.errors import RunFolderError
+from .provenance import note_provenance
 
 # Saves write '.<name>.<random>.tmp' beside their target, then rename it (core/runs/checkpoint.py).
 TEMPORARY_GLOB = '.*.pt.*.tmp'
@@ -78,6 +79,7 @@ class RunFolder:
         if resume and not self.checkpoint.exists():
             raise RunFolderError(f"nothing to resume: '{self.checkpoint}' does not exist")
         self.removed_temporaries = remove_stale_temporaries(self.path)
+        self.provenance = note_provenance(self.path)  # what made this start of the run
         if overwrite and not resume:
             for name in RUN_FILES:
                 (self.path / name).unlink(missing_ok=True)

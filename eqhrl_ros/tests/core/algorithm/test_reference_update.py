@@ -148,10 +148,23 @@ def reference_of(learner) -> dict:
     return ref
 
 
+# Two correct paths part where float rounding tips a pre-activation across ReLU's kink: that
+# sample's gradient through the unit is there in one path and not in the other, and Adam carries
+# the difference on (docs/performance.md). It touches a few weights, by at most about the steps'
+# size (lr per update); a wrong update moves many. So a tensor holds the reference when all but
+# MAX_KINKED of its values are within rounding, and those within KINK_ATOL.
+MAX_KINKED = 0.001
+KINK_ATOL = 2e-3
+
+
 def assert_holds_the_reference(learner, ref, what=''):
     def close(ours, reference, part):
         for i, (a, b) in enumerate(zip(ours, reference)):
-            torch.testing.assert_close(a.detach(), b.detach(), rtol=1e-4, atol=1e-5, msg=f'{what} {part} tensor {i}')
+            a, b = a.detach(), b.detach()
+            within = torch.isclose(a, b, rtol=1e-4, atol=1e-5)
+            message = f'{what} {part} tensor {i}: {int((~within).sum())} of {a.numel()} apart'
+            assert (~within).float().mean() <= MAX_KINKED, message
+            torch.testing.assert_close(a, b, rtol=0.0, atol=KINK_ATOL, msg=message)
 
     close(
         [t for layer in learner.actor.linear_layers() for t in layer],

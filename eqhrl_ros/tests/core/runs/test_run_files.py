@@ -138,7 +138,7 @@ def test_a_save_killed_between_its_two_renames_resumes_from_the_previous_pair_wi
     load_checkpoint(fresh, tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
     assert fresh.total_steps == 20 and len(fresh.replay) == 20  # the first save, whole
     # The folder holds one pair again: the next save and resume go as usual.
-    assert sorted(p.name for p in tmp_path.iterdir()) == ['checkpoint.pt', 'replay.pt']
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['checkpoint.pt', 'provenance.yaml', 'replay.pt']
     train_steps(fresh, 5)
     save_checkpoint(fresh, tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
     again = small_learner(seed=2)
