@@ -24,16 +24,17 @@ def read_rows(path):
 
 def start(executable, *args, log_dir, **popen):
     """A node as its own process; its output goes to a file (a full pipe would block it)."""
-    log = open(log_dir / f'{executable}-{time.monotonic_ns()}.log', 'w+')
+    log = open(log_dir / f'{executable}-{time.monotonic_ns()}.log', 'a')
     process = subprocess.Popen([str(BIN / executable), *args], stdout=log, stderr=subprocess.STDOUT, text=True, **popen)
     process.log = log
     return process
 
 
 def output(process) -> str:
-    process.log.flush()
-    process.log.seek(0)
-    return process.log.read()
+    # Through a handle of its own: seeking the process's handle would move their shared offset,
+    # and the process's next lines would overwrite its first ones (it appends: mode 'a').
+    with open(process.log.name, errors='replace') as log:
+        return log.read()
 
 
 def stop(process, sig=signal.SIGINT, timeout=30) -> str:

@@ -56,7 +56,7 @@ def two_hosts():
 
 def start_in(ns, peer, log_dir, name, *args):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='SUBNET', ROS_STATIC_PEERS=peer)
-    log = open(log_dir / f'{name}.log', 'w+')
+    log = open(log_dir / f'{name}.log', 'a')
     process = subprocess.Popen(
         ['ip', 'netns', 'exec', ns, str(BIN / args[0]), *args[1:]], stdout=log, stderr=subprocess.STDOUT, env=env
     )
@@ -65,9 +65,10 @@ def start_in(ns, peer, log_dir, name, *args):
 
 
 def text(process) -> str:
-    process.log.flush()
-    process.log.seek(0)
-    return process.log.read()
+    # Through a handle of its own: seeking the process's handle would move their shared offset,
+    # and the process's next lines would overwrite its first ones (it appends: mode 'a').
+    with open(process.log.name, errors='replace') as log:
+        return log.read()
 
 
 def rows(path):

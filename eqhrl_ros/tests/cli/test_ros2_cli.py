@@ -24,17 +24,17 @@ class Launched:
     the command and all it started."""
 
     def __init__(self, args, cwd, env, name='launch'):
-        self.log = open(cwd / f'{name}-{time.monotonic_ns()}.log', 'w+')
+        # The command appends to its log (O_APPEND) and the test reads it through a handle of its
+        # own: reading through the command's handle moved their shared offset back to the start,
+        # and the command's next lines overwrote its first ones.
+        self.path = cwd / f'{name}-{time.monotonic_ns()}.log'
+        self.log = open(self.path, 'a')
         self.process = subprocess.Popen(
             args, cwd=cwd, env=env, stdout=self.log, stderr=subprocess.STDOUT, text=True, start_new_session=True
         )
 
     def text(self) -> str:
-        if self.log.closed:
-            return self.final_text
-        self.log.flush()
-        self.log.seek(0)
-        return self.log.read()
+        return self.path.read_text(errors='replace')
 
     @property
     def ended(self) -> bool:
