@@ -49,6 +49,26 @@ def small_learner_params(tmp_path, **extra):
     return params(**values)
 
 
+def asking_learner_params(tmp_path, **extra):
+    """A small learner that asks often (random requests at 20 % of steps, 5 episodes of budget) and
+    never updates (the first update's compile would stall a real-time env for a second)."""
+    values = dict(mode='random', random_ask_rate=0.2, advising_budget=5, learning_starts=10**6)
+    return small_learner_params(tmp_path, **{**values, **extra})
+
+
+def applied_actions(env) -> list:
+    """The first action value the env node steps with, step by step (its _step, wrapped)."""
+    applied = []
+    original = env._step
+
+    def recording(action):
+        original(action)
+        applied.append(float(env._previous_action[0]))
+
+    env._step = recording
+    return applied
+
+
 class Harness:
     """Nodes in one executor, destroyed at the end of the test."""
 

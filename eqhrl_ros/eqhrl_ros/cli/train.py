@@ -25,7 +25,7 @@ import os
 import sys
 import time
 
-from ..core.algorithm.config import MODES
+from ..core.algorithm.config import ADVICE_PROTOCOLS, MODES, check_value
 from ..nodes.spinning import EXECUTORS
 
 DISCOVERY = ('off', 'localhost', 'subnet')
@@ -35,6 +35,14 @@ EXPERT_NODES = ('expert', 'teleop', 'none')  # the launch file's expert:= takes 
 
 class StartUpRefused(Exception):
     """A node refused the configuration (one line for the user, exit code 1)."""
+
+
+def _budget_seconds(text: str) -> float:
+    """--budget-s: the learner's own range check, said as a usage error."""
+    try:
+        return check_value('advising_budget_s', float(text))
+    except (ValueError, OverflowError) as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -50,6 +58,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument('--seed', type=int, help='overrides the env and learner seeds')
     parser.add_argument('--max-steps', type=int, help='overrides gym_env max_episode_steps')
     parser.add_argument('--budget', type=int, help='overrides learner advising_budget')
+    parser.add_argument(
+        '--budget-s',
+        type=_budget_seconds,
+        help="overrides learner advising_budget_s (the person's seconds; 0: no limit)",
+    )
+    parser.add_argument(
+        '--advice-protocol',
+        choices=ADVICE_PROTOCOLS,
+        help='overrides learner advice_protocol (auto: the wheel in a real-time env, one answer in lock-step)',
+    )
     parser.add_argument('--resume', action='store_true', help='continue from <output>/checkpoint.pt')
     parser.add_argument('--overwrite', action='store_true', help='replace a run already in the output folder')
     parser.add_argument('--record', action='store_true', help="write <output>/record.mcap (the learner's record: true)")
@@ -113,6 +131,10 @@ def learner_overrides(args) -> list:
         overrides.append(Parameter('seed', value=args.seed))
     if args.budget is not None:
         overrides.append(Parameter('advising_budget', value=args.budget))
+    if args.budget_s is not None:
+        overrides.append(Parameter('advising_budget_s', value=args.budget_s))
+    if args.advice_protocol:
+        overrides.append(Parameter('advice_protocol', value=args.advice_protocol))
     if args.resume:
         overrides.append(Parameter('resume', value=True))
     if args.overwrite:

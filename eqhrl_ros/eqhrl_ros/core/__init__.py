@@ -29,7 +29,9 @@ algorithm/  EQ-HRL itself
   stacked_seeds.py   StackedSeeds: many seeds' updates as one (one batched product per layer)
   advice_window.py   whether advice is open now: the budgets in episodes (Eq. 7) and in seconds
   advising.py     the gates: FIFO queues, dynamic/fixed thresholds (Eq. 10)
+  state_scores.py    a state's novelty and the advice's gain near it (two gates beyond the paper)
   advice_counts.py   what advice cost and brought, per episode and over the run
+  advice_outcomes.py what came of each request and each step the person drove, counted
   learner_state.py   a saved learner state, checked
   learner.py      EQSACLearner: SAC, QASAC and EQSAC (Algorithm 1), wired from the parts above
 experts/    whoever answers a request
@@ -39,6 +41,7 @@ experts/    whoever answers a request
   imperfect.py    delayed and weak experts (studies)
   teleop.py       a person's commands and answer window
   takeover.py     the person's takeover rule: when their command replaces the learner's action
+  wheel.py        asking for the wheel: a real-time request the person takes and hands back
   factory.py      the expert a backend name stands for (above the experts it builds)
 runs/       a run from start to end
   in_process.py     the in-process training loop (one seed, or seeds together)

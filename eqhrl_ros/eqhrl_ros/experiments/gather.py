@@ -19,6 +19,7 @@ COLUMNS = (
     'human_time_s',
     'takeover_steps',
     'takeover_s',
+    'asked_steps',
 )
 
 

@@ -3,7 +3,9 @@
 Each node is a ``*_node.py``; what a node does besides its wiring sits beside it:
 - acting_node.py (the learner's and the actors' shared half): advice_client.py (its requests),
   acting_health.py (its /diagnostics), episode_tracking.py (what each observation means for the
-  episode: gaps, restarts, stalls, stops); the takeover rule is core/experts/takeover.py;
+  episode: gaps, restarts, stalls, stops), person_wheel.py (who drives each step: the learner,
+  the person asked to take the wheel, or unasked; the rules are core/experts/wheel.py and
+  takeover.py);
 - learner_node.py, actor_node.py, trainer_node.py (trainer_health.py, trainer_msgs.py);
 - advice_console_node.py (the ROS side) and console_server.py (the page's web server and its
   guards, with connection_guard.py);

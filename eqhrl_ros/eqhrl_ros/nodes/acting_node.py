@@ -7,7 +7,8 @@ a trainer (nodes/actor_node.py).
 Its jobs, each in a part of its own:
 - the advice requests (nodes/advice_client.py): nothing in this node ever blocks waiting for
   another node;
-- the person's takeover (core/experts/takeover.py: the rule; this node feeds it the commands);
+- who drives each step: the learner, the person asked to take the wheel, or the person unasked
+  (nodes/person_wheel.py, over core/experts/wheel.py and takeover.py);
 - the health it reports on /diagnostics (nodes/acting_health.py);
 - what each observation means for the episode, across gaps, restarts, stalls and stops
   (nodes/episode_tracking.py); turning them into transitions (here).
@@ -23,23 +24,25 @@ import numpy as np
 import torch
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Bool, Float32MultiArray
+from std_msgs.msg import Bool, Float32MultiArray, String
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 
+from ..core.algorithm.config import advice_protocol
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, LearnerConfig
 from ..core.data.advice import Advice
 from ..core.envs.spec import EnvSpec
-from ..core.experts.takeover import DeadmanTakeover, PersonCommand
 from ..parameters import LEARNER_CONFIG_PARAMS
 from . import messages
 from .acting_health import acting_checks
 from .advice_client import AdviceClient, PendingAdvice
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .episode_tracking import EpisodeTracking
+from .graph_trust import OnePublisher
 from .health import WARN, Check, Health
 from .messages import printable_name
 from .params import choices_validator, declare, reject_unknown_overrides
+from .person_wheel import PersonWheel
 from .recording import NodeRecord
 from .spinning import steady_clock
 
@@ -79,6 +82,7 @@ class ActingNode(Node):
         self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', STATS_QOS)
         self.gate_pub = self.create_publisher(GateDecision, '~/gate_debug', QOS)
         self.request_pub = self.create_publisher(AdviceRequest, '~/advice_request', messages.LATCHED_QOS)
+        self.driver_pub = self.create_publisher(String, '~/driver', messages.LATCHED_QOS)  # who drives now
         # Observations arrive serialized (raw): see messages.SerializedReader.
         observations = self.create_subscription(
             Float32MultiArray, 'observation', self._on_observation, OBSERVATION_QOS, raw=True
@@ -87,8 +91,11 @@ class ActingNode(Node):
         # The person's command (teleop_expert passes it on): a takeover when it departs from ours.
         person = self.create_subscription(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, self._on_person_command, 10)
         self._person_topic = person.topic_name
-        self._person: Optional[PersonCommand] = None
-        self.takeover: Optional[DeadmanTakeover] = None  # made with the learner (its action bounds)
+        # The person's commands drive the robot: taken only while teleop_expert alone publishes them.
+        expected = p['person_publisher'] or f'{self.get_namespace().rstrip("/")}/teleop_expert'
+        self.person_guard = OnePublisher(self, self._person_topic, expected)
+        self.refused_person_commands = 0
+        self.wheel: Optional[PersonWheel] = None  # who drives: made with the learner (its action bounds)
         # The person's STOP holds the env: the episode is paused (not abandoned), and its record
         # says for how long (EpisodeSummary.stops, stopped_s).
         self._stop_topic = self.create_subscription(
@@ -105,6 +112,7 @@ class ActingNode(Node):
         self.tracking = EpisodeTracking(self.get_logger())  # the step acted on, gaps, stalls, stops
         self._last_action: Optional[np.ndarray] = None
         self._last_advised = False
+        self._last_source = 'learner'  # who chose the last action (core/data/advice.ACTION_SOURCES)
         self.dropped_messages = 0
         self.repeated_observations = 0  # the env re-sent an observation (our action did not arrive in time)
         self.create_timer(0.25, self._check_stall, clock=self._steady)
@@ -140,18 +148,40 @@ class ActingNode(Node):
         )
         learner.log = self.get_logger()  # compile_update's one line
         self._prepare(learner)
-        takeover = DeadmanTakeover(learner.scaler, self.config.takeover_threshold)
+        wheel = PersonWheel(
+            learner,
+            self.config.takeover_threshold,
+            lambda msg: self._publish_recorded(self.request_pub, msg),
+            lambda driver: self._publish_recorded(self.driver_pub, String(data=driver)),
+            self.get_logger(),
+        )
         with self._lock:
             self._action_out = messages.action_out(learner.action_dim)  # rewritten per step
             self._observation_reader = messages.SerializedReader(
                 messages.observation_layouts(spec.observation_size), 'observation'
             )
-            self.spec, self.learner, self.takeover = spec, learner, takeover
+            self.spec, self.learner, self.wheel = spec, learner, wheel
         self.get_logger().info(
             f'{self.config.mode} on {shown(spec.name)} ({spec.source}): obs {spec.observation_size}, '
-            f'action {spec.action_size}, success {spec.success_rule}, '
+            f'action {spec.action_size}, success {spec.success_rule}, advice protocol {self._protocol_said()}, '
             f'budget {self.config.advising_budget} episodes{self._describe()}'
         )
+
+    @property
+    def pace(self) -> Optional[EnvSpec]:
+        """The env's pace (real-time or lock-step, rate, episode length): its own env_info once
+        heard (a learner configured by env_id cannot know it otherwise), else the spec in use."""
+        return self.env_info.announced or self.spec
+
+    @property
+    def protocol(self) -> str:
+        """How a request asks now: 'answer' or 'wheel' (advice_protocol for the env's pace)."""
+        pace = self.pace
+        return advice_protocol(self.config.advice_protocol, pace.realtime) if pace is not None else ''
+
+    def _protocol_said(self) -> str:
+        configured = self.config.advice_protocol
+        return configured if configured != 'auto' else 'auto (the wheel in real time, one answer in lock-step)'
 
     def _prepare(self, learner: EQSACLearner) -> None:
         """The subclass's use of a new learner before it acts (a checkpoint to load, a record)."""
@@ -175,6 +205,8 @@ class ActingNode(Node):
                         self.learner.set_advising_budget_s(float(change.value))
                     else:
                         self.config.advising_budget_s = float(change.value)
+                elif hasattr(self.config, change.name) and change.name.startswith('wheel_'):
+                    setattr(self.config, change.name, change.value)  # read when the next request opens
                 elif change.name in self.params:
                     self.params[change.name] = change.value
 
@@ -236,12 +268,14 @@ class ActingNode(Node):
                     'failed', pending.proposal.request, self.params['advice_timeout_s'], 'episode_ended'
                 ),
             )
-        self._last_advised = False
+        self._last_advised, self._last_source = False, 'learner'
         if not self._store(env_step):
             self.tracking.state, self.tracking.key = env_step.obs, key
 
     def _store(self, env_step: messages.EnvStep) -> bool:
         """Hand on the transition the message completes; returns True when the episode ended."""
+        if env_step.done:  # an open request for the wheel, or a takeover, ends with the episode
+            self.wheel.episode_ends(time.monotonic())
         try:
             summary = self._transition(
                 self.tracking.state,
@@ -252,6 +286,7 @@ class ActingNode(Node):
                 env_step.truncated,
                 self._last_advised,
                 env_step.success,
+                self._last_source,
             )
         except ValueError as error:
             self.dropped_messages += 1
@@ -264,14 +299,20 @@ class ActingNode(Node):
         self._on_episode_end(summary)
         return True
 
-    def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success):
+    def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success, source):
         """(s_t, a_t, r_t, s_{t+1}) is complete: count it in the episode and learn from it or send
-        it. Returns the episode's summary when it ended the episode; ValueError on a bad one."""
+        it (``source``: who chose a_t, one of ACTION_SOURCES). Returns the episode's summary when it
+        ended the episode; ValueError on a bad one."""
         raise NotImplementedError
 
     # ------------------------------------------------------------------ acting and advice
 
     def _on_person_command(self, msg: Float32MultiArray) -> None:
+        refusal = self.person_guard.refusal()
+        if refusal:
+            self.refused_person_commands += 1
+            self.get_logger().error(f'person commands refused: {refusal}', throttle_duration_sec=5.0)
+            return
         try:
             fields = messages.read_fields(msg)
             action = np.asarray(fields['action'], dtype=np.float32)
@@ -283,7 +324,8 @@ class ActingNode(Node):
         deadman = bool(fields.get('deadman', [0.0])[0])
         take_over = bool(fields.get('take_over', [0.0])[0])
         with self._lock:
-            self._person = PersonCommand(action, deadman, take_over, time.monotonic())
+            if self.wheel is not None:
+                self.wheel.heard(action, deadman, take_over, time.monotonic())
             if self.recording is not None:
                 self.recording.write(self._person_topic, msg)
 
@@ -297,28 +339,26 @@ class ActingNode(Node):
             if self.recording is not None:  # every decision, published or not
                 self.recording.write(self.gate_pub.topic_name, gate)
         now = time.monotonic()
-        taken = self.takeover.person_drives(self._person, proposal.action, now)
-        if taken is not None:  # the person is in charge: no request this step, their action goes
-            resolution = self.learner.take_over(proposal, taken.action, taken.seconds, taken.starts)
-            self.takeover.taken(now, accepted=resolution.outcome == 'taken over')
-            if taken.starts and self.takeover.taking_over:
-                self.get_logger().info(
-                    f'the person takes over at episode {self.learner.episode}, step {self.learner.episode_step}'
-                )
-            self._finish_step(*resolution.action_and_advised())
+        decided = self.wheel.turn(proposal, now)
+        if decided is not None:  # the person drives, or a request for the wheel waits: no new request
+            self._finish_step(*decided)
             return
-        if self.takeover.hand_back():
-            self.get_logger().info('the person hands control back to the learner')
         if not (proposal.decision.fire and self.params['advice_enabled']):
             self._finish_step(proposal.action, advised=False)
             return
-        if not self.advice.ready():
-            self._finish_step(*self.learner.resolve_advice(proposal, failure='unavailable').action_and_advised())
+        if self.protocol == 'wheel':  # ask the person to take over from here; the learner drives meanwhile
+            action = self.wheel.ask(proposal, now, key[1], self.pace)
+            self._finish_step(action, advised=False)
             return
-        self.advice.ask(proposal, key)
-        self._publish_recorded(
-            self.request_pub, messages.advice_request_msg('pending', proposal.request, self.params['advice_timeout_s'])
-        )
+        if not self.advice.ready():
+            self._finish_step(
+                *self.learner.resolve_advice(proposal, failure='unavailable').action_and_advised(), 'learner'
+            )
+            return
+        # The wait is cut to what is left of the person's seconds: an answer cannot overspend them.
+        timeout = max(1e-3, min(self.params['advice_timeout_s'], self.learner.person_budget_left_s))
+        self.advice.ask(proposal, key, timeout)
+        self._publish_recorded(self.request_pub, messages.advice_request_msg('pending', proposal.request, timeout))
 
     def _resolve(self, pending: PendingAdvice, advice: Optional[Advice] = None, failure: str = '') -> None:
         """A request ended (advice_client.py): count the outcome, tell the person's UI, and act."""
@@ -339,11 +379,12 @@ class ActingNode(Node):
                 resolution.action if resolution.outcome == 'given' else (),
             ),
         )
-        self._finish_step(*resolution.action_and_advised())
+        self._finish_step(*resolution.action_and_advised(), resolution.source)
 
-    def _finish_step(self, action: np.ndarray, advised: bool) -> None:
+    def _finish_step(self, action: np.ndarray, advised: bool, source: str = 'learner') -> None:
         self._last_action = np.asarray(action, dtype=np.float32)
         self._last_advised = advised
+        self._last_source = source
         self._publish_action(self._last_action)
 
     def _publish_action(self, action: np.ndarray) -> None:
@@ -372,6 +413,17 @@ class ActingNode(Node):
             if self.recording is not None:
                 self.recording.write(self._stop_topic, msg)
             self.tracking.stop(bool(msg.data), self.learner)
+            if self.wheel is not None:
+                self.wheel.stopped(bool(msg.data), time.monotonic())
+            # An open request for one answer holds too: its timeout, and (told so here) the person's window.
+            left = self.advice.pause() if msg.data else self.advice.resume()
+            if left is not None:
+                self._publish_recorded(
+                    self.request_pub,
+                    messages.advice_request_msg(
+                        'pending', self.advice.pending.proposal.request, left, 'stopped' if msg.data else ''
+                    ),
+                )
 
     # ------------------------------------------------------------------ episodes
 

@@ -133,9 +133,9 @@ class ActorNode(ActingNode):
 
     # ------------------------------------------------------------------ transitions out
 
-    def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success):
+    def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success, source):
         summary = self.learner.step(obs, action, reward, next_obs, terminated, truncated, advised, success, learn=False)
-        self.outbox.add(obs, self.learner.normalize(action), reward, next_obs, terminated, advised)
+        self.outbox.add(obs, self.learner.normalize(action), reward, next_obs, terminated, advised, source)
         self._send()
         return summary
 

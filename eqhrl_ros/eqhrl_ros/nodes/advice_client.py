@@ -29,6 +29,8 @@ class PendingAdvice:
     key: tuple  # (env episode, env step) the advice is for
     timer: object
     sent: float = 0.0  # time.monotonic() when the request went out
+    deadline: float = 0.0  # time.monotonic() when it times out (moved on by a STOP's pause)
+    paused_at: Optional[float] = None  # a STOP holds it (and its timeout) since then
 
 
 class AdviceClient:
@@ -59,15 +61,17 @@ class AdviceClient:
     def servers(self) -> int:
         return self.node.count_services(self.client.srv_name)
 
-    def ask(self, proposal: Proposal, key: tuple) -> None:
-        """Send the proposal's request; its end comes to on_end."""
+    def ask(self, proposal: Proposal, key: tuple, timeout: Optional[float] = None) -> None:
+        """Send the proposal's request, waiting ``timeout`` seconds (default advice_timeout_s);
+        its end comes to on_end."""
         self._token += 1
         token = self._token
-        timeout = self.params['advice_timeout_s']
+        timeout = self.params['advice_timeout_s'] if timeout is None else timeout
         request = advise_msgs.request_msg(proposal.request, timeout)
         timer = self.node.create_timer(timeout, lambda: self._on_timeout(token), clock=self.clock)
         self._check_servers()
-        self.pending = PendingAdvice(token, proposal, key, timer, time.monotonic())
+        now = time.monotonic()
+        self.pending = PendingAdvice(token, proposal, key, timer, now, now + timeout)
         future = self.client.call_async(request)
         future.add_done_callback(lambda f: self._on_response(token, f))
 
@@ -87,6 +91,28 @@ class AdviceClient:
             )
         self._servers = servers
 
+    def pause(self) -> Optional[float]:
+        """A STOP: the open request's timeout holds; returns the seconds it has left (None: none open)."""
+        pending = self.pending
+        if pending is None or pending.paused_at is not None:
+            return None
+        pending.paused_at = time.monotonic()
+        self.node.destroy_timer(pending.timer)
+        return max(0.0, pending.deadline - pending.paused_at)
+
+    def resume(self) -> Optional[float]:
+        """The STOP released: the timeout goes on with what it had left, which is returned."""
+        pending = self.pending
+        if pending is None or pending.paused_at is None:
+            return None
+        now = time.monotonic()
+        pending.deadline += now - pending.paused_at
+        pending.paused_at = None
+        left = max(1e-3, pending.deadline - now)
+        token = pending.token
+        pending.timer = self.node.create_timer(left, lambda: self._on_timeout(token), clock=self.clock)
+        return left
+
     def take_pending(self, token: Optional[int] = None) -> Optional[PendingAdvice]:
         """The open request, ended here (its timer gone); None when ``token`` is not the open one
         (already ended: a late answer after the timeout, or the reverse)."""
@@ -94,11 +120,15 @@ class AdviceClient:
         if pending is None or (token is not None and pending.token != token):
             return None
         self.pending = None
-        self.node.destroy_timer(pending.timer)
+        if pending.paused_at is None:
+            self.node.destroy_timer(pending.timer)
         return pending
 
     def _on_timeout(self, token: int) -> None:
         with self.lock:
+            # One-shot: a timer that fired is gone; a STOP's pause destroyed it, a resume made a new one.
+            if self.pending is not None and self.pending.token == token and self.pending.paused_at is not None:
+                return
             pending = self.take_pending(token)
             if pending is not None:
                 self.on_end(pending, failure='timeout')

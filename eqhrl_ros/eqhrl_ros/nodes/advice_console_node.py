@@ -27,12 +27,12 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Image
-from std_msgs.msg import Bool, Float32MultiArray
+from std_msgs.msg import Bool, Float32MultiArray, String
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 
 from ..core.algorithm.advice_window import advice_window
-from ..core.algorithm.config import check_value
+from ..core.algorithm.config import advice_protocol, check_value
 from ..core.data.signing import CommandSeal, signer_from
 from ..core.envs.spec import EnvSpec
 from ..parameters import CONSOLE_PARAMS
@@ -46,8 +46,12 @@ from .teleop_expert_node import ANSWER_MARGIN_S
 OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
 # The learner parameters the page shows and may set.
 LEARNER_CONTROLS = ('advice_enabled', 'advising_budget', 'advising_budget_s')
-# Read, not set: what the page says about the run's end.
+# Read, not set: what the page says about the run's end, how a request asks and when steering takes over.
 LEARNER_SHOWN = (*LEARNER_CONTROLS, 'max_episodes', 'mode')
+# Read apart: a learner without them (an older one, a stand-in) still gets the rest of the page.
+LEARNER_PROTOCOL = ('advice_protocol', 'takeover_threshold')
+DRIVERS = ('learner', 'person_asked', 'person_unasked')  # learner/driver (nodes/person_wheel.py)
+RECENT_KEPT = 8  # requests ended, shown on the page (one ended 30 ms before the next is still seen)
 # teleop_expert's: how long the person has per request and how a command becomes an action.
 TELEOP_SETTINGS = ('answer_window_s', 'axes', 'scales', 'offsets')
 # A page's input older than this is not the person's any more (the tab was closed or hidden).
@@ -92,6 +96,10 @@ class AdviceConsole(Node):
         self.request_seen = 0.0
         self.episodes: list[dict] = []
         self.person_s_open: dict = {}  # (episode, step) -> the person's seconds on a request, not yet in stats
+        self.recent: list[dict] = []  # the latest requests that ended, newest last
+        self.driver = 'learner'  # who drives now (learner/driver)
+        self.driver_since = time.monotonic()
+        self.takeover_s_open: dict = {}  # episode -> seconds of unasked takeovers, not yet in stats
         self.learner_params: dict = {}
         self.frame: Optional[Image] = None
         self.frame_number = 0
@@ -106,6 +114,7 @@ class AdviceConsole(Node):
         self.create_subscription(Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS)
         self.create_subscription(AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS)
         self.create_subscription(EpisodeStats, 'learner/episode_stats', self._on_stats, 100)
+        self.create_subscription(String, 'learner/driver', self._on_driver, messages.LATCHED_QOS)
         self.create_subscription(Image, p['image_topic'], self._on_frame, 2)
         self.env_info = EnvInfoWatcher(self, configured_spec(p), self._on_env)
         self.learner_client = AsyncParameterClient(self, p['learner_node'])
@@ -160,9 +169,13 @@ class AdviceConsole(Node):
                 'response_time_s': float(msg.response_time_s),
                 'proposed_action': [float(v) for v in msg.proposed_action],
                 'given_action': [float(v) for v in msg.given_action],
+                'wheel': bool(msg.wheel),
+                'steps_driven': int(msg.steps_driven),
             }
             self.request_seen = time.monotonic()
-            done = msg.outcome != AdviceRequest.PENDING
+            done = msg.outcome not in (AdviceRequest.PENDING, AdviceRequest.TAKEN)
+            if done:
+                self.recent = [*self.recent, self.request][-RECENT_KEPT:]
             if done and msg.human and math.isfinite(msg.response_time_s) and msg.response_time_s >= 0:
                 # The person's seconds on this request, until its episode's statistics count them:
                 # the page's budget in seconds runs down request by request, not episode by episode.
@@ -181,11 +194,46 @@ class AdviceConsole(Node):
                     'human_time_s': float(msg.human_time_s),
                     'human_time_total_s': float(msg.human_time_total_s),
                     'success': bool(msg.success),
+                    'takeover_steps': msg.takeover_steps,
+                    'takeover_s': float(msg.takeover_s),
+                    'asked_steps': msg.asked_steps,
                 }
             )
             del self.episodes[:-EPISODES_KEPT]
             self.person_s_open = {k: s for k, s in self.person_s_open.items() if k[0] > msg.episode}
+            self.takeover_s_open = {k: s for k, s in self.takeover_s_open.items() if k > msg.episode}
             self._bump()
+
+    def _on_driver(self, msg: String) -> None:
+        with self.lock:
+            driver = msg.data if msg.data in DRIVERS else 'learner'
+            now = time.monotonic()
+            if self.driver == 'person_unasked':  # a takeover's seconds, until its episode's stats count them
+                episode = self._episode_now()
+                self.takeover_s_open[episode] = self.takeover_s_open.get(episode, 0.0) + now - self.driver_since
+            self.driver, self.driver_since = driver, now
+            self._bump()
+
+    def _episode_now(self) -> int:
+        return self.episodes[-1]['episode'] + 1 if self.episodes else 0
+
+    def counting_down(self) -> bool:
+        """(with the lock held) A request is open or the person drives: the page's clocks run."""
+        open_request = self.request is not None and self.request['outcome'] in ('pending', 'taken')
+        return open_request or self.driver != 'learner'
+
+    def person_seconds_open(self) -> float:
+        """(with the lock held) The person's seconds not yet in episode statistics: requests ended
+        since, unasked takeovers, and the open request or takeover, running now."""
+        now = time.monotonic()
+        running = 0.0
+        request = self.request
+        if request is not None and request['outcome'] in ('pending', 'taken') and request['wheel']:
+            if request['detail'] != 'stopped':
+                running = now - self.request_seen + request['response_time_s']
+        if self.driver == 'person_unasked':
+            running += now - self.driver_since
+        return sum(self.person_s_open.values()) + sum(self.takeover_s_open.values()) + running
 
     def _on_frame(self, msg: Image) -> None:
         with self.lock:
@@ -215,8 +263,9 @@ class AdviceConsole(Node):
             self.teleop_client.get_parameters(list(TELEOP_SETTINGS)).add_done_callback(self._on_teleop_settings)
         if not self.learner_client.services_are_ready():
             return
-        future = self.learner_client.get_parameters(list(LEARNER_SHOWN))
-        future.add_done_callback(self._on_learner_params)
+        for names in (LEARNER_SHOWN, LEARNER_PROTOCOL):
+            future = self.learner_client.get_parameters(list(names))
+            future.add_done_callback(lambda f, names=names: self._on_learner_params(f, names))
 
     def _on_teleop_settings(self, future) -> None:
         try:
@@ -238,13 +287,13 @@ class AdviceConsole(Node):
                 self.teleop = read
                 self._bump()
 
-    def _on_learner_params(self, future) -> None:
+    def _on_learner_params(self, future, names: tuple) -> None:
         try:
             values = future.result().values
-        except Exception:  # the learner went away meanwhile: shown as unknown
+        except Exception:  # the learner went away meanwhile (or lacks these): shown as unknown
             return
         read = {}
-        for name, value in zip(LEARNER_SHOWN, values):
+        for name, value in zip(names, values):
             if value.type == ParameterType.PARAMETER_BOOL:
                 read[name] = value.bool_value
             elif value.type == ParameterType.PARAMETER_INTEGER:
@@ -254,8 +303,9 @@ class AdviceConsole(Node):
             elif value.type == ParameterType.PARAMETER_STRING:
                 read[name] = value.string_value
         with self.lock:
-            if read != self.learner_params:
-                self.learner_params = read
+            known = {name: value for name, value in self.learner_params.items() if name not in names}
+            if {**known, **read} != self.learner_params:
+                self.learner_params = {**known, **read}
                 self._bump()
 
     # ------------------------------------------------------------------ the page's input
@@ -314,8 +364,9 @@ class AdviceConsole(Node):
         """(with the lock held) Everything the page shows, as JSON-able data."""
         spec = self.spec
         request = dict(self.request) if self.request else None
-        if request and request['outcome'] == 'pending':
-            request['waited_s'] = time.monotonic() - self.request_seen
+        if request and request['outcome'] in ('pending', 'taken'):
+            request['waited_s'] = 0.0 if request['detail'] == 'stopped' else time.monotonic() - self.request_seen
+        learner = self.learner_params
         return {
             'type': 'state',
             'version': self.version,
@@ -333,8 +384,16 @@ class AdviceConsole(Node):
             'advice_window': self.advice_window(),
             'require_deadman': self.params['require_deadman'],
             'stopped': self.stopped,
-            # The person's seconds on requests of episodes whose statistics have not come yet.
-            'person_s_open': sum(self.person_s_open.values()),
+            # The person's seconds of episodes whose statistics have not come yet, the open ones' included.
+            'person_s_open': self.person_seconds_open(),
+            'recent': self.recent,
+            'driver': self.driver,
+            # How a request asks (the learner's advice_protocol for this env's pace); null until known.
+            'protocol': advice_protocol(learner['advice_protocol'], spec.realtime)
+            if spec is not None and learner.get('advice_protocol') in ('auto', 'answer', 'wheel')
+            else None,
+            # Steering away takes over only where the learner's threshold is on (the legend says so).
+            'takeover_threshold': learner.get('takeover_threshold'),
             # The page counts down this window and draws each action as teleop_expert maps it.
             'teleop': dict(self.teleop, answer_margin_s=ANSWER_MARGIN_S) if self.teleop else None,
             'command': list(self.input.command),
@@ -349,7 +408,7 @@ class AdviceConsole(Node):
             return None
         last = self.episodes[-1] if self.episodes else None
         episode = last['episode'] + 1 if last else 0  # the episode running now
-        spent = (last['human_time_total_s'] if last else 0.0) + sum(self.person_s_open.values())
+        spent = (last['human_time_total_s'] if last else 0.0) + self.person_seconds_open()
         window = advice_window(
             learner['mode'], learner['advising_budget'], learner['advising_budget_s'], episode, spent
         )

@@ -206,17 +206,17 @@ class ConsoleServer:
             await socket.send_json({'type': 'error', 'error': error})
 
     async def _send_updates(self, socket: web.WebSocketResponse) -> None:
-        """State when it changes (and 5 times a second while a request is pending, for its
-        countdown); frames at most image_rate_hz."""
+        """State when it changes (and 5 times a second while a request is open or the person
+        drives, for the countdowns); frames at most image_rate_hz."""
         sent_version, sent_frame, last_frame_time, last_state_time = -1, 0, 0.0, 0.0
         frame_period = 1.0 / self.params['image_rate_hz']
         while not socket.closed:
             now = time.monotonic()
             console = self.console
             with console.lock:
-                pending = console.request is not None and console.request['outcome'] == 'pending'
+                live = console.counting_down()
                 state = None
-                if console.version != sent_version or (pending and now - last_state_time > 0.2):
+                if console.version != sent_version or (live and now - last_state_time > 0.2):
                     state, sent_version, last_state_time = console.state(), console.version, now
                 frame = None
                 if console.frame_number != sent_frame and now - last_frame_time >= frame_period:

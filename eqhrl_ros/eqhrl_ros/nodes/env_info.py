@@ -136,7 +136,8 @@ class EnvInfoWatcher:
         self.env_node = node.get_parameter('env_node').value if node.has_parameter('env_node') else ''
         self.observation_topic = node.resolve_topic_name('observation')
         self.untrusted = 0
-        self._held: deque = deque(maxlen=HELD_MESSAGES)  # (time.monotonic() it came, EnvInfo)
+        # (time.monotonic() it came, EnvInfo, the nodes publishing env_info then: one of them sent it)
+        self._held: deque = deque(maxlen=HELD_MESSAGES)
         self._recheck = node.create_timer(0.5, self._on_recheck)
         if configured is not None:
             self._use(configured)
@@ -177,13 +178,20 @@ class EnvInfoWatcher:
             return f'{self.topic} has no publisher now'
         return ''
 
+    def _vouched(self) -> set:
+        """The nodes that may speak for the env now: env_node, else the publishers of observation."""
+        return {self.env_node} if self.env_node else publishers(self.node, self.observation_topic)
+
     def _on_recheck(self) -> None:
         now = time.monotonic()
         for held in list(self._held):
             if now - held[0] > (NAMED_HOLD_S if held[1].publisher else HOLD_S):
                 self._held.remove(held)  # never vouched for in time: dropped
         for held in list(self._held):
-            if not self.refusal(held[1]):
+            # Taken only if a node that published env_info when it came is vouched for now: a
+            # stranger's message, held until the real env appears, is never taken for the env's
+            # (none known when it came: the graph had not caught up, and the rule alone decides).
+            if not self.refusal(held[1]) and (not held[2] or held[2] & self._vouched()):
                 self._held.remove(held)
                 self._on_env_info(held[1])
                 return
@@ -194,7 +202,8 @@ class EnvInfoWatcher:
         refusal = self.refusal(msg)
         if refusal:
             self.untrusted += 1
-            self._held.append((time.monotonic(), msg))  # taken if the graph vouches for it soon
+            speakers = publishers(self.node, self.topic)
+            self._held.append((time.monotonic(), msg, speakers))  # taken if the graph vouches for it soon
             self.node.get_logger().warn(f'env_info held, not obeyed: {refusal}', throttle_duration_sec=5.0)
             return
         try:

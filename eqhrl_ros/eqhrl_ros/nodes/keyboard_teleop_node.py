@@ -54,6 +54,8 @@ class KeyboardTeleop(Node):
         self.answers = 0  # presses of Enter and x (shown, so that the person sees a key landed)
         self.skips = 0
         self.request = None  # the latest advice_request fields
+        self.wheel_protocol = False  # the learner asks for the wheel: t is the deadman (a toggle)
+        self.holding = False  # t pressed: the person holds the wheel
         self.request_seen = 0.0
         self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
         self.create_subscription(AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS)
@@ -74,7 +76,19 @@ class KeyboardTeleop(Node):
     def _on_request(self, msg: AdviceRequest) -> None:
         self.request = msg
         self.request_seen = time.monotonic()
+        if msg.wheel:
+            # The learner asks for the wheel (advice_protocol wheel): from now on this terminal's
+            # deadman is t, a toggle (a terminal hears no key releases). When a request ends, the
+            # learner has the wheel again: the deadman is released here too.
+            self.wheel_protocol = True
+            if msg.outcome not in (AdviceRequest.PENDING, AdviceRequest.TAKEN):
+                self.holding = False
         self.draw()
+
+    @property
+    def enabled(self) -> bool:
+        """The deadman as sent: always held for one-action answers, t toggles it for the wheel."""
+        return self.holding or not self.wheel_protocol
 
     def _publish(self, answer: bool = False, skip: bool = False) -> None:
         if self.sending and len(self.command):
@@ -83,7 +97,7 @@ class KeyboardTeleop(Node):
             request = (
                 (shown.episode, shown.step) if shown is not None and shown.outcome == AdviceRequest.PENDING else None
             )
-            self.publisher.publish(messages.command_msg(self.command, True, answer, skip, self.seal, request))
+            self.publisher.publish(messages.command_msg(self.command, self.enabled, answer, skip, self.seal, request))
 
     def _read_keys(self) -> None:
         while select.select([self.fd], [], [], 0)[0]:
@@ -104,6 +118,8 @@ class KeyboardTeleop(Node):
             self.command[index] = 0.0 if now * sign < 0 else np.clip(now + sign * self.params['step'], -1.0, 1.0)
         elif key == ' ':
             self.command[:] = 0.0
+        elif key == 't' and self.wheel_protocol:
+            self.holding = not self.holding  # take the wheel, or hand it back
         elif key == 'p':
             self.sending = not self.sending
         elif key in ('q', '\x03'):
@@ -125,7 +141,8 @@ class KeyboardTeleop(Node):
             '',
             '  a / d : action[0] - / +' + ('      w / s : action[1] + / -' if n > 1 else ''),
             '  Enter : answer with this command     x : skip (no advice)',
-            '  space : zero        p : pause/resume sending        q : quit',
+            '  space : zero        p : pause/resume sending        q : quit'
+            + ('        t : take the wheel / hand it back' if self.wheel_protocol else ''),
             '',
             f'  command: [{", ".join(f"{v:+.2f}" for v in self.command)}]   '
             + (
@@ -138,6 +155,15 @@ class KeyboardTeleop(Node):
         request = self.request
         if not n:
             lines.append('  waiting for env_info from the env (or set the dimensions parameter)')
+        elif request and request.wheel and request.outcome in (AdviceRequest.PENDING, AdviceRequest.TAKEN):
+            if self.holding:
+                lines.append(f'{REVERSE}  >>> YOU DRIVE (asked): steer with a/d, w/s; t hands back <<<  {RESET}')
+            else:
+                left = max(0.0, request.timeout_s - (time.monotonic() - self.request_seen))
+                lines.append(
+                    f'{REVERSE}  >>> THE LEARNER ASKS YOU TO TAKE THE WHEEL: press t, then steer '
+                    f'({left:.1f} s left) <<<  {RESET}'
+                )
         elif request and request.outcome == AdviceRequest.PENDING:
             waited = time.monotonic() - self.request_seen
             lines.append(

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner
 from ..core.algorithm.learner_state import resumed_settings
+from ..core.data.advice import ACTION_SOURCES
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
 from ..parameters import LEARNER_NODE_PARAMS
@@ -100,10 +101,13 @@ class LearnerNode(RunFiles, ActingNode):
     def _describe(self) -> str:
         return f', output {self.output_dir}'
 
-    def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success):
+    def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success, source):
         summary = self.learner.step(obs, action, reward, next_obs, terminated, truncated, advised, success)
         if self.recording is not None:  # stored: learner.step refuses a bad one with ValueError
-            self._recorded.append((obs, self.learner.normalize(action), reward, next_obs, terminated, advised))
+            normalized = self.learner.normalize(action)
+            self._recorded.append(
+                (obs, normalized, reward, next_obs, terminated, advised, ACTION_SOURCES.index(source))
+            )
         return summary
 
     def _write_transitions(self, summary=None) -> None:
@@ -124,6 +128,7 @@ class LearnerNode(RunFiles, ActingNode):
             terminated=np.asarray(columns[4], dtype=bool),
             advised=np.asarray(columns[5], dtype=bool),
             episodes=[summary] if summary is not None else [],
+            sources=np.asarray(columns[6], dtype=np.uint8),
         )
         self._recorded = []
         spec = self.spec

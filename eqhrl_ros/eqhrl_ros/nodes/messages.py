@@ -49,6 +49,7 @@ ADVICE_OUTCOMES = {
     'given': AdviceRequest.GIVEN,
     'declined': AdviceRequest.DECLINED,
     'failed': AdviceRequest.FAILED,
+    'taken': AdviceRequest.TAKEN,
 }
 
 
@@ -389,10 +390,15 @@ def advice_request_msg(
     human: bool = False,
     response_time_s: float = 0.0,
     given_action=(),
+    wheel: bool = False,
+    steps_driven: int = 0,
 ) -> AdviceRequest:
     """learner/advice_request: ``request`` (core AdviceRequest) and what came of it so far
-    (``given_action``: the action used, env units, when it was given)."""
+    (``given_action``: the action used, env units, when it was given; ``wheel``: a request for
+    the wheel, ``steps_driven`` by the person so far)."""
     return AdviceRequest(
+        wheel=bool(wheel),
+        steps_driven=int(steps_driven),
         given_action=np.asarray(given_action, dtype=np.float32).tolist(),
         outcome=ADVICE_OUTCOMES[outcome],
         detail=detail,

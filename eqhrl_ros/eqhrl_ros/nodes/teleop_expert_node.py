@@ -14,6 +14,7 @@ delivering the person's commands meanwhile, and nothing blocks a thread.
 from __future__ import annotations
 
 import threading
+import time
 from functools import reduce
 
 import numpy as np
@@ -67,12 +68,20 @@ class TeleopExpertNode(Node):
             self.params['stale_after_s'],
             name=self.get_fully_qualified_name(),
             answer_change=self.params['answer_change'],
+            settle_s=self.params['answer_settle_s'],
         )
         self.rejected_commands = 0
         self.answers = {'answered': 0, 'skipped': 0, 'timed_out': 0, 'declined': 0}
         self.reaction_times: list[float] = []  # seconds, per request the person answered or skipped
         self._lock = threading.Lock()  # commands and requests may come on different threads
         self._waiting: Future | None = None  # the open request's answer, once the person gives it
+        # A command the person steered to answers once it held still (answer_settle_s), also when
+        # no new command comes meanwhile (a Twist is sent only on a key press).
+        self.create_timer(0.05, self._check_settled, clock=steady_clock())
+        # The open request's window: its end (time.monotonic()), moved on while a STOP holds it.
+        self._window_s = 0.0
+        self._window_end = 0.0
+        self._paused_at: float | None = None
         self._steady = steady_clock()
         source = self.params['source']
         if source == 'joy':
@@ -147,6 +156,7 @@ class TeleopExpertNode(Node):
         self.params = updated
         self.expert.stale_after_s = updated['stale_after_s']
         self.expert.answer_change = updated['answer_change']
+        self.expert.settle_s = updated['answer_settle_s']
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ the person's commands
@@ -252,23 +262,21 @@ class TeleopExpertNode(Node):
             self._settle(self.expert.withdraw('superseded by a newer request'))
             self.expert.open(request_from_msg(request))
             self._waiting = future
-        timer = self.create_timer(window, lambda: self._expire(future, window), clock=self._steady)
+            self._window_s, self._window_end, self._paused_at = window, time.monotonic() + window, None
         self.get_logger().info(
             f'the learner asks for advice: episode {request.episode}, step {request.step}; answer within {window:.1f} s'
         )
-        try:
-            advice = await future
-        finally:
-            self.destroy_timer(timer)
+        advice = await future
         self._report(advice, request)
         return fill_response(response, advice, self.expert.name)
 
     def _on_learner_request(self, msg: AdviceRequestMsg) -> None:
-        if msg.outcome == AdviceRequestMsg.PENDING:
-            return
         with self._lock:
             pending = self.expert.pending
             if pending is None or (pending.request.episode, pending.request.step) != (msg.episode, msg.step):
+                return
+            if msg.outcome == AdviceRequestMsg.PENDING:
+                self._hold_for_stop(msg.detail == 'stopped', pending)
                 return
             self.ended_by_learner += 1
             reason = (
@@ -276,10 +284,29 @@ class TeleopExpertNode(Node):
             )
             self._settle(self.expert.withdraw(reason))
 
-    def _expire(self, future: Future, window: float) -> None:
+    def _check_settled(self) -> None:
+        """Every 50 ms: a steered command that has settled answers; a window that passed ends."""
         with self._lock:
-            if self._waiting is future:
-                self._settle(self.expert.expire(window))
+            if self._waiting is None:
+                return
+            self._settle(self.expert.settled())
+            if self._waiting is not None and self._paused_at is None and time.monotonic() >= self._window_end:
+                self._settle(self.expert.expire(self._window_s))
+
+    def _hold_for_stop(self, stopped: bool, pending) -> None:
+        """The learner says a STOP holds the open request (or has let it go): the window holds,
+        and the seconds stopped are nobody's reaction time."""
+        now = time.monotonic()
+        self.expert.held = stopped  # no answer while stopped: the env would ignore it
+        if stopped and self._paused_at is None:
+            self._paused_at = now
+        elif not stopped and self._paused_at is not None:
+            held = now - self._paused_at
+            self._window_end += held
+            pending.opened += held
+            if pending.steered is not None:
+                pending.steered_at += held
+            self._paused_at = None
 
     def _report(self, advice: Advice, request: Advise.Request) -> None:
         """Count and log what the person did, with their reaction time."""

@@ -84,6 +84,7 @@ def batch_parts(msg: TransitionBatch) -> list:
         _f32(msg.next_observations),
         bytes(bytearray(bool(v) for v in msg.terminated)),
         bytes(bytearray(bool(v) for v in msg.advised)),
+        bytes(bytearray(msg.sources)),
         *(_stats_bytes(e) for e in msg.episodes),
     ]
 
@@ -143,6 +144,7 @@ def batch_msg(batch: Batch, action_low, action_high) -> TransitionBatch:
     for name in ('action_low', 'action_high', 'observations', 'actions', 'rewards', 'next_observations'):
         fields[name] = _floats(fields[name])
     fields['episodes'] = [EpisodeStats(**e) for e in fields['episodes']]
+    fields['sources'] = array.array('B', fields['sources'])
     return TransitionBatch(**fields)
 
 

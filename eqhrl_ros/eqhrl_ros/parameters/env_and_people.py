@@ -117,8 +117,16 @@ TELEOP_EXPERT_PARAMS = (
         'answer_change',
         0.05,
         'Window mode: a command that differs from the one held when the request came by more than this '
-        '(env units, any dimension) answers it',
+        '(env units, any dimension) answers it, once it holds still (answer_settle_s)',
         (0.0, 1e6),
+        dynamic=True,
+    ),
+    Param(
+        'answer_settle_s',
+        0.3,
+        'Window mode: a command steered with the deadman held answers once it has held still this long '
+        '(the answer is where the person stopped, not their first key step); 0: the first change answers',
+        (0.0, 60.0),
         dynamic=True,
     ),
     Param('stale_after_s', 0.5, 'Decline when the latest command is older than this', (0.01, 3600.0), dynamic=True),

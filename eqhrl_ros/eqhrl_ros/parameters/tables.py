@@ -118,6 +118,12 @@ ACTING_PARAMS = (
         dynamic=True,
     ),
     Param('publish_gate_debug', False, 'Publish every gate decision on ~/gate_debug', dynamic=True),
+    Param(
+        'person_publisher',
+        '',
+        "The node whose person_command to take (full name); empty: teleop_expert in this node's namespace. "
+        'While another node publishes person_command too, no command is taken (a stranger could drive)',
+    ),
 )
 TORCH_THREADS = Param('torch_threads', 0, 'torch intra-op threads (0: torch default)', (0, 256))
 KEY_FILE = Param(

@@ -15,16 +15,32 @@ let socket = null;
 let lastRequestKey = null;
 let padButtons = [];
 let budgetEdited = false;  // the person is typing a budget: the learner's value does not overwrite it
+let budgetSEdited = false;
+let connected = false;
 
 function connect() {
   const url = new URL('ws', window.location.href);
   url.protocol = url.protocol === 'https:' ? 'wss:' : 'ws:';
   socket = new WebSocket(url);
   socket.binaryType = 'blob';
-  socket.onopen = () => { $('connection').textContent = 'connected'; $('connection').className = ''; };
-  socket.onclose = () => {
+  socket.onopen = () => {
+    connected = true;
+    $('connection').textContent = 'connected'; $('connection').className = '';
+    $('stop').disabled = false;
+  };
+  socket.onclose = (event) => {
+    // Never a STOP that does nothing: without the console, the page cannot stop the robot.
+    const wasConnected = connected;
+    connected = false;
     $('connection').textContent = 'disconnected: reconnecting...';
     $('connection').className = 'bad';
+    $('stop').disabled = true;
+    $('stop').textContent = 'STOP (not connected)';
+    if (wasConnected || event.reason) {
+      $('run-state').textContent = event.reason
+        ? `the console has stopped (${event.reason}): the run has ended or was stopped; STOP cannot reach the robot from this page`
+        : 'the console is not reachable: STOP cannot reach the robot from this page until it reconnects';
+    }
     setTimeout(connect, 1000);
   };
   socket.onmessage = (event) => {
@@ -33,6 +49,7 @@ function connect() {
     if (message.type === 'state') onState(message);
     else if (message.type === 'set_result') {
       if (message.name === 'advising_budget') budgetEdited = false;
+      if (message.name === 'advising_budget_s') budgetSEdited = false;
       say(message.ok ? `${message.name} set to ${message.value}` : `refused: ${message.reason}`);
     }
     else if (message.type === 'error') say(`console: ${message.error}`);
@@ -70,7 +87,10 @@ function onState(message) {
     const i = axes.indexOf(k);
     el.textContent = i < 0 ? '(not mapped)' : (state.env.action_labels[i] || `action[${i}]`);
   });
+  showDriver();
+  showLegend();
   showRequest();
+  showRecent();
   drawBars();
   drawPlots();
   const learner = state.learner || {};
@@ -82,14 +102,62 @@ function onState(message) {
   if (!budgetEdited && document.activeElement !== $('budget') && learner.advising_budget !== undefined) {
     $('budget').value = learner.advising_budget;
   }
+  if (!budgetSEdited && document.activeElement !== $('budget-s') && learner.advising_budget_s !== undefined) {
+    $('budget-s').value = learner.advising_budget_s;
+  }
   const last = state.episodes[state.episodes.length - 1];
   // Finished episodes' seconds, and those of the requests answered since (the budget runs down now).
-  const spent = (last ? last.human_time_total_s : 0) + (state.person_s_open || 0);
+  const spent = (last ? last.human_time_total_s : 0) + (state.person_s_open || 0);  // live: the open stretch runs
   // What is left is the learner's rule (core/algorithm/advice_window.py), as the console node computes it.
   const open = state.advice_window;
   $('person').textContent = `your time: ${spent.toFixed(1)} s over ${state.episodes.length} episodes` +
     (open && open.seconds_left !== null
       ? `; your budget ${learner.advising_budget_s.toFixed(0)} s: ${open.seconds_left.toFixed(1)} s left` : '');
+}
+
+const DRIVER_TEXT = {
+  learner: 'the learner drives',
+  person_asked: 'YOU DRIVE (asked): release the deadman to hand back',
+  person_unasked: 'YOU DRIVE (unasked takeover): release the deadman to hand back',
+};
+
+function showDriver() {
+  const driver = DRIVER_TEXT[state.driver] ? state.driver : 'learner';
+  $('driver').textContent = DRIVER_TEXT[driver];
+  $('driver').className = driver;
+}
+
+// The legend says what the learner's parameters do: steering away takes over only where its
+// takeover_threshold is on, and a request asks for the wheel or for one answer by its protocol.
+function showLegend() {
+  const threshold = state.takeover_threshold;
+  $('steer-away').textContent = (threshold === null || threshold === undefined) ? ''
+    : threshold > 0
+    ? `, or steer more than ${threshold} (in [-1, 1] units) away from the learner's action with the deadman held`
+    : ' (steering away does not take over: the learner\'s takeover_threshold is 0)';
+  const wheel = state.protocol === 'wheel';
+  $('wheel-keys').hidden = !wheel;
+  $('answer-keys').hidden = wheel;
+}
+
+function showRecent() {
+  const recent = (state.recent || []).slice(-5).reverse();
+  $('recent').innerHTML = recent.length ? 'ended: ' + recent.map((r) => describeEnd(r)).join('<br>') : '';
+}
+
+function describeEnd(r) {
+  const took = r.human ? ` after ${r.response_time_s.toFixed(1)} s` : '';
+  const given = r.given_action && r.given_action.length
+    ? ` [${r.given_action.map((v) => (v >= 0 ? '+' : '') + v.toFixed(2)).join(', ')}]` : '';
+  const detail = r.detail === 'episode_ended' ? ': the episode ended before an answer (not counted as yours)'
+    : (r.detail === 'budget_spent' ? ': your seconds ran out' : (r.detail ? `: ${r.detail}` : ''));
+  if (r.wheel && r.outcome === 'given') {
+    return `episode ${r.episode}, step ${r.step}: you drove ${r.steps_driven} steps, handed back (${r.detail})${took}`;
+  }
+  if (r.wheel && r.outcome === 'failed' && r.detail === 'timeout') {
+    return `episode ${r.episode}, step ${r.step}: not taken in time (the learner drove on)${took}`;
+  }
+  return `episode ${r.episode}, step ${r.step}: ${r.outcome}${given}${took}${detail}`;
 }
 
 function showRequest() {
@@ -106,6 +174,19 @@ function showRequest() {
   $('run-state').textContent = ended;
   if (!r) { box.className = ''; box.textContent = ended || 'no request yet'; return; }
   const key = `${r.episode}/${r.step}`;
+  const paused = r.detail === 'stopped' ? ' (held by STOP)' : '';
+  if (r.wheel && (r.outcome === 'pending' || r.outcome === 'taken')) {
+    // What is left of the request: the learner cut it to the episode and to your seconds.
+    const left = Math.max(0, r.timeout_s - r.waited_s);
+    box.innerHTML = r.outcome === 'pending'
+      ? `THE LEARNER ASKS YOU TO TAKE THE WHEEL${paused}<br>press the deadman (Shift) and steer: episode ${r.episode}, step ${r.step}` +
+        `<div id="countdown">${left.toFixed(1)} s</div><small>the robot drives on its own until you take it</small>`
+      : `YOU HAVE THE WHEEL${paused}<br>${r.steps_driven} steps so far; release the deadman to hand back`;
+    box.className = 'wheel';
+    box.dataset.outcome = r.outcome;
+    if (key !== lastRequestKey) { alertPerson(box); lastRequestKey = key; }
+    return;
+  }
   if (r.outcome === 'pending') {
     // The person's window is teleop_expert's: its answer_window_s, cut to the learner's wait
     // less the margin that lets the answer arrive in time (not the learner's whole wait).
@@ -113,6 +194,7 @@ function showRequest() {
     const margin = t ? t.answer_margin_s : 0.2;
     const window = Math.min(t ? t.answer_window_s : Infinity, r.timeout_s - margin);
     const left = Math.max(0, window - r.waited_s);
+    box.dataset.outcome = r.outcome;
     const d = r.discrepancy === null ? 'n/a' : r.discrepancy.toFixed(3);
     const e = r.entropy === null ? 'n/a (QASAC)' : r.entropy.toFixed(3);
     box.innerHTML = `THE LEARNER ASKS FOR ADVICE<br>episode ${r.episode}, step ${r.step}` +
@@ -122,13 +204,8 @@ function showRequest() {
     if (key !== lastRequestKey) { alertPerson(box); lastRequestKey = key; }
   } else {
     box.className = '';
-    const took = r.human ? ` after ${r.response_time_s.toFixed(1)} s` : '';
     // What was sent, as the env takes it: the person sees the value their input gave.
-    const given = r.given_action && r.given_action.length
-      ? ` [${r.given_action.map((v) => (v >= 0 ? '+' : '') + v.toFixed(2)).join(', ')}]` : '';
-    const detail = r.detail === 'episode_ended' ? ': the episode ended before an answer (not counted as yours)'
-      : (r.detail ? `: ${r.detail}` : '');
-    box.textContent = `last request (episode ${r.episode}, step ${r.step}): ${r.outcome}${given}${took}${detail}`;
+    box.textContent = `last request: ${describeEnd(r)}`;
     box.dataset.outcome = r.outcome;
   }
 }
@@ -180,9 +257,12 @@ function drawPlots() {
   plot($('advice'), 'advice given per episode (blue: by you), your seconds (orange)',
     episodes.map((e) => e.given), budget, '#3498db', true,
     episodes.map((e) => e.human_time_s));
+  plot($('driven'), 'steps you drove per episode: asked (purple), unasked takeovers (green)',
+    episodes.map((e) => e.asked_steps || 0), budget, '#9b59b6', true,
+    episodes.map((e) => e.takeover_steps || 0), '#2ecc71');
 }
 
-function plot(canvas, title, values, budget, color, bars, second) {
+function plot(canvas, title, values, budget, color, bars, second, secondColor) {
   const g = canvas.getContext('2d');
   const w = canvas.width, h = canvas.height, pad = 36;
   g.clearRect(0, 0, w, h);
@@ -216,7 +296,7 @@ function plot(canvas, title, values, budget, color, bars, second) {
     g.stroke();
   }
   if (second) {
-    g.strokeStyle = '#f39c12';
+    g.strokeStyle = secondColor || '#f39c12';
     g.beginPath();
     second.forEach((v, i) => (i ? g.lineTo(x(i), y(v)) : g.moveTo(x(i), y(v))));
     g.stroke();
@@ -299,6 +379,12 @@ $('pause').addEventListener('click', () => {
   send({ type: 'set', name: 'advice_enabled', value: !enabled });
 });
 $('budget').addEventListener('input', () => { budgetEdited = true; });
+$('budget-s').addEventListener('input', () => { budgetSEdited = true; });
+$('set-budget-s').addEventListener('click', () => {
+  const value = Number($('budget-s').value);
+  if (!Number.isFinite(value) || value < 0) { say('your seconds are a number, 0 or more (0: no limit)'); return; }
+  send({ type: 'set', name: 'advising_budget_s', value });
+});
 $('set-budget').addEventListener('click', () => {
   const value = Number($('budget').value);
   if (!Number.isInteger(value)) { say('the budget is a whole number of episodes'); return; }

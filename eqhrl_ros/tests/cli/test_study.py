@@ -71,6 +71,7 @@ def test_a_study_runs_every_arm_matches_the_random_arm_resumes_and_reports(tmp_p
         'human_time_s',
         'takeover_steps',
         'takeover_s',
+        'asked_steps',
     ]
     assert len(episodes) == 7 * 4
     assert {r['arm'] for r in rows(output / 'eval.csv')} == {'sac', 'qasac', 'random', 'qasac_weak'}

@@ -163,6 +163,7 @@ def test_a_person_advises_from_the_browser(browser, ros_context, tmp_path):
         declined = totals.declined
         shown = lambda: re.search(r'episode \d+, step \d+', text('request'))  # noqa: E731
         wait_for(lambda: pending() and shown() and shown().group() != answered, what='the next request')
+        time.sleep(0.2)  # a person's reaction: a press sooner than 0.1 s after a request cannot answer it
         keys('x')
         wait_for(lambda: totals.declined == declined + 1, what='a skip')
         assert teleop.answers['skipped'] >= 1

@@ -286,7 +286,12 @@ def test_realtime_env_with_a_slow_expert_keeps_every_transition(harness, ros_con
             LearnerNode(
                 context=ros_context,
                 parameter_overrides=small_learner_params(
-                    tmp_path, mode='qasac', advising_budget=100, max_episodes=3, advice_timeout_s=1.0
+                    tmp_path,
+                    mode='qasac',
+                    advising_budget=100,
+                    max_episodes=3,
+                    advice_timeout_s=1.0,
+                    advice_protocol='answer',  # one action per request, while the real-time env goes on
                 ),
             )
         )

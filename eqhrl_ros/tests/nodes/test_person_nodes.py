@@ -2,13 +2,15 @@
 window (answered, skipped and timed-out requests, reaction times) and the expert node's
 simulated_human backend."""
 
+import time
+
 import numpy as np
 import pytest
 import rclpy
 from std_msgs.msg import Float32MultiArray
 
 from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
-from eqhrl_ros.core.data.advice import AdviceRequest
+from eqhrl_ros.core.data.advice import ACTION_SOURCES, AdviceRequest
 from eqhrl_ros.core.experts.factory import make_expert
 from eqhrl_ros.core.experts.simulated_human import HumanLimits, SimulatedHuman
 from eqhrl_ros.nodes import messages
@@ -18,7 +20,7 @@ from eqhrl_ros.nodes.learner_node import LearnerNode
 from eqhrl_ros.nodes.spinning import steady_clock
 from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
 
-from ros_helpers import params, small_learner_params
+from ros_helpers import applied_actions, asking_learner_params, params, small_learner_params
 
 PENDULUM_LOW, PENDULUM_HIGH = np.array([-2.0], np.float32), np.array([2.0], np.float32)
 
@@ -167,7 +169,13 @@ def test_a_request_the_episode_ends_is_ended_at_once_everywhere_and_not_counted_
         LearnerNode(
             context=ros_context,
             parameter_overrides=small_learner_params(
-                tmp_path, mode='qasac', queue_length=1, advising_budget=100, max_episodes=6, advice_timeout_s=3.0
+                tmp_path,
+                mode='qasac',
+                queue_length=1,
+                advising_budget=100,
+                max_episodes=6,
+                advice_timeout_s=3.0,
+                advice_protocol='answer',  # the paper's one answer, in a real-time env (the wheel has its own test)
             ),
         )
     )
@@ -238,16 +246,11 @@ def test_the_person_takes_over_unasked_and_hands_back_by_releasing_the_deadman(h
             ),
         )
     )
-    person = harness.add(rclpy.create_node('teleop_stand_in', context=ros_context))
+    person = harness.add(
+        rclpy.create_node('teleop_expert', context=ros_context)
+    )  # whom the learner takes commands from
     pub = person.create_publisher(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, 10)
-    applied = []
-    original = env._step
-
-    def recording(action):
-        original(action)
-        applied.append(float(env._previous_action[0]))
-
-    env._step = recording
+    applied = applied_actions(env)
     assert harness.spin_until(lambda: learner.learner is not None and env.steps_taken > 5, timeout=20)
     hold = person.create_timer(0.02, lambda: pub.publish(messages.person_command_msg([-2.0], True, False)))
     assert harness.spin_until(lambda: learner.learner.episode_advice.takeover_steps >= 20, timeout=20)
@@ -258,9 +261,147 @@ def test_the_person_takes_over_unasked_and_hands_back_by_releasing_the_deadman(h
     assert applied[-10:] == [-2.0] * 10  # the person's action, step after step
     person.destroy_timer(hold)
     release = person.create_timer(0.02, lambda: pub.publish(messages.person_command_msg([-2.0], False, False)))
-    assert harness.spin_until(lambda: learner._person is not None and not learner._person.deadman, timeout=10)
+    assert harness.spin_until(lambda: learner.wheel.person is not None and not learner.wheel.person.deadman, timeout=10)
     steps, start = taken.takeover_steps, len(applied)  # the release has arrived
     assert harness.spin_until(lambda: len(applied) > start + 40, timeout=10)
     assert learner.learner.episode_advice.takeover_steps <= steps + 1  # the learner's again within one step
     assert -2.0 not in applied[-30:]
     person.destroy_timer(release)
+
+
+def test_in_real_time_a_request_asks_for_the_wheel_and_the_robot_follows_the_person(harness, ros_context, tmp_path):
+    """advice_protocol auto in a real-time env is the wheel. The learner alerts and drives on with
+    its own policy; a deadman held from before the alert never takes it (that request times out);
+    a press after the alert takes it: from the next step on the env gets the person's action, each
+    step counted as asked and stored in D_advising; the release hands back within one step, and the
+    person's seconds run from the alert to the hand-back."""
+    env = harness.add(
+        GymEnvNode(
+            context=ros_context, parameter_overrides=params(realtime=True, rate_hz=40.0, max_episode_steps=10**6)
+        )
+    )
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=asking_learner_params(
+                tmp_path,
+                wheel_take_s=1.0,
+                wheel_agree_steps=0,
+                wheel_max_s=0.0,
+                record=True,
+            ),
+        )
+    )
+    person = harness.add(
+        rclpy.create_node('teleop_expert', context=ros_context)
+    )  # whom the learner takes commands from
+    pub = person.create_publisher(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, 10)
+    requests = []
+    person.create_subscription(AdviceRequestMsg, 'learner/advice_request', requests.append, messages.LATCHED_QOS)
+    applied = applied_actions(env)
+    held = {'deadman': True}  # held from the start: before any request
+    person.create_timer(0.02, lambda: pub.publish(messages.person_command_msg([-2.0], held['deadman'], False)))
+    assert harness.spin_until(lambda: any(r.outcome == AdviceRequestMsg.FAILED for r in requests), timeout=30)
+    first = [r for r in requests if r.outcome != AdviceRequestMsg.PENDING][0]
+    assert first.wheel and first.outcome == AdviceRequestMsg.FAILED and first.detail == 'timeout'
+    assert learner.protocol == 'wheel' and learner.learner.episode_advice.asked_steps == 0
+    assert -2.0 not in applied  # never the person's: their press came before the request
+
+    held['deadman'] = False
+    assert harness.spin_until(
+        lambda: requests and requests[-1].outcome == AdviceRequestMsg.PENDING and learner.wheel.open, timeout=30
+    )
+    alerted = time.monotonic()
+    harness.spin_until(lambda: time.monotonic() - alerted > 0.3)  # the person reacts
+    held['deadman'] = True
+    assert harness.spin_until(lambda: requests and requests[-1].outcome == AdviceRequestMsg.TAKEN, timeout=5)
+    taken_at = len(applied)
+    assert harness.spin_until(lambda: len(applied) > taken_at + 20, timeout=5)
+    assert applied[taken_at + 1 : taken_at + 20] == [-2.0] * 19  # the person's action at every step
+    held['deadman'] = False
+    assert harness.spin_until(lambda: requests and requests[-1].outcome == AdviceRequestMsg.GIVEN, timeout=5)
+    given = requests[-1]
+    assert given.wheel and given.detail == 'released' and given.human and given.steps_driven >= 20
+    handed = len(applied)
+    assert harness.spin_until(lambda: len(applied) > handed + 20, timeout=5)
+    assert -2.0 not in applied[handed + 2 :]  # the learner's again within a step
+    counts = learner.learner.episode_advice
+    assert counts.asked_steps == given.steps_driven == len(learner.learner.advice_replay)
+    assert counts.given == counts.human == 1 and counts.failed['timeout'] >= 1
+    # Each of those steps is labelled as asked in the transitions the record keeps (TransitionBatch.sources).
+    sources = [row[6] for row in learner._recorded]
+    assert sources.count(ACTION_SOURCES.index('asked')) == counts.asked_steps and sources.count(0) > 20
+    # The stretch's seconds: from the alert (reaction included) to the hand-back.
+    assert given.response_time_s >= 0.3 + given.steps_driven / 40.0 * 0.8
+
+
+def test_stop_holds_an_open_request_for_one_answer_and_its_window(harness, ros_context, tmp_path):
+    """advice_protocol answer in real time: a STOP while a request waits holds the learner's
+    timeout and teleop_expert's window (no answer lands while the env ignores actions); released,
+    the request goes on, is answered, and the stop is not counted as the person's time."""
+    from std_msgs.msg import Bool
+
+    harness.add(
+        GymEnvNode(
+            context=ros_context, parameter_overrides=params(realtime=True, rate_hz=30.0, max_episode_steps=10**6)
+        )
+    )
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(source='array', axes=[0], scales=[2.0], offsets=[0.0], answer_window_s=1.5),
+        )
+    )
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=asking_learner_params(
+                tmp_path,
+                advice_protocol='answer',
+                advice_timeout_s=2.0,
+            ),
+        )
+    )
+    person = harness.add(rclpy.create_node('keyboard_teleop', context=ros_context))  # the UI it stands for
+    commands = person.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    stop = person.create_publisher(Bool, messages.STOP_TOPIC, messages.STOP_QOS)
+    requests = []
+    person.create_subscription(AdviceRequestMsg, 'learner/advice_request', requests.append, messages.LATCHED_QOS)
+    assert harness.spin_until(lambda: learner.advice.pending is not None and teleop.expert.pending, timeout=30)
+    asked = time.monotonic()
+    stop.publish(Bool(data=True))
+    assert harness.spin_until(lambda: requests and requests[-1].detail == 'stopped', timeout=5)
+    held_for = time.monotonic()
+    harness.spin_until(lambda: time.monotonic() - held_for > 2.5, timeout=5)  # past both windows
+    assert learner.advice.pending is not None and teleop.expert.pending is not None
+    commands.publish(messages.command_msg([0.5], True, True, False))  # an answer while stopped: held
+    harness.spin_until(lambda: time.monotonic() - held_for > 2.8, timeout=5)
+    assert learner.advice.pending is not None
+    stop.publish(Bool(data=False))
+    assert harness.spin_until(
+        lambda: requests and requests[-1].outcome == AdviceRequestMsg.PENDING and not requests[-1].detail
+    )
+    commands.publish(messages.command_msg([0.5], True, False, False))
+    commands.publish(messages.command_msg([0.5], True, True, False))  # Enter
+    assert harness.spin_until(lambda: requests and requests[-1].outcome == AdviceRequestMsg.GIVEN, timeout=5)
+    given = requests[-1]
+    assert given.human and list(given.given_action) == [1.0]
+    stopped_s = learner.summaries[-1].stopped_s if learner.summaries else None
+    assert given.response_time_s < time.monotonic() - asked - 2.5  # the stop is not the person's time
+    assert stopped_s is None or stopped_s >= 2.5
+
+
+def test_a_stranger_beside_teleop_expert_on_person_command_drives_nothing(harness, ros_context, tmp_path):
+    """person_command drives the robot: the learner takes it only while teleop_expert alone
+    publishes it. A second node sending the deadman and take-over gets no step."""
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=10**6)))
+    learner = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, learning_starts=10**6))
+    )
+    teleop = harness.add(rclpy.create_node('teleop_expert', context=ros_context))
+    mallory = harness.add(rclpy.create_node('mallory', context=ros_context))
+    quiet = teleop.create_publisher(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, 10)  # noqa: F841
+    pub = mallory.create_publisher(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, 10)
+    mallory.create_timer(0.02, lambda: pub.publish(messages.person_command_msg([-2.0], True, True)))
+    assert harness.spin_until(lambda: learner.refused_person_commands > 20, timeout=20)
+    assert learner.learner.episode_advice.takeover_steps == 0 and learner.wheel.person is None

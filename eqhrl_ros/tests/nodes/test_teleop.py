@@ -346,6 +346,25 @@ def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
         request_pub.publish(messages.advice_request_msg('given', ask, 2.0, human=True, response_time_s=1.25))
         assert tmux.wait_for('no request pending (last one: given after 1.2 s)'), tmux.screen()
 
+        # Asked for the wheel: t is the deadman (a toggle: a terminal hears no key releases).
+        tmux.send('p')  # sending again
+        request_pub.publish(messages.advice_request_msg('pending', ask, 4.0, wheel=True))
+        assert tmux.wait_for('TAKE THE WHEEL: press t'), tmux.screen()
+
+        def enabled():
+            return messages.read_fields(commands[-1])['enabled'] if commands else None
+
+        assert harness.spin_until(lambda: enabled() == [0.0])  # not held until t
+        tmux.send('t')
+        assert harness.spin_until(lambda: enabled() == [1.0])
+        assert tmux.wait_for('YOU DRIVE (asked)'), tmux.screen()
+        tmux.send('t')  # handed back
+        assert harness.spin_until(lambda: enabled() == [0.0])
+        tmux.send('t')
+        assert harness.spin_until(lambda: enabled() == [1.0])
+        request_pub.publish(messages.advice_request_msg('given', ask, 4.0, 'agreed', human=True, wheel=True))
+        assert harness.spin_until(lambda: enabled() == [0.0])  # the learner took it back: released here too
+
         tmux.send('q')
         deadline = time.monotonic() + 20
         while tmux.running() != 'bash' and time.monotonic() < deadline:

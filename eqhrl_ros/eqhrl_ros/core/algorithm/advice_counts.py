@@ -23,6 +23,7 @@ SUMMARY_FIELDS = {
     'takeovers': 'takeovers',
     'takeover_steps': 'takeover_steps',
     'takeover_s': 'takeover_s',
+    'asked_steps': 'asked_steps',
 }
 
 
@@ -39,6 +40,8 @@ class AdviceCounts:
     takeovers: int = 0
     takeover_steps: int = 0
     takeover_s: float = 0.0
+    # Steps the person drove because they were asked to (the wheel protocol).
+    asked_steps: int = 0
 
     @property
     def failed_total(self) -> int:
@@ -65,6 +68,7 @@ class AdviceCounts:
         self.takeovers += other.takeovers
         self.takeover_steps += other.takeover_steps
         self.takeover_s += other.takeover_s
+        self.asked_steps += other.asked_steps
         for kind, n in other.failed.items():
             self.failed[kind] += n
 
@@ -79,6 +83,7 @@ class AdviceCounts:
             'takeovers': self.takeovers,
             'takeover_steps': self.takeover_steps,
             'takeover_s': self.takeover_s,
+            'asked_steps': self.asked_steps,
         }
 
     @staticmethod
@@ -95,6 +100,7 @@ class AdviceCounts:
             int(d.get('takeovers', 0)),  # nor before takeovers were counted
             int(d.get('takeover_steps', 0)),
             float(d.get('takeover_s', 0.0)),
+            int(d.get('asked_steps', 0)),  # nor before the wheel was asked for
         )
 
 
@@ -108,8 +114,10 @@ class RunTally:
     advice_total: AdviceCounts = field(default_factory=AdviceCounts)
 
     def person_seconds(self, open_episode: AdviceCounts | None = None) -> float:
-        """The person's seconds on requests over the run, the open episode's included."""
-        return self.advice_total.human_time_s + (open_episode.human_time_s if open_episode else 0.0)
+        """The person's seconds over the run (on requests and on unasked takeovers), the open
+        episode's included."""
+        spent = self.advice_total.human_time_s + self.advice_total.takeover_s
+        return spent + (open_episode.human_time_s + open_episode.takeover_s if open_episode else 0.0)
 
     def close(self, summary: EpisodeSummary, counts: AdviceCounts) -> EpisodeSummary:
         """``summary`` as the run's next row: its index, the run's steps so far and the person's

@@ -7,11 +7,11 @@ import math
 import statistics
 from collections import deque
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Iterable, Optional
 
 from . import equations as eq
 from .advice_window import AdviceBudget
-from .config import EXTENSION_MODES, LearnerConfig, check_value
+from .config import EXTENSION_MODES, SCORE_MODES, LearnerConfig, check_value
 
 
 def step_patterns(flat: tuple) -> list:
@@ -72,9 +72,11 @@ class GateDecision:
     entropy: float = float('nan')  # E(s), Eq. 9; NaN when not evaluated
     d_threshold: float = float('nan')  # max(D_queue) before the push, or the fixed threshold
     e_threshold: float = float('nan')  # min(E_queue) before the push, or the fixed threshold
-    # mode joint_rank: the rank product of D(s) and E(s) and the threshold it was held against
+    # modes joint_rank, novelty, advice_gain: the rank (for joint_rank, the rank product of D(s)
+    # and E(s)) and the threshold it was held against; novelty, advice_gain: the score ranked
     joint_rank: float = float('nan')
     joint_threshold: float = float('nan')
+    score: float = float('nan')
     refractory: bool = False  # the gates fired, but a request of this episode was too few steps ago
 
     @property
@@ -87,6 +89,9 @@ class GateDecision:
         if not self.queues_ready:
             return 'queues filling'
         has_d, has_e = not math.isnan(self.discrepancy), not math.isnan(self.entropy)
+        if not math.isnan(self.score):  # modes novelty, advice_gain
+            relation = '>=' if self.fire else '<'
+            return f'score {self.score:.3f} ranks {self.joint_rank:.3f} {relation} threshold {self.joint_threshold:.3f}'
         if not math.isnan(self.joint_rank):  # mode joint_rank
             relation = '>=' if self.fire else '<'
             return f'rank product {self.joint_rank:.3f} {relation} threshold {self.joint_threshold:.3f}'
@@ -125,6 +130,9 @@ class AdvisingGates:
       D_queue below D(s) and rank_E the share of E_queue above E(s) (both 1 exactly when EQSAC
       fires); the threshold starts at 1 (EQSAC's rule, with >= for >) and moves by
       ``gate_threshold_step`` per step toward asking at ``gate_target_rate`` (Robbins-Monro).
+    - ``novelty`` and ``advice_gain``: a score of the state (core/algorithm/state_scores.py),
+      ranked in a queue of its own as joint_rank ranks, against a threshold tuned the same way;
+      advice_gain asks by chance at gate_target_rate until it has enough answers to score from.
     All only while episode < advising_budget (Eq. 7).
 
     Dynamic thresholds compare the current value with the queue *as it was before
@@ -148,6 +156,7 @@ class AdvisingGates:
         gate_threshold_step: float = 0.01,
         random_ask_steps: tuple = (),
         request_refractory_steps: int = 0,
+        score_queue_length: int = 200,
     ):
         # The rules of each value live with LearnerConfig's fields (core/algorithm/config.py).
         self.mode = check_value('mode', mode)
@@ -177,6 +186,7 @@ class AdvisingGates:
         self.joint_threshold = 1.0  # mode joint_rank: starts at EQSAC's rule
         self.d_queue = FifoQueue(queue_length)
         self.e_queue = FifoQueue(queue_length)
+        self.s_queue = FifoQueue(score_queue_length)  # modes novelty, advice_gain: their scores
 
     @property
     def advising_budget(self) -> int:
@@ -192,16 +202,26 @@ class AdvisingGates:
 
     @property
     def uses_draw(self) -> bool:
-        return self.mode in ('random', 'ask_random')
+        return self.mode in ('random', 'ask_random', 'advice_gain')
+
+    @property
+    def uses_score(self) -> bool:
+        return self.mode in SCORE_MODES
 
     def needs_evaluation(self, episode: int) -> bool:
         """Whether D(s), E(s) or the random draw are needed this step (skipped when they cannot matter)."""
         return self.budget.within_episodes(episode)
 
-    def decide(self, episode: int, discrepancy=None, entropy=None, draw=None, step: int = 0) -> GateDecision:
-        """Whether to ask now (_decide: the mode's rule), then request_refractory_steps (an
+    def decide(
+        self, episode: int, discrepancy=None, entropy=None, draw=None, step: int = 0, score=None
+    ) -> GateDecision:
+        """Whether to ask now (_decide: the mode's rule; ``score``: the state's, for novelty and
+        advice_gain, None while it cannot be scored yet), then request_refractory_steps (an
         extension): no request within that many steps after the last one of the episode."""
-        decision = self._decide(episode, discrepancy, entropy, draw, step)
+        if self.uses_score and self.budget.within_episodes(episode):
+            decision = self._scored(score, draw)
+        else:
+            decision = self._decide(episode, discrepancy, entropy, draw, step)
         if not decision.fire:
             return decision
         last_episode, last_step = self._last_request
@@ -307,6 +327,24 @@ class AdvisingGates:
             joint_threshold=threshold,
         )
 
+    def _scored(self, score: Optional[float], draw: Optional[float]) -> GateDecision:
+        """novelty, advice_gain: the score's rank among the queue's, against a threshold that
+        starts at 1 (above every queued score, as the ask gate) and moves toward gate_target_rate."""
+        if score is None:  # nothing to score from yet: advice_gain asks by chance, novelty waits
+            fire = self.mode == 'advice_gain' and draw is not None and draw < self.gate_target_rate
+            return GateDecision(fire, within_budget=True, queues_ready=False)
+        values, threshold = self.s_queue.values(), self.joint_threshold
+        ready = self.s_queue.full()
+        rank = sum(v < score for v in values) / len(values) if values else 0.0
+        fire = ready and rank >= threshold
+        if ready:  # Robbins-Monro, as joint_rank
+            step = self.gate_threshold_step * (float(fire) - self.gate_target_rate)
+            self.joint_threshold = min(1.0, max(0.0, threshold + step))
+        self.s_queue.push(float(score))
+        return GateDecision(
+            fire, within_budget=True, queues_ready=ready, joint_rank=rank, joint_threshold=threshold, score=float(score)
+        )
+
     def _random_request(self, episode: int, step: int, draw: float) -> bool:
         if self.step_patterns:
             return self._shifted_request(episode, step, draw)
@@ -338,6 +376,7 @@ class AdvisingGates:
             'd_queue': self.d_queue.values(),
             'e_queue': self.e_queue.values(),
             'joint_threshold': self.joint_threshold,
+            's_queue': self.s_queue.values(),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -345,3 +384,4 @@ class AdvisingGates:
         self.d_queue = FifoQueue(length, state['d_queue'])
         self.e_queue = FifoQueue(length, state['e_queue'])
         self.joint_threshold = float(state.get('joint_threshold', 1.0))  # absent before the extension
+        self.s_queue = FifoQueue(self.s_queue.length, state.get('s_queue', ()))  # absent before novelty and advice_gain

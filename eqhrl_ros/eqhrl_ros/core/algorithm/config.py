@@ -20,9 +20,13 @@ from typing import Any, Optional
 # random_ask_rate (the ask gate thinned by chance instead of by E(s)). Two gates beyond the
 # paper, labelled as extensions wherever they appear: 'ask_median', the ask gate and E(s) below
 # the median of E_queue; 'joint_rank', the product of D(s)'s and E(s)'s ranks in their queues
-# above a threshold tuned online to gate_target_rate.
+# above a threshold tuned online to gate_target_rate; 'novelty' and 'advice_gain', a state's
+# distance from those seen and the change of action earlier answers made near it, ranked the same
+# way (core/algorithm/state_scores.py).
 PAPER_MODES = ('sac', 'qasac', 'eqsac')
-EXTENSION_MODES = ('ask_median', 'joint_rank')
+EXTENSION_MODES = ('ask_median', 'joint_rank', 'novelty', 'advice_gain')
+# The extensions that rank a score of the state itself (state_scores.py) in a queue of its own.
+SCORE_MODES = ('novelty', 'advice_gain')
 
 
 # How tables and figures name and colour each mode (a test holds one entry per mode).
@@ -35,6 +39,8 @@ MODE_LABELS = {
     'ask_random': 'ask gate and chance',
     'ask_median': 'ask gate and E(s) below its median (extension)',
     'joint_rank': 'joint rank of D(s) and E(s) (extension)',
+    'novelty': "the state's novelty (extension)",
+    'advice_gain': "the advice's gain near the state (extension)",
 }
 MODE_COLORS = {
     'sac': 'tab:gray',
@@ -45,6 +51,8 @@ MODE_COLORS = {
     'ask_random': 'tab:orange',
     'ask_median': 'tab:brown',
     'joint_rank': 'tab:pink',
+    'novelty': 'tab:olive',
+    'advice_gain': 'tab:cyan',
 }
 
 
@@ -58,6 +66,22 @@ MODES = (*PAPER_MODES, 'respond', 'random', 'ask_random', *EXTENSION_MODES)
 ADVICE_BATCHES = ('full', 'proportional')
 THRESHOLD_KINDS = ('dynamic', 'fixed')
 ENTROPY_ESTIMATORS = ('exact', 'monte_carlo')
+# How a request reaches the person (core/experts/wheel.py): the paper's one action for one state
+# ('answer'), or the wheel for a stretch from the current state ('wheel', beyond the paper);
+# 'auto' picks the wheel in a real-time env and the answer in a lock-step one.
+ADVICE_PROTOCOLS = ('auto', 'answer', 'wheel')
+
+
+def advice_protocol(configured: str, realtime: bool) -> str:
+    """The protocol a learner uses: ``configured`` (one of ADVICE_PROTOCOLS) for an env that is
+    real-time or not ('auto': the wheel in real time, where nothing waits for an answer)."""
+    if configured not in ADVICE_PROTOCOLS:
+        raise ValueError(f'advice_protocol must be one of {ADVICE_PROTOCOLS}, got {configured!r}')
+    if configured == 'auto':
+        return 'wheel' if realtime else 'answer'
+    return configured
+
+
 DEVICES = ('cpu', 'cuda')
 INT_MAX = 2**31 - 1
 
@@ -95,7 +119,11 @@ class LearnerConfig:
         'respond (respond gate only), random (ask at random steps: random_ask_rate, or random_ask_schedule), '
         'ask_random (the ask gate and a random draw below random_ask_rate); extensions beyond the paper: '
         'ask_median (the ask gate and E(s) below the median of E_queue), joint_rank (the product of the '
-        'ranks of D(s) and E(s) in their queues above a threshold tuned to gate_target_rate)',
+        'ranks of D(s) and E(s) in their queues above a threshold tuned to gate_target_rate), novelty (the '
+        "state's mean distance to its gate_neighbours nearest of the last gate_memory states seen), "
+        'advice_gain (the change of action earlier answers made near the state, distance-weighted over its '
+        'gate_neighbours nearest answered states; by chance at gate_target_rate until there are that many): '
+        'each ranked in a queue of its own and asked above a threshold tuned to gate_target_rate',
         choices=MODES,
     )
     hidden: tuple[int, ...] = hyper(
@@ -126,7 +154,8 @@ class LearnerConfig:
     advising_budget_s: float = hyper(
         0.0,
         "A budget in the person's seconds: no more requests once the person has spent this long "
-        'answering (reaction times, skips, windows let pass) over the run; 0: none. With advising_budget, '
+        'over the run on requests (from the alert to the answer or the hand-back, reaction included; skips, '
+        'windows let pass) and unasked takeovers; 0: none. With advising_budget, '
         'the first one used up ends advice (not in the paper)',
         range=(0.0, 1e9),
         dynamic=True,
@@ -171,13 +200,31 @@ class LearnerConfig:
     )
     gate_target_rate: float = hyper(
         0.015,
-        'Mode joint_rank (an extension): the share of budget steps it asks at; its threshold on the rank '
-        'product moves by gate_threshold_step per step toward this rate (Robbins-Monro). The default is '
+        'Modes joint_rank, novelty and advice_gain (extensions): the share of budget steps they ask at; '
+        'the threshold on the rank moves by gate_threshold_step per step toward this rate (Robbins-Monro). '
+        'The default is '
         "EQSAC's rate on Pendulum with Table 1's settings (1.5 % of budget steps, docs/results.md)",
         range=(0.0, 1.0),
     )
     gate_threshold_step: float = hyper(
-        0.01, 'Mode joint_rank: how far its threshold moves per step toward gate_target_rate', range=(1e-6, 1.0)
+        0.01,
+        'Modes joint_rank, novelty, advice_gain: how far the threshold moves per step toward gate_target_rate',
+        range=(1e-6, 1.0),
+    )
+    gate_neighbours: int = hyper(
+        5, 'Modes novelty and advice_gain (extensions): the nearest states a score is taken over', range=(1, 1000)
+    )
+    gate_score_queue: int = hyper(
+        200,
+        'Modes novelty and advice_gain: the recent scores a score is ranked among. A queue of n ranks in '
+        "steps of 1/n, so it can ask at rates down to about 1/n (200: 0.5 %; Table 1's queue_length of 15 "
+        'could not ask below 6 %)',
+        range=(2, 100_000),
+    )
+    gate_memory: int = hyper(
+        2048,
+        'Modes novelty and advice_gain: the states remembered (the latest seen, and the latest answered)',
+        range=(1, 1_000_000),
     )
     request_refractory_steps: int = hyper(
         0,
@@ -192,6 +239,40 @@ class LearnerConfig:
         'the deadman stays held; the take-over button (T on the page) does it at once. 0: only the button '
         '(an answer given by steering would otherwise go on as a takeover)',
         range=(0.0, 2.0),
+    )
+    advice_protocol: str = hyper(
+        'auto',
+        'How a request reaches the person: answer (the paper: one action for the state asked about), '
+        'wheel (beyond the paper: the person is asked to take over from the current state, and drives '
+        'until they hand back), or auto: wheel in a real-time env, answer in a lock-step one',
+        choices=ADVICE_PROTOCOLS,
+    )
+    wheel_take_s: float = hyper(
+        4.0,
+        'Protocol wheel: seconds the person has to take the wheel (press the deadman) after the alert; '
+        'the robot drives with its own policy meanwhile, and an untaken request ends as a timeout',
+        range=(0.01, 600.0),
+        dynamic=True,
+    )
+    wheel_max_s: float = hyper(
+        10.0,
+        'Protocol wheel: the longest stretch the person drives once asked; 0: no limit',
+        range=(0.0, 3600.0),
+        dynamic=True,
+    )
+    wheel_agree: float = hyper(
+        0.1,
+        "Protocol wheel: the person's and the policy's actions agree when they are within this, in [-1, 1] "
+        'units (every dimension); see wheel_agree_steps',
+        range=(0.0, 2.0),
+        dynamic=True,
+    )
+    wheel_agree_steps: int = hyper(
+        10,
+        'Protocol wheel: hand back to the learner once the actions agree (wheel_agree) this many steps in a '
+        'row, as ThriftyDAgger hands back; 0: only on release or wheel_max_s',
+        range=(0, INT_MAX),
+        dynamic=True,
     )
     takeover_to_advice_memory: bool = hyper(
         True, 'Steps the person took over go to D_advising too, as advice (false: D only)'

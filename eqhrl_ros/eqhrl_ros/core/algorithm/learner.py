@@ -28,17 +28,18 @@ knows who answers advice. Every equation it uses lives in core/algorithm/equatio
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
 import torch
 
-from ..data.advice import FAILURE_KINDS, Advice, AdviceRequest, check_advised_action
+from ..data.advice import Advice, AdviceRequest
 from ..data.replay import checked_transition
 from ..data.summary import EpisodeSummary
 from ..envs.spec import ActionScaler, SuccessCriterion
+from . import advice_outcomes as outcomes
 from .advice_counts import AdviceCounts, RunTally
+from .advice_outcomes import Proposal, Resolution
 from .advice_window import AdviceBudget, AdviceWindow
 from .advising import AdvisingGates, GateDecision
 from .config import LearnerConfig, check_value
@@ -48,31 +49,9 @@ from .memories import ReplayMemories
 from .networks import SquashedGaussianActor, TwinCritic
 from .observations import VectorObservation
 from .policy import Policy
+from .state_scores import StateScores
 from .streams import RandomStreams, stream_seeds
 from .updater import Updater, updates_after_a_step
-
-
-@dataclass(frozen=True)
-class Proposal:
-    """The learner's own action for s_t, the gate decision, and the request to send if it fired."""
-
-    action: np.ndarray  # env units
-    decision: GateDecision
-    request: Optional[AdviceRequest]
-
-
-@dataclass(frozen=True)
-class Resolution:
-    """How an advice request ended: the action to take, and why."""
-
-    action: np.ndarray  # env units: the advice, or the learner's own action
-    advised: bool  # the advice is used (and goes to D_advising)
-    outcome: str  # 'given', 'declined', 'failed' or 'taken over'
-    detail: str = ''  # the failure kind, or the expert's reason for declining
-
-    def action_and_advised(self) -> tuple[np.ndarray, bool]:
-        """(action, advised): what Algorithm 1 acts with and stores."""
-        return self.action, self.advised
 
 
 def learning_device(name: str) -> torch.device:
@@ -111,6 +90,7 @@ def gates_for(config: LearnerConfig, budget: AdviceBudget) -> AdvisingGates:
         cfg.gate_threshold_step,
         cfg.random_ask_steps,
         cfg.request_refractory_steps,
+        cfg.gate_score_queue,
     )
 
 
@@ -138,6 +118,10 @@ class EQSACLearner:
         self.memories = ReplayMemories(cfg, self.observation.dim, scaler.dim, self.streams, self.device)
         self.budget = AdviceBudget(cfg)
         self.gates = gates_for(cfg, self.budget)
+        # Modes novelty and advice_gain (extensions) score the state itself (state_scores.py).
+        self.scores = (
+            StateScores(obs_dim, cfg.gate_neighbours, cfg.gate_memory, self.device) if self.gates.uses_score else None
+        )
         self.tally = RunTally()
         self._reported_success: Optional[bool] = None  # the env's own verdict on the episode, if any
         self._reset_episode()
@@ -199,7 +183,12 @@ class EQSACLearner:
             discrepancy = self.critics.discrepancy(obs_t, action) if gates.uses_discrepancy else None
             entropy = self.policy.entropy(mean, log_std) if gates.uses_entropy else None
             draw = self.streams.uniform('request') if gates.uses_draw else None
-            decision = gates.decide(self.episode, discrepancy, entropy, draw, self.episode_step)
+            score = None
+            if self.scores is not None:  # scored against the states before it, then remembered
+                state = obs_t[0]
+                score = self.scores.novelty(state) if self.mode == 'novelty' else self.scores.advice_gain(state)
+                self.scores.observe(state)
+            decision = gates.decide(self.episode, discrepancy, entropy, draw, self.episode_step, score)
         else:
             decision = self.gates.decide(self.episode)
 
@@ -219,48 +208,40 @@ class EQSACLearner:
         return Proposal(env_action, decision, request)
 
     def resolve_advice(self, proposal: Proposal, advice: Advice | None = None, failure: str = '') -> Resolution:
-        """Count the outcome of an advice request and return what to do.
+        """Count how a request for one answer ended (``failure``: why no answer came; else ``advice``)
+        and return what to do (advice_outcomes.resolve)."""
+        resolution = outcomes.resolve(
+            self._episode_advice, proposal, advice, failure, self.scaler, self.person_budget_left_s
+        )
+        if proposal.request is not None:
+            self._remember_gain(self.observation.tensor(proposal.request.observation)[0], proposal, resolution)
+        return resolution
 
-        ``failure`` names why no answer came (one of experts.FAILURE_KINDS); otherwise
-        ``advice`` is the answer. A refusal or a failure leaves the learner's own action.
-        A person's time on the request (advice.response_time_s) is counted whatever they said;
-        a person's answer window that passed (advice.timed_out) counts as a timeout.
-        """
-        counts = self._episode_advice
-        counts.asked += 1
-        if advice is not None and advice.human:
-            counts.human_time_s += max(0.0, float(advice.response_time_s))
-        if advice is not None and advice.timed_out:
-            failure = 'timeout'
-        if failure:
-            if failure not in counts.failed:
-                raise ValueError(f'unknown failure kind {failure!r}; one of {FAILURE_KINDS}')
-            counts.failed[failure] += 1
-            return Resolution(proposal.action, False, 'failed', failure)
-        if advice is None or not advice.advised:
-            counts.declined += 1
-            return Resolution(proposal.action, False, 'declined', advice.reason if advice else '')
-        action, failure = check_advised_action(advice.action, self.scaler.low, self.scaler.high)
-        if failure or action is None:
-            counts.failed[failure] += 1
-            return Resolution(proposal.action, False, 'failed', failure)
-        counts.given += 1
-        counts.human += int(advice.human)
-        return Resolution(action, True, 'given')
+    def _remember_gain(self, state, proposal: Proposal, resolution: Resolution) -> None:
+        """advice_gain: how far the advised action was from the learner's own at ``state``."""
+        if self.scores is not None and resolution.advised and state is not None:
+            gain = np.abs(self.normalize(resolution.action) - self.normalize(proposal.action)).max()
+            self.scores.answered_with(state, float(gain))
 
     def take_over(self, proposal: Proposal, action, seconds: float, starts: bool) -> Resolution:
-        """The person took this step over unasked (mixed initiative): their action replaces the
-        learner's, counted apart from answered requests (``starts``: a new stretch of takeover;
-        ``seconds``: the person's time on this step). The step goes to D_advising too when
-        takeover_to_advice_memory is set (as advice). An action outside the bounds is refused."""
-        action, failure = check_advised_action(action, self.scaler.low, self.scaler.high)
-        if failure:
-            return Resolution(proposal.action, False, 'failed', failure)
-        counts = self._episode_advice
-        counts.takeovers += int(starts)
-        counts.takeover_steps += 1
-        counts.takeover_s += max(0.0, float(seconds))
-        return Resolution(action, self.config.takeover_to_advice_memory, 'taken over')
+        """The person took this step over unasked (advice_outcomes.take_over)."""
+        memory = self.config.takeover_to_advice_memory
+        return outcomes.take_over(self._episode_advice, proposal, action, seconds, starts, self.scaler, memory)
+
+    def drive_asked(self, proposal: Proposal, action) -> Resolution:
+        """A step the person drives because they were asked to take the wheel (advice_outcomes.drive_asked)."""
+        resolution = outcomes.drive_asked(self._episode_advice, proposal, action, self.scaler)
+        if self.scores is not None:  # each step driven is an answer at its state (the last one proposed)
+            self._remember_gain(self.scores.last_seen, proposal, resolution)
+        return resolution
+
+    def end_wheel_request(self, ended: str, taken: bool) -> None:
+        """A request for the wheel ended, taken or not (advice_outcomes.end_wheel_request)."""
+        outcomes.end_wheel_request(self._episode_advice, ended, taken)
+
+    def count_person_seconds(self, seconds: float, asked: bool) -> None:
+        """The person's seconds on this step, as they pass (advice_outcomes.count_person_seconds)."""
+        outcomes.count_person_seconds(self._episode_advice, seconds, asked)
 
     # ------------------------------------------------------------------ the budgets
 
@@ -274,7 +255,8 @@ class EQSACLearner:
 
     @property
     def human_time_total_s(self) -> float:
-        """The person's seconds on requests over the run so far, this episode's included."""
+        """The person's seconds over the run so far (requests and unasked takeovers), this
+        episode's included: what advising_budget_s is spent against."""
         return self.tally.person_seconds(self._episode_advice)
 
     @property

@@ -60,6 +60,14 @@ Expert = Callable[[AdviceRequest], Advice]
 SKIPPED = 'skipped by the person'
 
 
+# Who chose a stored step's action (TransitionBatch.sources holds the index): the learner's own
+# policy, an expert's answer to a request, the person driving because they were asked to take the
+# wheel, or the person taking over unasked.
+ACTION_SOURCES = ('learner', 'answer', 'asked', 'takeover')
+# A Resolution's outcome -> the source of the action it gives (any other outcome: the learner's).
+OUTCOME_SOURCES = {'given': 'answer', 'asked': 'asked', 'taken over': 'takeover'}
+
+
 # Kinds of failed advice, counted apart from advice given and advice declined.
 FAILURE_KINDS = (
     'unavailable',
@@ -70,6 +78,7 @@ FAILURE_KINDS = (
     'out_of_bounds',
     'untrusted',
     'episode_ended',  # a real-time episode ended before the answer came: not the person's timeout
+    'budget_spent',  # the person's seconds (advising_budget_s) ran out before they took the wheel
 )
 
 

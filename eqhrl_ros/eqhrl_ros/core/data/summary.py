@@ -37,8 +37,10 @@ class EpisodeSummary:
     # The learner did not see the whole episode (an observation was lost, or it joined
     # mid-episode): return and length cover only what it saw. Never a normal episode.
     interrupted: bool = False
-    # Seconds of a person's time spent on this episode's advice requests (reaction times of
-    # answers and skips, whole answer windows let pass), and over the whole run so far.
+    # Seconds of a person's time spent on this episode's advice requests (from the alert to the
+    # answer or the hand-back, reaction included; skips, whole windows let pass), and the person's
+    # seconds over the whole run so far: requests and unasked takeovers (takeover_s), the sum that
+    # advising_budget_s is spent against.
     human_time_s: float = field(default=0.0, metadata=_column('.3f'))
     human_time_total_s: float = field(default=0.0, metadata=_column('.3f'))
     # The person took over unasked: stretches of steps, steps and seconds (not requests).
@@ -49,6 +51,9 @@ class EpisodeSummary:
     # no step meanwhile; the episode went on from the same state once released).
     stops: int = 0
     stopped_s: float = field(default=0.0, metadata=_column('.3f'))
+    # Steps the person drove because the learner asked them to take the wheel (the wheel protocol;
+    # distinct from takeover_steps, taken unasked). The requests themselves are counted above.
+    asked_steps: int = 0
 
     def csv_row(self) -> list:
         """This episode as a row of episodes.csv (CSV_FIELDS)."""

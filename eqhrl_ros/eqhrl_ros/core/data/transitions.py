@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .advice import ACTION_SOURCES
 from .summary import EpisodeSummary
 
 # A sent batch no acknowledgement has covered for this long went into a cut link (or its
@@ -52,6 +53,8 @@ class TransitionBatch:
     run: str = ''  # the actor process's run (a restarted actor numbers its batches from 0 again)
     # The oldest sequence this actor still holds (anything before it is gone); None: unknown, this one.
     oldest_kept: int | None = None
+    # (n,) uint8, who chose each action: an index into advice.ACTION_SOURCES; empty: not said.
+    sources: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))
 
     def __len__(self) -> int:
         return len(self.rewards)
@@ -78,6 +81,7 @@ def batch_fields(batch: TransitionBatch, action_low, action_high) -> dict:
         'next_observations': np.asarray(batch.next_observations, dtype=np.float32).ravel(),
         'terminated': [bool(v) for v in batch.terminated],
         'advised': [bool(v) for v in batch.advised],
+        'sources': np.asarray(batch.sources, dtype=np.uint8).tolist(),
         'episodes': [dataclasses.asdict(s) for s in batch.episodes],
     }
 
@@ -104,6 +108,12 @@ def batch_from_fields(msg) -> tuple[TransitionBatch, np.ndarray, np.ndarray]:
     for name, (got, expected) in sizes.items():
         if got != expected:
             raise BatchError(f'{name} has {got} values, {n} transitions need {expected}')
+    # A record written before sources existed has none: read as not said.
+    sources = np.asarray(list(getattr(msg, 'sources', ())), dtype=np.uint8)
+    if len(sources) not in (0, n):
+        raise BatchError(f'sources has {len(sources)} values, {n} transitions need {n} (or none)')
+    if len(sources) and int(sources.max()) >= len(ACTION_SOURCES):
+        raise BatchError(f'sources holds {int(sources.max())}, not an index into {ACTION_SOURCES}')
     stats = [f.name for f in dataclasses.fields(EpisodeSummary)]
     batch = TransitionBatch(
         actor=msg.actor,
@@ -117,6 +127,7 @@ def batch_from_fields(msg) -> tuple[TransitionBatch, np.ndarray, np.ndarray]:
         episodes=[EpisodeSummary(**{name: getattr(e, name) for name in stats}) for e in msg.episodes],
         run=msg.actor_run,
         oldest_kept=int(msg.oldest_kept),
+        sources=sources,
     )
     low, high = (np.asarray(v, dtype=np.float32) for v in (msg.action_low, msg.action_high))
     return batch, low, high
@@ -177,10 +188,13 @@ class Outbox:
         """Something to send now: a sealed batch, or one to send again."""
         return bool(self.sealed or self._again)
 
-    def add(self, obs, normalized_action, reward: float, next_obs, terminated: bool, advised: bool) -> None:
+    def add(
+        self, obs, normalized_action, reward: float, next_obs, terminated: bool, advised: bool, source: str = 'learner'
+    ) -> None:
+        """One transition; ``source``: who chose its action (one of ACTION_SOURCES)."""
         if self._since is None:
             self._since = time.monotonic()
-        self._rows.append((obs, normalized_action, reward, next_obs, terminated, advised))
+        self._rows.append((obs, normalized_action, reward, next_obs, terminated, advised, ACTION_SOURCES.index(source)))
         if len(self._rows) >= self.batch_transitions:
             self.seal()
 
@@ -208,6 +222,7 @@ class Outbox:
             np.asarray([r[5] for r in rows], dtype=bool),
             list(self._episodes),
             run=self.run,
+            sources=np.asarray([r[6] for r in rows], dtype=np.uint8),
         )
         self.next_sequence += 1
         self.sealed.append(batch)

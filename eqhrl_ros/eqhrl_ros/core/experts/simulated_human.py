@@ -17,6 +17,7 @@ import numpy as np
 
 from ..algorithm.config import check_fields, hyper
 from ..data.advice import SKIPPED, Advice, AdviceRequest
+from .takeover import PersonCommand
 
 PLAN_KINDS = ('answer', 'skip', 'miss')
 
@@ -36,6 +37,12 @@ class HumanLimits:
     miss_probability: float = hyper(0.1, 'Chance that the person does not notice the request', range=(0.0, 1.0))
     answer_window_s: float = hyper(
         3.0, 'Seconds the person is given; a later reaction is a missed request (timeout)', range=(0.01, 600.0)
+    )
+    stretch_s: float = hyper(
+        2.0,
+        'Asked for the wheel (advice_protocol wheel): seconds the person drives once they take it, '
+        'before they release the deadman (the learner may take it back sooner: wheel_agree_steps, wheel_max_s)',
+        range=(0.0, 3600.0),
     )
 
     def __post_init__(self):
@@ -105,8 +112,11 @@ class SimulatedHuman:
         seed: int = 0,
         name: str = '',
         takeover: Optional[TakeoverRule] = None,
+        step_s: float = 0.05,
     ):
         self.expert = expert
+        self.step_s = takeover.step_s if takeover is not None else step_s  # simulated seconds per env step
+        self._wheel: Optional[tuple[float, float]] = None  # (press, release) of the wheel asked for
         self.limits = limits or HumanLimits()
         self.rng = np.random.default_rng(seed)
         self.takeover = takeover
@@ -152,6 +162,32 @@ class SimulatedHuman:
 
     def __call__(self, request: AdviceRequest) -> Advice:
         return self.outcome(self.plan(request))
+
+    def alerted(self, now: float) -> None:
+        """Asked at ``now`` to take the wheel (core/experts/wheel.py): one uniform draw picks
+        whether the person lets it pass (a miss or a skip: they never press), else they press the
+        deadman after a reaction time and release it stretch_s later."""
+        limits = self.limits
+        if self.rng.random() < limits.miss_probability + limits.skip_probability:
+            self._wheel = None
+            return
+        press = now + self._reaction_s()
+        self._wheel = (press, press + limits.stretch_s)
+
+    def wheel_command(self, request: AdviceRequest, now: float) -> Optional[PersonCommand]:
+        """The person's command at ``now`` for the state in ``request``: their model's action with
+        their steering noise, the deadman held between their press and their release; None while
+        they do not hold it."""
+        if self._wheel is None or not self._wheel[0] <= now < self._wheel[1]:
+            return None
+        advice = self.expert(request)
+        if not advice.advised:
+            return None
+        low = np.asarray(request.action_low, dtype=np.float32)
+        high = np.asarray(request.action_high, dtype=np.float32)
+        noise = self.rng.standard_normal(low.shape[0]) * self.limits.action_noise * (high - low) / 2.0
+        action = np.clip(np.asarray(advice.action, dtype=np.float32) + noise.astype(np.float32), low, high)
+        return PersonCommand(action, True, False, now, pressed_at=self._wheel[0])
 
     def intervene(self, request: AdviceRequest, new_episode: bool = False):
         """Mixed initiative (with a TakeoverRule; None otherwise): ``(action, seconds, starts)`` when

@@ -11,6 +11,7 @@ the next step. The acting node feeds it the person's commands and asks it at eve
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Optional
 
@@ -30,6 +31,21 @@ class PersonCommand:
     deadman: bool
     take_over: bool  # the take-over button is held
     at: float  # time.monotonic() when it arrived
+    # When the deadman was last pressed (its rising edge; -inf: held since before we heard it):
+    # a request for the wheel is taken only by a press made after it appeared (wheel.py).
+    pressed_at: float = -math.inf
+
+
+def heard(previous: Optional[PersonCommand], action, deadman: bool, take_over: bool, at: float) -> PersonCommand:
+    """The command just heard, after ``previous`` (None: the first): its deadman's press time is
+    ``at`` when the deadman goes from released (or unheard) to held, else the previous one's."""
+    if not deadman:
+        pressed_at = -math.inf
+    elif previous is not None and previous.deadman:
+        pressed_at = previous.pressed_at
+    else:
+        pressed_at = at
+    return PersonCommand(action, deadman, take_over, at, pressed_at)
 
 
 @dataclass(frozen=True)

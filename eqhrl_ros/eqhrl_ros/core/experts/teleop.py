@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..data.advice import SKIPPED, Advice, AdviceRequest
+from .wheel import MIN_REACTION_S
 
 
 @dataclass(frozen=True)
@@ -136,6 +137,9 @@ class OpenRequest:
     request: AdviceRequest
     opened: float  # clock() when it arrived
     values: Optional[np.ndarray]  # the command held when it arrived (None: none yet)
+    steered: Optional[np.ndarray] = None  # the command the person is steering to (deadman held)
+    steered_at: float = 0.0  # clock() of its last change
+    appeared: float = 0.0  # clock() when it arrived, never moved (``opened`` is, by a STOP's hold)
 
 
 class TeleopExpert:
@@ -145,8 +149,12 @@ class TeleopExpert:
     - ``window``: ``open(request)`` holds the request until the person acts. ``update``
       returns the answer when a command answers it, with the deadman held: the answer button
       pressed, or a command that differs from the one held when the request came (by more
-      than ``answer_change`` in some dimension); the deadman pressed alone does not answer;
-      the skip button declines. ``expire`` ends
+      than ``answer_change`` in some dimension) and has then held still for ``settle_s``
+      (the person steers to a value and stops there: the answer is where they stopped, not
+      their first key step; ``settled()`` says so between commands); the deadman pressed alone
+      does not answer; the skip button declines. A command sooner than MIN_REACTION_S after
+      the request came cannot be a reaction to it: it becomes the command held when it came
+      (a key pressed for the request before stays that one's). ``expire`` ends
       it unanswered (a timeout). Each answer carries the person's reaction time.
     - ``instant`` (calling it): the latest command at once, for a person who holds the stick
       all along (HIL-SERL-style intervention).
@@ -161,16 +169,19 @@ class TeleopExpert:
         name: str = 'teleop',
         clock: Callable[[], float] = time.monotonic,
         answer_change: float = 0.05,
+        settle_s: float = 0.3,
     ):
         if stale_after_s <= 0:
             raise ValueError(f'stale_after_s must be > 0, got {stale_after_s}')
         self.stale_after_s = stale_after_s
         self.answer_change = answer_change
+        self.settle_s = settle_s
         self.name = name
         self._clock = clock
         self._command: Optional[Command] = None
         self._stamp = 0.0
         self.pending: Optional[OpenRequest] = None
+        self.held = False  # a STOP holds the open request: commands are heard, nothing answers
 
     # ------------------------------------------------------------------ instant
 
@@ -204,7 +215,8 @@ class TeleopExpert:
     def open(self, request: AdviceRequest) -> None:
         """Hold ``request`` open for the person (a request still open is replaced)."""
         held = self._command.values.copy() if self._command is not None else None
-        self.pending = OpenRequest(request, self._clock(), held)
+        now = self._clock()
+        self.pending = OpenRequest(request, now, held, appeared=now)
 
     def update(self, command: Command) -> Optional[Advice]:
         """Take the person's latest command; returns the answer to the open request if this
@@ -212,7 +224,7 @@ class TeleopExpert:
         previous = self._command
         self._command, self._stamp = command, self._clock()
         pending = self.pending
-        if pending is None:
+        if pending is None or self.held:
             return None
 
         def pressed(button: str) -> bool:  # a rising edge: held now, not in the previous command
@@ -221,19 +233,50 @@ class TeleopExpert:
         reaction = self._stamp - pending.opened
         if command.request is not None and command.request != (pending.request.episode, pending.request.step):
             return None  # meant for the request the person saw, not this newer one they have not seen
+        if self._stamp - pending.appeared < MIN_REACTION_S:  # too soon to be a reaction: made for what came before
+            pending.values = command.values.copy()
+            return None
         if pressed('skip'):
             self.pending = None
             return Advice.decline(SKIPPED, self.name, True, reaction)
-        moved = pending.values is None or (
-            pending.values.shape != command.values.shape
-            or float(np.max(np.abs(command.values - pending.values), initial=0.0)) > self.answer_change
-        )
         # The deadman permits an answer and never gives one: pressed alone it would send the
         # command held before (the person who holds Shift first and then steers meant another).
-        if not command.enabled or not (pressed('answer') or moved):
-            return None  # no answer yet (and nothing is given without the deadman)
-        self.pending = None
+        if not command.enabled:
+            pending.steered = None
+            return None  # nothing is given without the deadman
+        if pressed('answer'):
+            return self._answer(command, reaction)
+        if not self._differs(command.values, pending.values):
+            pending.steered = None
+            return None
+        if pending.steered is None or self._differs(command.values, pending.steered):
+            pending.steered, pending.steered_at = command.values.copy(), self._stamp  # still steering
+            if self.settle_s > 0:
+                return None
+        return self.settled()
+
+    def _differs(self, values: np.ndarray, other: Optional[np.ndarray]) -> bool:
+        return (
+            other is None
+            or other.shape != values.shape
+            or (float(np.max(np.abs(values - other), initial=0.0)) > self.answer_change)
+        )
+
+    def _answer(self, command: Command, reaction: float) -> Advice:
+        pending, self.pending = self.pending, None
+        assert pending is not None  # only called with a request open
         return self._advice(command, pending.request, reaction)
+
+    def settled(self) -> Optional[Advice]:
+        """The answer, once the command the person steered to has held still for settle_s with
+        the deadman held (called on every command, and by the node between commands); else None."""
+        pending, command = self.pending, self._command
+        if pending is None or self.held or pending.steered is None or command is None or not command.enabled:
+            return None
+        now = self._clock()
+        if now - pending.steered_at < self.settle_s - 1e-9 or now - self._stamp > self.stale_after_s:
+            return None
+        return self._answer(command, now - pending.opened)
 
     def expire(self, window_s: float) -> Optional[Advice]:
         """The answer window passed: the open request ends unanswered (None if none was open)."""

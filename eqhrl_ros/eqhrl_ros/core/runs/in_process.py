@@ -9,7 +9,8 @@ import gymnasium as gym
 
 from .evaluation import evaluate
 from ..data.advice import Expert
-from ..algorithm.config import asks_for_advice
+from ..algorithm.config import advice_protocol, asks_for_advice
+from ..experts.wheel import AskedWheel, WheelRules
 from ..algorithm.learner import EpisodeSummary, EQSACLearner, Resolution
 from ..data.advice import AdviceRequest
 
@@ -35,6 +36,18 @@ class _Acting:
         self.intervene: Optional[Callable] = getattr(expert, 'intervene', None) if getattr(expert, 'takeover', None) else None
         self.obs: Any = None  # the env's observation, after the first reset
         self.new_episode = True
+        # The wheel protocol in simulated time (a lock-step env is 'answer' unless told otherwise):
+        # the person is asked to take over and drives until they hand back (core/experts/wheel.py).
+        self.wheel_protocol = advice_protocol(learner.config.advice_protocol, realtime=False) == 'wheel'
+        if self.wheel_protocol and not hasattr(expert, 'wheel_command'):
+            raise ValueError(
+                'advice_protocol wheel in-process needs an expert that can take the wheel '
+                '(simulated_human.SimulatedHuman), not a controller answering one state'
+            )
+        self.person: Any = expert  # for the wheel: a SimulatedHuman (alerted, wheel_command)
+        self.step_s = float(getattr(expert, 'step_s', 0.05))  # simulated seconds per env step
+        self.steps = 0
+        self.open: Optional[AskedWheel] = None
 
     def reset(self, seed: Optional[int] = None) -> None:
         self.obs, _ = self.env.reset(seed=seed)
@@ -50,15 +63,51 @@ class _Acting:
         if self.on_proposal is not None:
             self.on_proposal(learner, proposal)
         taken = self._taken_over(proposal, new_episode) if self.intervene is not None else None
-        if taken is not None:  # the person steers this step: no request, their action goes
+        if self.open is not None:  # a request for the wheel is open: the person drives, or will
+            action, advised = self._wheel_turn(proposal)
+        elif taken is not None:  # the person steers this step: no request, their action goes
             action, advised = learner.take_over(proposal, *taken).action_and_advised()
+        elif proposal.decision.fire and self.wheel_protocol:
+            config = learner.config
+            take_s = min(config.wheel_take_s, learner.person_budget_left_s)
+            rules = WheelRules(max(take_s, 1e-3), config.wheel_max_s, config.wheel_agree, config.wheel_agree_steps)
+            self.open = AskedWheel(self.now, rules, learner.scaler, stale_s=self.step_s * 1.5)
+            self.person.alerted(self.now)
+            action, advised = proposal.action, False  # the learner drives until the person takes the wheel
         elif proposal.decision.fire:
             action, advised = ask_expert(learner, proposal, self.expert).action_and_advised()
         else:
             action, advised = proposal.action, False
         next_obs, reward, terminated, truncated, _ = self.env.step(action)
         self.obs = next_obs
+        self.steps += 1
+        if (terminated or truncated) and self.open is not None:
+            turn = self.open.end_episode(self.now)
+            learner.count_person_seconds(turn.seconds, asked=True)
+            learner.end_wheel_request(turn.ended, turn.taken)
+            self.open = None
         return obs, action, reward, next_obs, terminated, truncated, advised
+
+    @property
+    def now(self) -> float:
+        """Simulated seconds since the run began."""
+        return self.steps * self.step_s
+
+    def _wheel_turn(self, proposal) -> tuple:
+        learner, low, high = self.learner, self.learner.scaler.low, self.learner.scaler.high
+        request = AdviceRequest(
+            self.obs, proposal.action, low, high, float('nan'), float('nan'), learner.episode, learner.episode_step
+        )
+        person = self.person.wheel_command(request, self.now)
+        assert self.open is not None  # called only with a request open
+        turn = self.open.step(person, proposal.action, self.now, learner.person_budget_left_s)
+        learner.count_person_seconds(turn.seconds, asked=True)
+        if turn.ended:
+            learner.end_wheel_request(turn.ended, turn.taken)
+            self.open = None
+        if turn.action is None:
+            return proposal.action, False
+        return learner.drive_asked(proposal, turn.action).action_and_advised()
 
     def _taken_over(self, proposal, new_episode: bool):
         """The simulated person's takeover of this step, inside the advising budget (the episodes and

@@ -212,13 +212,14 @@ def test_a_learner_with_a_random_schedule_asks_that_many_times_in_each_episode()
     assert [s.advice_asked for s in summaries] == [*schedule, 0]
 
 
-@pytest.mark.parametrize('mode', ['ask_median', 'joint_rank'])
+@pytest.mark.parametrize('mode', ['ask_median', 'joint_rank', 'novelty', 'advice_gain'])
 def test_an_extension_gate_asks_inside_the_budget_only_and_its_state_survives_a_checkpoint(mode):
-    trained, summaries = run(episodes=5, steps=30, mode=mode, gate_target_rate=0.2)
+    short = {'gate_score_queue': 20} if mode in ('novelty', 'advice_gain') else {}  # ready within the run
+    trained, summaries = run(episodes=5, steps=30, mode=mode, gate_target_rate=0.2, **short)
     asked = [s.advice_asked for s in summaries]
     assert sum(asked[:3]) > 0 and asked[3:] == [0, 0]  # Eq. 7's budget of 3 holds for the extensions too
-    restored = learner(mode=mode, gate_target_rate=0.2)
+    restored = learner(mode=mode, gate_target_rate=0.2, **short)
     restored.load_state_dict(trained.state_dict())
     assert restored.gates.state_dict() == trained.gates.state_dict()
-    if mode == 'joint_rank':
+    if mode in ('joint_rank', 'novelty', 'advice_gain'):
         assert trained.gates.joint_threshold < 1.0  # moved toward a rate above EQSAC's

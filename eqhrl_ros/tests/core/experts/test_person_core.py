@@ -35,7 +35,7 @@ def command(value, enabled=True, answer=False, skip=False):
 # ------------------------------------------------------------------ the answer window
 
 
-def test_a_held_command_does_not_answer_a_request_a_changed_one_does_with_its_reaction_time():
+def test_a_held_command_does_not_answer_a_request_a_changed_one_that_holds_still_does():
     clock = FakeClock()
     expert = TeleopExpert(name='person', clock=clock, answer_change=0.05)
     expert.update(command(0.5))
@@ -43,9 +43,11 @@ def test_a_held_command_does_not_answer_a_request_a_changed_one_does_with_its_re
     clock.now += 0.4
     assert expert.update(command(0.52)) is None  # the same stick position, re-published
     clock.now += 0.9
-    advice = expert.update(command(3.0))  # the person moves: the answer, clipped to the bounds
+    assert expert.update(command(3.0)) is None  # the person moves: steering, not yet an answer
+    clock.now += 0.3
+    advice = expert.settled()  # held still for settle_s: the answer, clipped to the bounds
     assert advice.advised and advice.human and advice.action.tolist() == [2.0]
-    assert advice.response_time_s == pytest.approx(1.3)
+    assert advice.response_time_s == pytest.approx(1.6)
     assert expert.pending is None and expert.update(command(-1.0)) is None  # nothing open any more
 
 
@@ -72,10 +74,13 @@ def test_without_the_deadman_nothing_answers_and_pressing_it_does():
     expert = TeleopExpert(name='person', clock=clock)
     expert.update(command(0.0, enabled=False))
     expert.open(request())
+    clock.now += 0.2
     assert expert.update(command(1.0, enabled=False, answer=True)) is None
-    clock.now += 1.0
-    advice = expert.update(command(1.0, enabled=True))
-    assert advice.advised and advice.action.tolist() == [1.0] and advice.response_time_s == pytest.approx(1.0)
+    clock.now += 0.8
+    assert expert.update(command(1.0, enabled=True)) is None
+    clock.now += 0.3
+    advice = expert.update(command(1.0, enabled=True))  # the same command, re-sent, now settled
+    assert advice.advised and advice.action.tolist() == [1.0] and advice.response_time_s == pytest.approx(1.3)
 
 
 def test_silence_times_out_and_a_newer_request_supersedes_an_open_one():
@@ -92,8 +97,10 @@ def test_silence_times_out_and_a_newer_request_supersedes_an_open_one():
 
 
 def test_a_wrongly_sized_command_is_declined_when_the_person_answers():
-    expert = TeleopExpert(name='person', clock=FakeClock())
+    clock = FakeClock()
+    expert = TeleopExpert(name='person', clock=clock, settle_s=0.0)
     expert.open(request(n=2))
+    clock.now += 0.5
     advice = expert.update(command(1.0))
     assert not advice.advised and 'has 1 values' in advice.reason
 
@@ -176,8 +183,45 @@ def test_the_deadman_pressed_alone_does_not_answer_with_the_command_held_before(
     expert.open(request())
     assert expert.update(command(0.0, enabled=True)) is None  # the deadman alone
     clock.now += 0.4
-    advice = expert.update(command(-0.6, enabled=True))  # then the steer
+    assert expert.update(command(-0.6, enabled=True)) is None  # then the steer
+    clock.now += 0.3
+    advice = expert.settled()
     assert advice.advised and advice.action.tolist() == pytest.approx([-0.6])
+
+
+def test_steering_key_by_key_answers_where_the_person_stopped_not_with_the_first_step():
+    """Deadman first, then steer: 0 of 8 answers used to equal what the person steered to
+    (+0.50 sent against +2.00 meant): the first key step answered."""
+    clock = FakeClock()
+    expert = TeleopExpert(name='person', clock=clock, settle_s=0.3)
+    expert.update(command(0.0, enabled=False))
+    expert.open(request())
+    clock.now += 0.5
+    expert.update(command(0.0, enabled=True))
+    for value in (0.5, 1.0, 1.5, 2.0):  # a key press every 0.1 s
+        clock.now += 0.1
+        assert expert.update(command(value)) is None
+        assert expert.settled() is None
+    clock.now += 0.3
+    advice = expert.settled()
+    assert advice.advised and advice.action.tolist() == [2.0] and advice.response_time_s == pytest.approx(1.2)
+
+
+def test_a_key_pressed_before_the_request_appeared_never_answers_it():
+    """Presses that went on from the request before answered the next one, which the person
+    had not seen, 33-83 ms after it appeared."""
+    from eqhrl_ros.core.experts.wheel import MIN_REACTION_S
+
+    clock = FakeClock()
+    expert = TeleopExpert(name='person', clock=clock, settle_s=0.0)
+    expert.update(command(0.5))
+    expert.open(request())
+    clock.now += MIN_REACTION_S / 2
+    assert expert.update(command(1.0)) is None  # too soon to be a reaction: now the held command
+    clock.now += 0.5
+    assert expert.update(command(1.0)) is None and expert.pending is not None  # still where it was
+    advice = expert.update(command(1.5))  # a change of the person's own, later
+    assert advice.advised and advice.action.tolist() == [1.5]
 
 
 def test_a_budget_in_the_persons_seconds_ends_the_requests_when_spent():
@@ -197,7 +241,9 @@ def test_a_budget_in_the_persons_seconds_ends_the_requests_when_spent():
         if proposal.decision.fire:
             asked += 1
             learner.resolve_advice(proposal, Advice(np.zeros(1), human=True, response_time_s=1.0))
-    assert asked == 3  # 1 s each: 0, 1 and 2 s spent before each ask; at 3 s the budget is spent
+    assert asked == 3  # 1 s each: 0, 1 and 2 s spent before each ask
+    # The third answer came after the person's seconds ran out: a timeout at the budget, never past it.
+    assert learner.human_time_total_s == pytest.approx(2.5) and learner.episode_advice.failed['timeout'] == 1
     assert learner.person_budget_left_s == 0.0 and 'seconds' in learner.propose(obs).decision.reason
     learner.set_advising_budget_s(10.0)  # as ros2 param set does
     assert learner.propose(obs).decision.fire
@@ -210,10 +256,11 @@ def test_a_press_meant_for_the_request_on_screen_never_lands_on_a_newer_one():
     from eqhrl_ros.core.experts.teleop import Command
 
     clock = FakeClock()
-    expert = TeleopExpert(name='person', clock=clock)
+    expert = TeleopExpert(name='person', clock=clock, settle_s=0.0)
     old, new = request(0), request(1)
     expert.update(Command(np.zeros(1, np.float32), True))
     expert.open(new)  # the newer request, not yet on the person's screen
+    clock.now += 0.3
     seen = (old.episode, old.step)
     assert expert.update(Command(np.zeros(1, np.float32), True, skip=True, request=seen)) is None
     assert expert.pending is not None
