@@ -33,6 +33,10 @@ ENV_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durab
 HOLD_S = 10.0
 NAMED_HOLD_S = 2.0
 HELD_MESSAGES = 8
+# A node still without an env, holding nothing, subscribes anew this often: the latched env_info
+# comes again and is judged again (the env's own, dropped because the graph was slow to show its
+# observation publisher, would otherwise never come back: it is published once).
+RESUBSCRIBE_S = 5.0
 
 
 def env_info_msg(spec: EnvSpec, publisher: str = '') -> EnvInfo:
@@ -139,6 +143,8 @@ class EnvInfoWatcher:
         # (time.monotonic() it came, EnvInfo, the nodes publishing env_info then: one of them sent it)
         self._held: deque = deque(maxlen=HELD_MESSAGES)
         self._recheck = node.create_timer(0.5, self._on_recheck)
+        self._subscribed_at = time.monotonic()
+        self.resubscribed = 0
         if configured is not None:
             self._use(configured)
         else:
@@ -184,6 +190,10 @@ class EnvInfoWatcher:
 
     def _on_recheck(self) -> None:
         now = time.monotonic()
+        if self.spec is None and not self._held and now - self._subscribed_at >= RESUBSCRIBE_S and self.untrusted:
+            self.node.destroy_subscription(self.subscription)
+            self.subscription = self.node.create_subscription(EnvInfo, TOPIC, self._on_env_info, ENV_INFO_QOS)
+            self._subscribed_at, self.resubscribed = now, self.resubscribed + 1
         for held in list(self._held):
             if now - held[0] > (NAMED_HOLD_S if held[1].publisher else HOLD_S):
                 self._held.remove(held)  # never vouched for in time: dropped

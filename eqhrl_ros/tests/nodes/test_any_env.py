@@ -421,3 +421,24 @@ def test_an_expert_declines_a_request_of_the_wrong_size_naming_the_sizes(
     assert harness.spin_until(future.done)
     response = future.result()
     assert not response.advised and problem in response.reason and 'unpack' not in response.reason
+
+
+def test_the_envs_own_env_info_dropped_while_the_graph_was_slow_is_taken_when_it_comes_again(
+    harness, ros_context, tmp_path, monkeypatch
+):
+    """The env's latched env_info names it, but its observation publisher is not on the graph yet
+    (discovery across processes under load): held, then dropped after NAMED_HOLD_S. It is published
+    once, so the learner waited for ever (an eqhrl-experiment run hung in CI). Now a node with no
+    env subscribes anew, and the message comes again, and is taken once the env is vouched for."""
+    monkeypatch.setattr(env_info, 'NAMED_HOLD_S', 0.5)
+    monkeypatch.setattr(env_info, 'RESUBSCRIBE_S', 1.0)
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=no_env_id(tmp_path)))
+    env = harness.add(rclpy.create_node('slow_env', context=ros_context))
+    spec = EnvSpec('Pendulum-v1', 3, [-2.0], [2.0])
+    env.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(env_info.env_info_msg(spec, '/slow_env'))
+    assert harness.spin_until(lambda: learner.env_info.untrusted >= 1, timeout=10)
+    harness.spin_until(lambda: False, timeout=1.5)  # held past its time: dropped
+    assert learner.learner is None
+    env.create_publisher(Float32MultiArray, 'observation', 10)  # the env's observations now show
+    assert harness.spin_until(lambda: learner.learner is not None, timeout=10)
+    assert learner.env_info.resubscribed >= 1 and learner.learner.scaler.high.tolist() == [2.0]
