@@ -63,8 +63,10 @@ class PersonWheel:
             return self._asked_turn(proposal, now)
         taken = self.takeover.person_drives(self.person, proposal.action, now)
         learner = self.learner
-        if taken is not None and taken.seconds >= learner.person_budget_left_s:
-            taken = None  # the person's seconds are spent: the learner drives (STOP still holds the robot)
+        if taken is not None and 2 * taken.seconds > learner.person_budget_left_s:
+            # The next step would pass the person's seconds: the learner drives from here (STOP still
+            # holds the robot), so that the budget is not overspent.
+            taken = None
         if taken is not None:
             resolution = learner.take_over(proposal, taken.action, taken.seconds, taken.starts)
             self.takeover.taken(now, accepted=resolution.outcome == 'taken over')

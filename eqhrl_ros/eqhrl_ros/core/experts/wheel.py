@@ -17,7 +17,8 @@ Control returns to the learner by the hand-back rule (``WheelRules``):
 
 A request the person does not take within ``take_s`` seconds ends as a ``timeout``. The person's
 seconds run from the alert to the hand-back, reaction included, and are counted step by step
-(``WheelTurn.seconds``), so a budget is never overspent by more than one step. A STOP pauses
+(``WheelTurn.seconds``); the request ends at the last step before the one that would pass the
+budget, so the budget is not overspent (by a step's jitter at most). A STOP pauses
 the request and its clock (``pause``, ``resume``). No ROS and no clock here: the caller passes
 ``now`` (time.monotonic() in the nodes, simulated time in-process).
 """
@@ -84,6 +85,7 @@ class AskedWheel:
         self.taken_at: Optional[float] = None
         self.paused_at: Optional[float] = None
         self.steps = 0  # steps the person drove
+        self.interval = 0.0  # seconds between the last two steps: what the next one will likely cost
         self.agreeing = 0  # steps in a row the person's and the policy's actions agreed
 
     @property
@@ -136,7 +138,9 @@ class AskedWheel:
             driving = self._holding(person, now) if self.taken else None
             return WheelTurn(driving.action if driving else None, False, 0.0, taken=self.taken)
         seconds = self._count(now)
-        out_of_budget = seconds >= budget_left_s
+        # Ended at this step if the next one would pass the budget: it is never overspent.
+        out_of_budget = seconds + max(self.interval, seconds) > budget_left_s
+        self.interval = seconds
         held = self._holding(person, now)
         if self.taken_at is None:
             pressed_after = held is not None and held.pressed_at >= self.alerted_at + MIN_REACTION_S

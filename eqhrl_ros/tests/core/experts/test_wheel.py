@@ -76,13 +76,16 @@ def test_each_hand_back_rule_gives_the_wheel_back(rules, commands, ended):
 
 def test_the_person_s_seconds_run_from_the_alert_to_the_hand_back_and_stop_within_the_budget():
     wheel = AskedWheel(10.0, WheelRules(agree_steps=0, max_s=0), SCALER)
-    times = [10.6, 10.8, 11.0, 11.2]
-    turns = [
-        wheel.step(person(1.0, at=t), [0.0], t, budget_left_s=0.9 - sum_before)
-        for t, sum_before in zip(times, [0.0, 0.6, 0.8, 1.0])
-    ]
-    assert abs(sum(t.seconds for t in turns[:2]) - 0.8) < 1e-9  # the reaction counts
-    assert turns[2].ended == 'budget'  # its 0.2 s would pass the 0.9 s: handed back at once
+    budget, spent, turns = 0.9, 0.0, []
+    for t in (10.2, 10.4, 10.6, 10.8, 11.0):  # a step every 0.2 s; the deadman pressed at 10.3
+        turn = wheel.step(person(1.0, at=t, pressed_at=10.3) if t > 10.3 else None, [0.0], t, budget - spent)
+        spent += turn.seconds
+        turns.append(turn)
+        if turn.ended:
+            break
+    assert turns[1].starts and turns[0].seconds == pytest.approx(0.2)  # the reaction counts
+    # Handed back at the last step before the one that would pass the budget: 0.8 s of 0.9.
+    assert turns[-1].ended == 'budget' and len(turns) == 4 and spent == pytest.approx(0.8) and spent <= budget
 
 
 def test_stop_pauses_the_request_and_its_countdown():
