@@ -20,6 +20,7 @@ SECTIONS = {
     'FRONTIER': 'The effort frontier',
     'TIMING': 'When the arms asked',
     'PERSON': 'What the person spent',
+    'PLACEMENT': 'Where the matched arms asked',
 }
 
 

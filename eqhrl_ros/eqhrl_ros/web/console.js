@@ -141,8 +141,13 @@ function showLegend() {
 }
 
 function showRecent() {
+  // As text, never as HTML: a declining expert's reason is another node's words.
   const recent = (state.recent || []).slice(-5).reverse();
-  $('recent').innerHTML = recent.length ? 'ended: ' + recent.map((r) => describeEnd(r)).join('<br>') : '';
+  $('recent').replaceChildren(...recent.map((r, i) => {
+    const line = document.createElement('div');
+    line.textContent = (i ? '' : 'ended: ') + describeEnd(r);
+    return line;
+  }));
 }
 
 function describeEnd(r) {

@@ -442,3 +442,30 @@ def test_the_page_runs_the_persons_budget_in_seconds_down_request_by_request(bro
         assert '56.0 s left' in browser.execute_script(person)
     finally:
         graph.close()
+
+
+def test_an_experts_reason_is_shown_as_text_and_never_runs_on_the_page(browser, ros_context):
+    """The page lists the requests that ended, with a declining expert's reason: another node's
+    words. Markup in them is shown as text, never made into elements (no script of theirs runs)."""
+    import rclpy
+
+    from eqhrl_interfaces.msg import AdviceRequest
+    from eqhrl_ros.nodes import messages
+
+    learner = rclpy.create_node('learner', context=ros_context)
+    requests = learner.create_publisher(AdviceRequest, 'learner/advice_request', messages.LATCHED_QOS)
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    graph = Graph(ros_context, [learner, console])
+    reason = '<img src=x onerror="window.ran = 1">no'
+    try:
+        browser.get(console.url)
+        wait_for(
+            lambda: browser.execute_script("return document.getElementById('connection').textContent") == 'connected'
+        )
+        requests.publish(AdviceRequest(outcome=AdviceRequest.DECLINED, episode=0, step=3, detail=reason))
+        recent = "return document.getElementById('recent').textContent"
+        wait_for(lambda: reason in browser.execute_script(recent), what='the reason shown as text')
+        assert browser.execute_script("return document.querySelectorAll('#recent img, #request img').length") == 0
+        assert browser.execute_script('return window.ran') is None
+    finally:
+        graph.close()
