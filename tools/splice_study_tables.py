@@ -21,6 +21,7 @@ SECTIONS = {
     'TIMING': 'When the arms asked',
     'PERSON': 'What the person spent',
     'PLACEMENT': 'Where the matched arms asked',
+    'DIFFS': 'Same-seed differences',
 }
 
 
