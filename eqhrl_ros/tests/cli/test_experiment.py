@@ -491,3 +491,15 @@ def test_a_run_through_ros_carries_record_and_prior_to_the_learner(tmp_path):
     command = train_command(settings, 'eqsac', 3, tmp_path / 'o' / 'eqsac' / 'seed3')
     assert '--record' in command
     assert command[command.index('--prior') + 1 :][:1] == [str(tmp_path.resolve())]
+
+
+def test_eqhrl_train_sets_the_persons_budget_in_seconds_and_the_protocol_checked_by_the_learners_rule(capsys):
+    from eqhrl_ros.cli import train
+
+    args = train.parse_args(['--params', 'teleop_pendulum', '--budget-s', '300', '--advice-protocol', 'answer'])
+    values = {p.name: p.value for p in train.learner_overrides(args)}
+    assert values['advising_budget_s'] == 300.0 and isinstance(values['advising_budget_s'], float)
+    assert values['advice_protocol'] == 'answer'
+    with pytest.raises(SystemExit):
+        train.parse_args(['--budget-s', '-3'])
+    assert 'advising_budget_s must be in [0' in capsys.readouterr().err
