@@ -97,12 +97,12 @@ class EpisodeRecord:
         self.fields = tuple(fields)
         if keep_before is not None:
             _truncate_to(self.path, keep_before, self.fields)
-        elif self.path.exists():
-            self.path.unlink()
+        else:
+            _start_with_header(self.path, self.fields)
         self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         self._pending = b''
         self.unwritten_rows = 0
-        if os.fstat(self._fd).st_size == 0:
+        if os.fstat(self._fd).st_size == 0:  # the header could not be written yet (a full disk): with the first row
             self._pending = _encode(self.fields)
 
     def append(self, row: Sequence) -> Optional[OSError]:
@@ -140,13 +140,35 @@ def _encode(row: Sequence) -> bytes:
     return text.getvalue().encode()
 
 
+def _start_with_header(path: Path, fields: Sequence[str]) -> None:
+    """A fresh record: its header only, put in place whole (written aside, then renamed), so that
+    a reader never finds the file empty or half a header (csv.DictReader on a file that was empty
+    when it looked took the first row for the header). Where the header cannot be written, the
+    old file is gone all the same and the header waits for the first row."""
+    tmp = path.with_suffix('.csv.tmp')
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            header = _encode(fields)
+            while header:
+                header = header[os.write(fd, header) :]
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        path.unlink(missing_ok=True)
+
+
 def _truncate_to(path: Path, episode: int, fields: Sequence[str]) -> None:
     """Keep only whole rows of episodes < ``episode`` (a resumed learner redoes the others)."""
     if not path.exists():
+        _start_with_header(path, fields)
         return
     with path.open(newline='') as f:
         rows = list(csv.reader(f))
     if not rows:
+        _start_with_header(path, fields)
         return
     width = len(rows[0])
     body = [r for r in rows[1:] if len(r) == width and r[0].lstrip('-').isdigit() and int(r[0]) < episode]

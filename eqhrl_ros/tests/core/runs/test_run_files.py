@@ -285,6 +285,26 @@ def test_folders_that_cannot_be_used_are_refused_with_one_line(tmp_path):
         RunFolder(tmp_path / 'empty', resume=True)
 
 
+def test_a_fresh_record_is_there_with_its_header_before_the_first_row(tmp_path, monkeypatch):
+    """A reader (a test's wait, a user's pandas) that looks before the first episode ends finds the
+    header, never an empty file: csv.DictReader on a file empty when it looked took the first row
+    for the header. Where the header cannot be written, it comes with the first row."""
+    path = tmp_path / 'episodes.csv'
+    path.write_text('old,run\n')
+    record = EpisodeRecord(path, ('episode', 'return'))
+    assert path.read_bytes() == b'episode,return\r\n' and not path.with_suffix('.csv.tmp').exists()
+    record.append([0, '-1.5'])
+    record.close()
+    assert path.read_bytes() == b'episode,return\r\n0,-1.5\r\n'
+
+    fail_writes(monkeypatch, 'episodes.csv.tmp')  # the header's write fails; the rows' do not
+    record = EpisodeRecord(path, ('episode', 'return'))
+    assert path.read_bytes() == b''  # the old run is gone all the same
+    record.append([0, '-2.5'])
+    record.close()
+    assert path.read_bytes() == b'episode,return\r\n0,-2.5\r\n'
+
+
 def test_a_row_that_cannot_be_written_is_kept_and_written_whole_later(tmp_path, monkeypatch):
     record = EpisodeRecord(tmp_path / 'episodes.csv', ('episode', 'return'))
     assert record.append([0, '-1.5']) is None
