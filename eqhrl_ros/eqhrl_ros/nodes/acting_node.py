@@ -175,9 +175,18 @@ class ActingNode(Node):
 
     @property
     def protocol(self) -> str:
-        """How a request asks now: 'answer' or 'wheel' (advice_protocol for the env's pace)."""
+        """How a request asks now: 'answer' or 'wheel' (advice_protocol for the env's pace); ''
+        while that is not known. 'auto' in a learner configured by env_id waits for the env's own
+        env_info: an env_id names the spaces, not whether the env runs in real time, and asking a
+        real-time env's person for one answer asks about a state already gone. (Configured by the
+        spaces as parameters, for an env that may publish no env_info, 'auto' is the answer until
+        an env_info says otherwise.)"""
         pace = self.pace
-        return advice_protocol(self.config.advice_protocol, pace.realtime) if pace is not None else ''
+        if pace is None:
+            return ''
+        if self.config.advice_protocol == 'auto' and self.env_info.announced is None and self.params.get('env_id'):
+            return ''
+        return advice_protocol(self.config.advice_protocol, pace.realtime)
 
     def _protocol_said(self) -> str:
         configured = self.config.advice_protocol
@@ -346,7 +355,19 @@ class ActingNode(Node):
         if not (proposal.decision.fire and self.params['advice_enabled']):
             self._finish_step(proposal.action, advised=False)
             return
-        if self.protocol == 'wheel':  # ask the person to take over from here; the learner drives meanwhile
+        protocol = self.protocol
+        if not protocol:  # 'auto' before the env said whether it runs in real time: nothing is asked yet
+            self.get_logger().warn(
+                f"advice_protocol auto: no env_info from the env on '{self.env_info.topic}' yet, so whether it "
+                'runs in real time (the wheel) or lock-step (one answer) is not known; the gates fired, nothing '
+                'was asked and the learner acts on its own (counted as unavailable)',
+                throttle_duration_sec=5.0,
+            )
+            self._finish_step(
+                *self.learner.resolve_advice(proposal, failure='unavailable').action_and_advised(), 'learner'
+            )
+            return
+        if protocol == 'wheel':  # ask the person to take over from here; the learner drives meanwhile
             action = self.wheel.ask(proposal, now, key[1], self.pace)
             self._finish_step(action, advised=False)
             return

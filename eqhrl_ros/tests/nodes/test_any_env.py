@@ -10,6 +10,7 @@ import pytest
 import rclpy
 from std_msgs.msg import Float32MultiArray
 
+from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
 from eqhrl_interfaces.msg import EnvInfo
 from eqhrl_ros.core.envs.spec import SUCCESS_RULES, EnvSpec
 from eqhrl_ros.core.experts.controllers import DoubleIntegratorExpert
@@ -22,7 +23,7 @@ from eqhrl_ros.nodes.learner_node import LearnerNode
 from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
 from eqhrl_ros.parameters import file_section
 
-from ros_helpers import observation_publisher, params, small_learner_params
+from ros_helpers import StubExpert, asking_learner_params, observation_publisher, params, small_learner_params
 
 
 def no_env_id(tmp_path, **extra):
@@ -442,3 +443,38 @@ def test_the_envs_own_env_info_dropped_while_the_graph_was_slow_is_taken_when_it
     env.create_publisher(Float32MultiArray, 'observation', 10)  # the env's observations now show
     assert harness.spin_until(lambda: learner.learner is not None, timeout=10)
     assert learner.env_info.resubscribed >= 1 and learner.learner.scaler.high.tolist() == [2.0]
+
+
+def test_auto_asks_nothing_until_the_env_says_its_pace_then_asks_for_the_wheel(harness, ros_context, tmp_path):
+    """advice_protocol auto, configured by env_id: an env_id says nothing of real time. Before, such
+    a learner asked a real-time env's person for one answer until the env's env_info came (the
+    robot had moved on); now a gate that fires before it asks nothing, counted as unavailable,
+    and once the env says it runs in real time, the request is for the wheel."""
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=asking_learner_params(tmp_path)))
+    expert = StubExpert(ros_context)  # an answer would be served: only the protocol keeps it from being asked
+    try:
+        publisher, probe = observation_publisher(harness)
+        requests = []
+        probe.node.create_subscription(
+            AdviceRequestMsg, 'learner/advice_request', requests.append, messages.LATCHED_QOS
+        )
+        assert harness.spin_until(lambda: learner.advice.ready(), timeout=10)
+
+        def steps(first, count):
+            for step in range(first, first + count):
+                publisher.publish(messages.observation_msg([1.0, 0.0, 0.0], -1.0, False, False, 0, step))
+                assert harness.spin_until(lambda: (0, step) in probe.acted_on(), timeout=10)
+
+        steps(0, 40)
+        assert learner.learner.episode_advice.failed['unavailable'] >= 1  # the gates fired (20 % of steps)
+        assert requests == [] and expert.requests == []
+        spec = EnvSpec('Pendulum-v1', 3, [-2.0], [2.0], realtime=True, rate_hz=20.0, max_episode_steps=1000)
+        info = env_info.env_info_msg(spec, publisher=probe.node.get_fully_qualified_name())
+        probe.node.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(info)
+        assert harness.spin_until(lambda: learner.env_info.announced is not None, timeout=10)
+        unavailable = learner.learner.episode_advice.failed['unavailable']
+        steps(40, 40)
+        assert requests and all(r.wheel for r in requests) and expert.requests == []
+        assert learner.learner.episode_advice.failed['unavailable'] == unavailable
+    finally:
+        expert.close()
