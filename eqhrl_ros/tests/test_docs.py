@@ -70,6 +70,14 @@ def test_the_readme_states_where_seeds_learn_together():
     assert int(width) ** 2 * int(batch) == seed_runs.TOGETHER_MAX_WORK
 
 
+def test_the_readme_states_how_long_auto_waits_for_the_envs_pace():
+    """The README's wait for env_info under advice_protocol auto is the code's (AUTO_PACE_WAIT_S)."""
+    from eqhrl_ros.nodes.acting_node import AUTO_PACE_WAIT_S
+
+    text = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
+    assert f'for at most {AUTO_PACE_WAIT_S:g} s, and then acts' in text
+
+
 def test_the_results_pages_tables_are_the_committed_reports():
     """docs/results.md's spliced tables equal those of the committed table.md (itself made from the
     committed CSVs by eqhrl-study-report): splicing again changes nothing."""

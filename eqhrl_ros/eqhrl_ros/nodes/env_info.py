@@ -119,6 +119,7 @@ class EnvInfoWatcher:
         configured: Optional[EnvSpec],
         on_spec: Callable[[EnvSpec], None],
         working: Callable[[], bool] = lambda: False,
+        on_announced: Callable[[], None] = lambda: None,
     ):
         """``working()``: the node has begun its work (the learner has stored a step, the expert
         answered). From then on a disagreeing EnvInfo is logged and ignored, not obeyed: any
@@ -126,6 +127,7 @@ class EnvInfoWatcher:
         observations of another size that a really different env sends are dropped anyway)."""
         self.node = node
         self._working = working
+        self._on_announced = on_announced  # once: the env's own EnvInfo, first taken, agrees with the spec
         self.ignored = 0  # disagreeing EnvInfo messages ignored while working
         self.spec: Optional[EnvSpec] = None
         self.announced: Optional[EnvSpec] = None  # the env's own EnvInfo, once heard
@@ -221,7 +223,7 @@ class EnvInfoWatcher:
         except ValueError as error:
             self._refuse(f'refused {self.topic}: {error}')
             return
-        self.announced = announced
+        first, self.announced = self.announced is None, announced
         if self.spec is None:
             self.node.get_logger().info(
                 f'{self.topic}: {shown(announced.name)}, obs {announced.observation_size}, action '
@@ -243,3 +245,5 @@ class EnvInfoWatcher:
                 f"{self.topic}: the env is '{shown(announced.name)}', this node was configured for "
                 f"'{self.spec.name}'; the spaces agree, going on"
             )
+        if first and not differences:
+            self._on_announced()

@@ -76,6 +76,17 @@ def rows_from(out, actor):
     return [r for r in read_rows(path) if r['actor'] == actor] if path.exists() else []
 
 
+def catching_up(finished, out, actor, trainer) -> str:
+    """What to read when the trainer has not caught up with the actor: the counts, the trainer's
+    last report and the actor's last lines (CI once stopped short of every episode, unexplained)."""
+    reports = [line for line in output(trainer).splitlines() if 'batches lost' in line]
+    actor_lines = [line for line in output(actor).splitlines() if ']: episode ' not in line]
+    return '\n'.join(
+        [f'actor finished {finished}, trainer stored {len(rows_from(out, "/actor0/actor"))}', *reports[-1:]]
+        + actor_lines[-15:]
+    )
+
+
 def test_an_actor_that_dies_leaves_the_others_learning(tmp_path):
     out = tmp_path / 'run'
     processes = [start_trainer(out, tmp_path)]
@@ -129,7 +140,9 @@ def test_actors_outlive_their_trainer_and_take_the_weights_of_the_next(tmp_path)
         # The env's last message may still be in the actor's hands when the env has exited: count
         # its episodes once its log has been quiet for a while (CI once counted one too early).
         finished = settled(lambda: output(actor).count('] [actor0.actor]: episode '), quiet_s=2.0, timeout=30)
-        assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= finished, 60), (finished, output(restarted))
+        assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= finished, 60), catching_up(
+            finished, out, actor, restarted
+        )
         stored = len(rows_from(out, '/actor0/actor'))
         assert stored == finished, (stored, finished)
     finally:

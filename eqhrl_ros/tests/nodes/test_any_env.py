@@ -4,6 +4,7 @@ shared params sections, and the example env node that is not gymnasium."""
 import csv
 import io
 import os
+import time
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from eqhrl_interfaces.msg import EnvInfo
 from eqhrl_ros.core.envs.spec import SUCCESS_RULES, EnvSpec
 from eqhrl_ros.core.experts.controllers import DoubleIntegratorExpert
 from eqhrl_ros.nodes import env_info, messages
+from eqhrl_ros.nodes.acting_node import AUTO_PACE_WAIT_S
 from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegrator, DoubleIntegratorEnv
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
@@ -448,8 +450,9 @@ def test_the_envs_own_env_info_dropped_while_the_graph_was_slow_is_taken_when_it
 def test_auto_asks_nothing_until_the_env_says_its_pace_then_asks_for_the_wheel(harness, ros_context, tmp_path):
     """advice_protocol auto, configured by env_id: an env_id says nothing of real time. Before, such
     a learner asked a real-time env's person for one answer until the env's env_info came (the
-    robot had moved on); now a gate that fires before it asks nothing, counted as unavailable,
-    and once the env says it runs in real time, the request is for the wheel."""
+    robot had moved on); now it holds the first observation for AUTO_PACE_WAIT_S, then acts, and a
+    gate that fires asks nothing, counted as unavailable; once the env says it runs in real time,
+    the request is for the wheel."""
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=asking_learner_params(tmp_path)))
     expert = StubExpert(ros_context)  # an answer would be served: only the protocol keeps it from being asked
     try:
@@ -465,7 +468,9 @@ def test_auto_asks_nothing_until_the_env_says_its_pace_then_asks_for_the_wheel(h
                 publisher.publish(messages.observation_msg([1.0, 0.0, 0.0], -1.0, False, False, 0, step))
                 assert harness.spin_until(lambda: (0, step) in probe.acted_on(), timeout=10)
 
+        started = time.monotonic()
         steps(0, 40)
+        assert time.monotonic() - started >= AUTO_PACE_WAIT_S - 0.1  # the first observation waited
         assert learner.learner.episode_advice.failed['unavailable'] >= 1  # the gates fired (20 % of steps)
         assert requests == [] and expert.requests == []
         spec = EnvSpec('Pendulum-v1', 3, [-2.0], [2.0], realtime=True, rate_hz=20.0, max_episode_steps=1000)
@@ -478,3 +483,28 @@ def test_auto_asks_nothing_until_the_env_says_its_pace_then_asks_for_the_wheel(h
         assert learner.learner.episode_advice.failed['unavailable'] == unavailable
     finally:
         expert.close()
+
+
+def test_auto_holds_the_first_observation_until_the_env_says_its_pace(harness, ros_context, tmp_path):
+    """The env's env_info comes a moment after its first observation (it is taken once the graph
+    vouches for the env). A learner that acted at once asked nothing, or the wrong way, for its
+    first steps (test_person_nodes counted a whole episode of 'unavailable' on CI); it holds the
+    observation until env_info says the pace, then acts on it at once, and its first request is
+    for the wheel in a real-time env."""
+    learner = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=asking_learner_params(tmp_path, random_ask_rate=1.0))
+    )
+    publisher, probe = observation_publisher(harness)
+    requests = []
+    probe.node.create_subscription(AdviceRequestMsg, 'learner/advice_request', requests.append, messages.LATCHED_QOS)
+    publisher.publish(messages.observation_msg([1.0, 0.0, 0.0], 0.0, False, False, 0, 0))
+    harness.spin_until(lambda: False, timeout=0.5)
+    assert probe.acted_on() == [] and learner.learner.total_steps == 0  # held, not acted on
+    spec = EnvSpec('Pendulum-v1', 3, [-2.0], [2.0], realtime=True, rate_hz=20.0, max_episode_steps=1000)
+    info = env_info.env_info_msg(spec, publisher=probe.node.get_fully_qualified_name())
+    probe.node.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(info)
+    heard = time.monotonic()
+    assert harness.spin_until(lambda: (0, 0) in probe.acted_on(), timeout=AUTO_PACE_WAIT_S)
+    assert time.monotonic() - heard < AUTO_PACE_WAIT_S - 0.5  # on env_info, not at the end of the wait
+    assert harness.spin_until(lambda: bool(requests), timeout=2)
+    assert requests[0].wheel and learner.learner.episode_advice.failed['unavailable'] == 0

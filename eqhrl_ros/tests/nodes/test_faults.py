@@ -34,6 +34,12 @@ def test_bad_advice_is_counted_by_kind_and_never_used(harness, ros_context, tmp_
     assert len(learner.learner.advice_replay) == 0
 
 
+# The probe's observations come from no env node, so no env_info says the env's pace: the
+# learner is told its protocol (else advice_protocol auto holds the first observation for
+# AUTO_PACE_WAIT_S, test_any_env says how).
+NO_ENV_INFO = dict(advice_protocol='answer')
+
+
 def test_expert_that_crashes_and_comes_back(harness, ros_context, tmp_path):
     harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
     learner = harness.add(
@@ -102,7 +108,9 @@ def test_env_that_dies_mid_episode_and_restarts(harness, ros_context, tmp_path):
 
 
 def test_bad_observations_are_dropped_and_never_stored(harness, ros_context, tmp_path):
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    learner = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, **NO_ENV_INFO))
+    )
     publisher, probe = observation_publisher(harness)
     publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], 0.0, False, False, 0, 0))  # good
     publisher.publish(messages.build([('obs', [0.1, 0.2]), ('tail', [0, 0, 0, 0, 1])]))  # too short
@@ -327,7 +335,9 @@ def test_advice_timeout_and_stall_warning_do_not_depend_on_ros_time(harness, ros
 
 
 def test_a_relabelled_message_is_refused_not_read_by_position(harness, ros_context, tmp_path):
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    learner = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, **NO_ENV_INFO))
+    )
     publisher, probe = observation_publisher(harness)
     # Right size, but 'step' and 'episode' swapped, and another with obs of the wrong size.
     swapped = messages.build(
@@ -397,7 +407,9 @@ def test_a_flood_leaves_no_backlog_with_the_default_executor(harness, ros_contex
     # wait-set executor only the subscription's QoS depth (100) waits, and memory stays
     # flat; an executor that queues one event per arriving message (the EventsExecutor,
     # +14 MB here) grows without bound under a flood.
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    learner = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, **NO_ENV_INFO))
+    )
     publisher, probe = observation_publisher(harness)
     harness.spin_until(lambda: False, timeout=0.5)
     bad = serialize_message(Float32MultiArray(data=[0.5] * 3))
