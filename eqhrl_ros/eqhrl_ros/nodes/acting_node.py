@@ -41,6 +41,7 @@ from .episode_tracking import EpisodeTracking
 from .graph_trust import OnePublisher
 from .health import WARN, Check, Health
 from .messages import printable_name
+from .pace_wait import PaceWait
 from .params import choices_validator, declare, reject_unknown_overrides
 from .person_wheel import PersonWheel
 from .recording import NodeRecord
@@ -52,9 +53,6 @@ QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 # 100 small messages bound the backlog a flood can leave (tests/nodes/test_faults.py).
 OBSERVATION_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-# advice_protocol auto, configured by env_id: how long the first observation waits for the env's
-# env_info (its pace) before the learner acts without it (and asks nothing until it comes).
-AUTO_PACE_WAIT_S = 3.0
 
 
 class ActingNode(Node):
@@ -121,18 +119,20 @@ class ActingNode(Node):
         self.create_timer(0.25, self._check_stall, clock=self._steady)
         self.done = False
         self.summaries: list[EpisodeSummary] = []
-        # advice_protocol auto, configured by env_id: the first observation is held until the env's
-        # env_info says its pace (it comes within moments, once the graph vouches for the env), for
-        # at most AUTO_PACE_WAIT_S; then acted on, so that the first gates to fire ask as they should.
-        self._held_observation: Optional[bytes] = None
-        self._pace_wait = 'not yet'  # 'not yet', 'waiting' (a timer of AUTO_PACE_WAIT_S runs), 'over'
-        self._pace_timer = None
+        # advice_protocol auto, configured by env_id: the first observation waits for the env's pace.
+        self.pace_wait = PaceWait(
+            self,
+            lambda: not self.protocol and self.params['advice_enabled'] and asks_for_advice(self.config.mode),
+            lambda data: self._on_observation(data, held=True),
+            self._steady,
+            self._lock,
+        )
         self.env_info = EnvInfoWatcher(
             self,
             configured_spec(p),
             self._configure,
             working=lambda: bool(self.learner and self.learner.total_steps),
-            on_announced=self._on_pace_known,
+            on_announced=lambda: self.pace_wait.release(),
         )
         self.health = Health(self, self.health_checks)
 
@@ -189,11 +189,9 @@ class ActingNode(Node):
     @property
     def protocol(self) -> str:
         """How a request asks now: 'answer' or 'wheel' (advice_protocol for the env's pace); ''
-        while that is not known. 'auto' in a learner configured by env_id waits for the env's own
-        env_info: an env_id names the spaces, not whether the env runs in real time, and asking a
-        real-time env's person for one answer asks about a state already gone. (Configured by the
-        spaces as parameters, for an env that may publish no env_info, 'auto' is the answer until
-        an env_info says otherwise.)"""
+        while that is not known: 'auto' configured by env_id waits for the env's own env_info
+        (pace_wait.py says why). Configured by the spaces as parameters, for an env that may
+        publish no env_info, 'auto' is the answer until an env_info says otherwise."""
         pace = self.pace
         if pace is None:
             return ''
@@ -235,7 +233,7 @@ class ActingNode(Node):
     # ------------------------------------------------------------------ observations
 
     def _on_observation(self, data: bytes, held: bool = False) -> None:
-        """``held``: the observation _waits_for_pace held, acted on now (seen and recorded then)."""
+        """``held``: the observation pace_wait held, acted on now (seen and recorded then)."""
         with self._lock:
             if self.done:
                 return
@@ -252,7 +250,7 @@ class ActingNode(Node):
                 self.dropped_messages += 1
                 self.get_logger().error(f'dropped observation: {error}', throttle_duration_sec=5.0)
                 return
-            if not held and self._waits_for_pace(data):
+            if not held and self.pace_wait.hold(data):
                 return
             key = (env_step.episode, env_step.step)
             if key == self.tracking.key:
@@ -276,42 +274,6 @@ class ActingNode(Node):
                 self.tracking.state = None
                 return
             self._act(env_step.obs, key)
-
-    def _waits_for_pace(self, data: bytes) -> bool:
-        """True when ``data`` is held until the env says its pace (see _held_observation): the
-        protocol depends on it ('auto' configured by env_id), the learner may ask, and the wait
-        has not run out. A lock-step env waits for the action meanwhile; a real-time one goes on,
-        and the latest observation is the one held."""
-        known = self.protocol or not self.params['advice_enabled'] or not asks_for_advice(self.config.mode)
-        if known or self._pace_wait == 'over':  # over: _act asks nothing while the pace is unknown, and says so
-            self._held_observation = None  # this later one goes first (callbacks may run on several threads)
-            return False
-        if self._pace_wait == 'not yet':
-            self._pace_wait = 'waiting'
-            # The env may send nothing more meanwhile (lock-step, or its last re-send was this one).
-            self._pace_timer = self.create_timer(AUTO_PACE_WAIT_S, self._on_pace_wait_over, clock=self._steady)
-            self.get_logger().info(
-                f"advice_protocol auto: waiting up to {AUTO_PACE_WAIT_S:g} s for the env's env_info on "
-                f"'{self.env_info.topic}' (real time: the wheel; lock-step: one answer) before acting"
-            )
-        if self._held_observation is not None:
-            self.early_observations += 1  # superseded by a later one
-        self._held_observation = data
-        return True
-
-    def _on_pace_wait_over(self) -> None:
-        with self._lock:
-            self._pace_wait = 'over'
-        self._on_pace_known()
-
-    def _on_pace_known(self) -> None:
-        """The env's own env_info came, or the wait ran out: act on the observation held, at once."""
-        with self._lock:
-            data, self._held_observation = self._held_observation, None
-            if self._pace_timer is not None:
-                self._pace_timer.cancel()  # once is enough
-        if data is not None:
-            self._on_observation(data, held=True)
 
     def _observe_while_waiting(self, env_step: messages.EnvStep, key: tuple) -> None:
         """A real-time env keeps stepping with the held (previous) action while the person
@@ -410,13 +372,7 @@ class ActingNode(Node):
             return
         protocol = self.protocol
         if not protocol:  # 'auto' before the env said whether it runs in real time: nothing is asked yet
-            self.get_logger().warn(
-                f"advice_protocol auto: no env_info from the env on '{self.env_info.topic}' in "
-                f'{AUTO_PACE_WAIT_S:g} s, so whether it runs in real time (the wheel) or lock-step (one answer) '
-                'is not known; the gates fired, nothing was asked and the learner acts on its own (counted as '
-                'unavailable; set advice_protocol answer or wheel for an env that publishes no env_info)',
-                throttle_duration_sec=5.0,
-            )
+            self.pace_wait.say_unasked(self.env_info.topic)
             self._finish_step(
                 *self.learner.resolve_advice(proposal, failure='unavailable').action_and_advised(), 'learner'
             )

@@ -16,12 +16,12 @@ from eqhrl_interfaces.msg import EnvInfo
 from eqhrl_ros.core.envs.spec import SUCCESS_RULES, EnvSpec
 from eqhrl_ros.core.experts.controllers import DoubleIntegratorExpert
 from eqhrl_ros.nodes import env_info, messages
-from eqhrl_ros.nodes.acting_node import AUTO_PACE_WAIT_S
 from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegrator, DoubleIntegratorEnv
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.keyboard_teleop_node import KeyboardTeleop
 from eqhrl_ros.nodes.learner_node import LearnerNode
+from eqhrl_ros.nodes.pace_wait import AUTO_PACE_WAIT_S
 from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
 from eqhrl_ros.parameters import file_section
 
