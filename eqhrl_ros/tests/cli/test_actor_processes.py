@@ -2,7 +2,6 @@
 that dies leaves the others going; a trainer that dies leaves the actors acting and keeping
 their transitions; a trainer restarted with resume continues and the actors take its weights."""
 
-import os
 import signal
 
 import pytest
@@ -22,31 +21,7 @@ def start_actor(index, log_dir, *extra):
     return env, actor
 
 
-# A participant announces how long the others wait before they drop it unheard from (Fast DDS:
-# 20 s by default). The first trainer of the test below is killed with -9, so only that wait tells
-# its actor: the trainer announces 3 s, as a deployment that wants a dead trainer noticed sooner
-# would (an XML profile, picked up by rmw_fastrtps; the actors keep the default).
-SHORT_LEASE = """<?xml version="1.0" encoding="UTF-8"?>
-<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
-  <participant profile_name="short_lease" is_default_profile="true">
-    <rtps><builtin><discovery_config>
-      <leaseDuration><sec>3</sec></leaseDuration>
-      <leaseAnnouncement><sec>1</sec></leaseAnnouncement>
-    </discovery_config></builtin></rtps>
-  </participant>
-</profiles>
-"""
-
-
-def start_trainer(out, log_dir, *extra, short_lease=False):
-    popen = {}
-    if short_lease:
-        profile = log_dir / 'short_lease.xml'
-        profile.write_text(SHORT_LEASE)
-        # Fast DDS 2 (Jazzy's) reads the first name, Fast DDS 3 the second.
-        popen['env'] = dict(
-            os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=str(profile), FASTDDS_DEFAULT_PROFILES_FILE=str(profile)
-        )
+def start_trainer(out, log_dir, *extra):
     return start(
         'trainer',
         '--ros-args',
@@ -67,7 +42,6 @@ def start_trainer(out, log_dir, *extra, short_lease=False):
         'actors:=[/actor0/actor, /actor1/actor]',  # whom it hears (a stranger under another name: refused)
         *extra,
         log_dir=log_dir,
-        **popen,
     )
 
 
@@ -110,7 +84,7 @@ def test_an_actor_that_dies_leaves_the_others_learning(tmp_path):
 
 def test_actors_outlive_their_trainer_and_take_the_weights_of_the_next(tmp_path):
     out = tmp_path / 'run'
-    trainer = start_trainer(out, tmp_path, short_lease=True)
+    trainer = start_trainer(out, tmp_path)
     env, actor = start_actor(0, tmp_path)
     processes = [trainer, env, actor]
     try:
@@ -119,8 +93,10 @@ def test_actors_outlive_their_trainer_and_take_the_weights_of_the_next(tmp_path)
         trainer.wait()
         saved_rows = len(rows_from(out, '/actor0/actor'))
         # The actor goes on acting (its episodes keep coming) and keeps what it cannot send. It
-        # notices once DDS drops the killed trainer from the graph: up to the participant lease the
-        # trainer announced (SHORT_LEASE's 3 s) later.
+        # notices once DDS drops the killed trainer from the graph: often at once, but up to Fast
+        # DDS's participant lease (20 s) later; CI once saw 21 s. (A trainer announcing a 3 s lease,
+        # through a Fast DDS profile, made this test 24 s shorter, but the resumed trainer then fell
+        # short of the actor's episodes in 2 of 3 full runs: see catching_up.)
         assert wait_for(lambda: 'no trainer on /transitions' in output(actor), 45), output(actor)
         episodes_then = output(actor).count('] [actor0.actor]: episode ')
         assert wait_for(lambda: output(actor).count('] [actor0.actor]: episode ') >= episodes_then + 3, 30)
@@ -140,7 +116,9 @@ def test_actors_outlive_their_trainer_and_take_the_weights_of_the_next(tmp_path)
         # The env's last message may still be in the actor's hands when the env has exited: count
         # its episodes once its log has been quiet for a while (CI once counted one too early).
         finished = settled(lambda: output(actor).count('] [actor0.actor]: episode '), quiet_s=2.0, timeout=30)
-        assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= finished, 60), catching_up(
+        # The resumed trainer stores again all the actor kept, with a save after every episode
+        # (checkpoint_every_episodes 1, save_replay): under load, more than a minute at times.
+        assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= finished, 120), catching_up(
             finished, out, actor, restarted
         )
         stored = len(rows_from(out, '/actor0/actor'))
