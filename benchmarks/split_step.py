@@ -4,9 +4,10 @@
 
 One learner per mode (sac, qasac, eqsac: the same seed, Table 1 sizes), each filled for --warmup
 steps without updates, D_advising filled by the heuristic expert inside the advising budget, and
-with --compile its whole update compiled before timing (compile_update: true). Then in
-interleaved rounds (the modes take turns, so that a machine that speeds up or slows down does so
-for all), each mode's steps are timed part by part with time.perf_counter around:
+with --compile its whole update compiled before timing, in the same thread (the program that
+compile_update: true runs). Then in interleaved rounds (the modes take turns, so that a machine
+that speeds up or slows down does so for all), each mode's steps are timed part by part with
+time.perf_counter around:
 
 - propose: the action, D(s), E(s) and the gates (learner.propose);
 - expert: the heuristic expert's answer when the gates fire;
