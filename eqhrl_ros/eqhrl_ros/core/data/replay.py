@@ -110,6 +110,10 @@ class ReplayBuffer:
             index = torch.randint(self.size, (batch_size,), generator=generator)
         else:
             index = torch.randperm(self.size, generator=generator)[:batch_size]
+        return self.gather(index)
+
+    def gather(self, index: torch.Tensor) -> Minibatch:
+        """The transitions at rows ``index`` (a memory that keeps more per row draws its own)."""
         return Minibatch(**self._split(self.rows.index_select(0, index)))
 
     def state_dict(self) -> dict:
