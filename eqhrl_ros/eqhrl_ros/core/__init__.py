@@ -19,6 +19,7 @@ algorithm/  EQ-HRL itself
   config.py       every hyperparameter once (default, range, description); the modes
   equations.py    every equation of the paper (Eqs. 4-10), named as the paper names it
   networks.py     the squashed-Gaussian actor and the twin critics
+  image_encoder.py   a conv encoder of frame stacks, random-shift augmentation (issue 49: not yet in the learner)
   streams.py      the learner's random streams, one per purpose
   observations.py what the networks read, checked (the seam for an image encoder)
   policy.py       Policy: pi(.|s), the actor that acts, and E(s)

@@ -1,0 +1,73 @@
+"""The image encoder and its augmentation (issue 49, item 2; not yet in the learner).
+
+The shape DrQ-v2 and SAC-AE use for learning from pixels with an actor-critic:
+- ``ImageEncoder``: a stack of k frames, uint8 [B, k*C, H, W], scaled to [-0.5, 0.5], then four
+  3x3 convolutions of 32 filters (the first with stride 2), each followed by a ReLU, flattened.
+  The critics' loss trains it; the actor reads its output detached, so that the actor's loss
+  never moves it (DrQ-v2, Section 3.1; SAC-AE, Section 5).
+- ``random_shift``: each image of a batch padded by ``pad`` pixels (edge pixels repeated) and
+  cropped back at a random integer offset in [0, 2 pad] on each axis, its own per image
+  (DrQ-v2's augmentation, pad 4 at 84x84). It is applied to the batches an update samples,
+  never to the observation the learner acts on.
+
+The gates read the encoded state as they read a vector today: D(s) from the twin critics on
+it, E(s) from the actor's output on it.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+FILTERS = 32
+LAYERS = 4
+
+
+def conv_output_size(size: int) -> int:
+    """Height (or width) after the encoder's convolutions: 3x3, no padding, stride 2 then 1."""
+    size = (size - 3) // 2 + 1
+    return size - 2 * (LAYERS - 1)
+
+
+MIN_SIZE = 2 * (2 * (LAYERS - 1) + 1) + 1  # the smallest height and width the convolutions leave 1 pixel of
+
+
+class ImageEncoder(nn.Module):
+    """uint8 [B, k*C, H, W] frame stacks to float [B, dim] features."""
+
+    def __init__(self, stacked_channels: int, height: int, width: int):
+        super().__init__()
+        if min(conv_output_size(height), conv_output_size(width)) < 1:
+            raise ValueError(
+                f'frames of {height}x{width} are too small for the encoder (at least {MIN_SIZE}x{MIN_SIZE})'
+            )
+        self.input_shape = (int(stacked_channels), int(height), int(width))
+        layers: list[nn.Module] = [nn.Conv2d(stacked_channels, FILTERS, 3, stride=2), nn.ReLU()]
+        for _ in range(LAYERS - 1):
+            layers += [nn.Conv2d(FILTERS, FILTERS, 3, stride=1), nn.ReLU()]
+        self.convs = nn.Sequential(*layers)
+        self.dim = FILTERS * conv_output_size(height) * conv_output_size(width)
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        if frames.dtype != torch.uint8 or tuple(frames.shape[1:]) != self.input_shape:
+            raise ValueError(
+                f'the encoder reads uint8 [B, {", ".join(map(str, self.input_shape))}], '
+                f'got {frames.dtype} {list(frames.shape)}'
+            )
+        x = frames.float() / 255.0 - 0.5
+        return self.convs(x).flatten(1)
+
+
+def random_shift(frames: torch.Tensor, pad: int, generator: torch.Generator) -> torch.Tensor:
+    """Each [C, H, W] image of ``frames`` [B, C, H, W] shifted by its own random integer offset
+    of at most ``pad`` pixels per axis, the edge pixels repeated into the gap. Any dtype."""
+    if pad == 0:
+        return frames
+    batch, _, height, width = frames.shape
+    padded = nn.functional.pad(frames.float(), (pad, pad, pad, pad), mode='replicate').to(frames.dtype)
+    dy = torch.randint(0, 2 * pad + 1, (batch, 1), generator=generator)
+    dx = torch.randint(0, 2 * pad + 1, (batch, 1), generator=generator)
+    rows = (torch.arange(height).unsqueeze(0) + dy)[:, :, None]  # [B, H, 1]
+    cols = (torch.arange(width).unsqueeze(0) + dx)[:, None, :]  # [B, 1, W]
+    shifted = padded[torch.arange(batch)[:, None, None], :, rows, cols]  # [B, H, W, C]
+    return shifted.permute(0, 3, 1, 2).contiguous()
