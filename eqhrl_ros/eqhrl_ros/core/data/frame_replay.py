@@ -186,8 +186,9 @@ class FrameReplay:
             )
         if next_frame.size and not ((next_frame >= 1) & (next_frame < written)).all():
             raise ValueError('a saved transition points at a frame never written')
-        if not (first < 0 and written == 0) and not oldest <= first < written:
-            raise ValueError(f'saved episode start {first} is not a held frame')
+        # The current episode may have begun before the oldest frame held (an episode longer than the ring).
+        if not (first < 0 and written == 0) and not 0 <= first < written:
+            raise ValueError(f'saved episode start {first} is not a frame written')
         self.vectors.load_state_dict(state['vectors'])  # checks the vector part; raises before the frames
         self.frames[np.arange(oldest, written) % self.slots] = frames.numpy()
         self.episode_first[np.arange(oldest, written) % self.slots] = first_of

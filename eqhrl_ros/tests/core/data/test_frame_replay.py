@@ -100,6 +100,18 @@ def test_a_saved_memory_loads_into_a_new_one_and_samples_the_same():
     check_batch(loaded.sample(300, torch.Generator().manual_seed(3)))
 
 
+def test_an_episode_longer_than_the_ring_saves_loads_and_goes_on():
+    memory = FrameReplay(20, SHAPE, STACK, vector_dim=2, action_dim=1)
+    memory.start_episode(frame(0, 0))
+    for t in range(60):  # its reset frame is long overwritten
+        memory.add([0, t], [0.5], 1.0, frame(0, t + 1), [0, t + 1], terminated=False)
+    loaded = FrameReplay(20, SHAPE, STACK, vector_dim=2, action_dim=1)
+    loaded.load_state_dict(memory.state_dict())
+    for t in range(60, 64):
+        loaded.add([0, t], [0.5], 1.0, frame(0, t + 1), [0, t + 1], terminated=False)
+    check_batch(loaded.sample(200, torch.Generator().manual_seed(4)))
+
+
 @pytest.mark.parametrize(
     'corrupt, message',
     [
