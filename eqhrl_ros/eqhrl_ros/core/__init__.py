@@ -6,6 +6,7 @@ data/       what is stored and what travels
   errors.py       the errors the core raises
   advice.py       AdviceRequest, Advice and the expert interface; the kinds of failed advice
   replay.py       replay memories D and D_advising
+  camera_frames.py   a camera frame's fields to pixels, compressed frames decoded safely
   frame_replay.py camera frames held once, stacks gathered by index (issue 49: not yet in the learner)
   summary.py      one episode's statistics (the record's fields)
   transitions.py  batches of transitions on their way to the trainer; the actor's outbox

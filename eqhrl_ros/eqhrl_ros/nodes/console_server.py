@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import asyncio
 import hmac
-import io
 import ipaddress
 import json
 import threading
@@ -26,10 +25,10 @@ import time
 from importlib import resources
 from typing import Optional
 
-import numpy as np
 from aiohttp import WSMsgType, web
 from sensor_msgs.msg import Image
 
+from ..core.data import camera_frames
 from .connection_guard import ConnectionGuard, GuardedProtocol
 
 MAX_PAGE_MESSAGE = 4096  # bytes; the page sends small JSON only
@@ -64,22 +63,12 @@ def host_allowed(host_header: str, names) -> bool:
 
 
 def jpeg(frame: Image, quality: int) -> Optional[bytes]:
-    """An rgb8/bgr8/mono8 sensor_msgs/Image as JPEG bytes (None for other encodings)."""
-    from PIL import Image as PILImage  # pillow (a matplotlib dependency)
-
-    channels = {'rgb8': 3, 'bgr8': 3, 'mono8': 1}.get(frame.encoding)
-    if channels is None or frame.height == 0 or frame.width == 0:
+    """A sensor_msgs/Image as JPEG bytes (None for a frame core.data.camera_frames refuses)."""
+    try:
+        pixels = camera_frames.frame_array(frame.encoding, frame.height, frame.width, frame.step, frame.data)
+    except camera_frames.FrameError:
         return None
-    pixels = np.frombuffer(bytes(frame.data), np.uint8)
-    if pixels.size < frame.step * frame.height:
-        return None
-    rows = pixels[: frame.step * frame.height].reshape(frame.height, frame.step)
-    array = rows[:, : frame.width * channels].reshape(frame.height, frame.width, channels)
-    if frame.encoding == 'bgr8':
-        array = array[:, :, ::-1]
-    out = io.BytesIO()
-    PILImage.fromarray(array.squeeze()).save(out, format='JPEG', quality=quality)
-    return out.getvalue()
+    return camera_frames.jpeg_bytes(pixels, quality)
 
 
 def _static(name: str) -> str:

@@ -8,7 +8,6 @@ captures; frames of ``gym_env/image`` are written JPEG-compressed.
 
 from __future__ import annotations
 
-import io
 from typing import Optional
 
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -16,6 +15,7 @@ from rclpy.serialization import serialize_message
 from rclpy.service_introspection import ServiceIntrospectionState
 from sensor_msgs.msg import CompressedImage, Image
 
+from ..core.data import camera_frames
 from .spinning import steady_clock
 
 # Service events: reliable, so that the record (and ros2 bag) holds every call.
@@ -74,25 +74,13 @@ class NodeRecord:
         return name
 
     def _on_frame(self, topic: str, msg: Image) -> None:
-        from PIL import Image as PILImage
-
-        modes = {'rgb8': 'RGB', 'mono8': 'L', 'bgr8': 'RGB'}
-        mode = modes.get(msg.encoding)
-        if mode is None or msg.width * msg.height == 0:
-            return
         try:
-            channels = 1 if mode == 'L' else 3
-            frame = PILImage.frombuffer(
-                mode, (msg.width, msg.height), bytes(msg.data), 'raw', mode, msg.step or msg.width * channels, 1
-            )
-            if msg.encoding == 'bgr8':
-                frame = PILImage.merge('RGB', frame.split()[::-1])
-            out = io.BytesIO()
-            frame.save(out, format='JPEG', quality=JPEG_QUALITY)
-        except (ValueError, OSError):
+            pixels = camera_frames.frame_array(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+        except camera_frames.FrameError:
             self.failed += 1
             return
-        self.write(topic, CompressedImage(header=msg.header, format='jpeg', data=out.getvalue()))
+        data = camera_frames.jpeg_bytes(pixels, JPEG_QUALITY)
+        self.write(topic, CompressedImage(header=msg.header, format='jpeg', data=data))
         self.frames += 1
 
     def _guarded(self, write, *args) -> None:

@@ -4,6 +4,7 @@ keyboard_teleop, advice_console)."""
 from __future__ import annotations
 
 from ..core.algorithm.config import INT_MAX
+from ..core.data import camera_frames
 from ..core.experts.factory import EXPERT_BACKENDS
 from ..core.experts.teleop import ANSWER_MODES
 from .tables import ENV_PARAMS, HUMAN_LIMIT_PARAMS, KEY_FILE, SPACE_PARAMS, Param
@@ -182,7 +183,11 @@ CONSOLE_PARAMS = (
         'A connection that has not sent a whole request header in this time is closed (idle, half-open)',
         (0.1, 600.0),
     ),
-    Param('image_topic', 'gym_env/image', 'sensor_msgs/Image topic with the env frames (rgb8, bgr8 or mono8)'),
+    Param(
+        'image_topic',
+        'gym_env/image',
+        f'sensor_msgs/Image topic with the env frames ({", ".join(camera_frames.ENCODINGS)}; others are not shown)',
+    ),
     Param('image_rate_hz', 15.0, 'Most frames per second sent to each page', (0.1, 60.0)),
     Param('jpeg_quality', 75, 'JPEG quality of the frames sent to the page', (10, 95)),
     Param('rate_hz', 20.0, 'Publishing rate of teleop_command while a page is open', (1.0, 100.0)),
