@@ -490,15 +490,18 @@ def test_auto_holds_the_first_observation_until_the_env_says_its_pace(harness, r
     vouches for the env). A learner that acted at once asked nothing, or the wrong way, for its
     first steps (test_person_nodes counted a whole episode of 'unavailable' on CI); it holds the
     observation until env_info says the pace, then acts on it at once, and its first request is
-    for the wheel in a real-time env."""
+    for the wheel in a real-time env. A real-time env goes on meanwhile: its later observations are
+    held too and acted on in order (holding only the latest, the learner joined its first episode at
+    step 1, marked interrupted: test_realtime_rate failed so on CI)."""
     learner = harness.add(
         LearnerNode(context=ros_context, parameter_overrides=asking_learner_params(tmp_path, random_ask_rate=1.0))
     )
     publisher, probe = observation_publisher(harness)
     requests = []
     probe.node.create_subscription(AdviceRequestMsg, 'learner/advice_request', requests.append, messages.LATCHED_QOS)
-    publisher.publish(messages.observation_msg([1.0, 0.0, 0.0], 0.0, False, False, 0, 0))
-    harness.spin_until(lambda: False, timeout=0.5)
+    for step in range(3):  # the env's ticks before its env_info is heard
+        publisher.publish(messages.observation_msg([1.0, 0.0, 0.1 * step], 0.0, False, False, 0, step))
+        harness.spin_until(lambda: False, timeout=0.25)
     assert probe.acted_on() == [] and learner.learner.total_steps == 0  # held, not acted on
     spec = EnvSpec('Pendulum-v1', 3, [-2.0], [2.0], realtime=True, rate_hz=20.0, max_episode_steps=1000)
     info = env_info.env_info_msg(spec, publisher=probe.node.get_fully_qualified_name())
@@ -506,5 +509,9 @@ def test_auto_holds_the_first_observation_until_the_env_says_its_pace(harness, r
     heard = time.monotonic()
     assert harness.spin_until(lambda: (0, 0) in probe.acted_on(), timeout=AUTO_PACE_WAIT_S)
     assert time.monotonic() - heard < AUTO_PACE_WAIT_S - 0.5  # on env_info, not at the end of the wait
+    assert harness.spin_until(lambda: len(probe.acted_on()) >= 3, timeout=2)
+    assert probe.acted_on()[:3] == [(0, 0), (0, 1), (0, 2)]  # each one held, in order: the episode seen whole
+    assert learner.tracking.observation_gaps == 0 and learner.learner.episode_step == 2  # two transitions stored
+    assert not learner.learner.episode_interrupted
     assert harness.spin_until(lambda: bool(requests), timeout=2)
     assert requests[0].wheel and learner.learner.episode_advice.failed['unavailable'] == 0
