@@ -49,6 +49,9 @@ from .spinning import run_node, steady_clock, stop_with_error
 STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 # Refused batches of this many bytes since the last report make a new transitions subscription.
 FLOOD_BYTES = 16e6
+# Batches stored between updates at most: under a stream faster than storing, saves and updates
+# still come.
+STORE_PER_STEP = 256
 
 
 def give_back_freed_memory() -> None:
@@ -113,6 +116,7 @@ class TrainerNode(RunFiles, Node):
         self._refused_bytes = 0  # of strangers' batches refused since their memory was last given back
         self._work = threading.Event()  # set when a batch arrives
         self._hold = threading.Event()  # set while another thread saves
+        self._save_due = False  # an episode made a periodic checkpoint due (checkpoint_every_episodes)
         self._stopping = threading.Event()
         self._learning = threading.Thread(target=self._learn, name='trainer-updates', daemon=True)
         self._learning.start()
@@ -335,41 +339,54 @@ class TrainerNode(RunFiles, Node):
             if p['shutdown_when_done']:
                 self.context.try_shutdown()
         elif every and self.learner.episode % every == 0:
-            self.save_or_log()
+            self._save_due = True  # saved once the step's batches are all stored (_learn_step)
 
     # ------------------------------------------------------------------ learning
 
     def _learn(self) -> None:
-        """The learning thread: store what arrived, then one update if one is owed; weights out
-        when due. Under the node's lock, one step at a time, so that a save can come in between."""
+        """The learning thread: one step at a time, under the node's lock, so that a save can
+        come in between."""
         while not self._stopping.is_set():
             if self._hold.is_set():  # a save from another thread (at exit) goes first
                 time.sleep(0.005)
                 continue
-            with self._lock:
-                stored = bool(self._inbox)
-                while self._inbox and not self._stopping.is_set():
-                    msg = self._inbox.popleft()
-                    with self._inbox_bytes_lock:
-                        self._inbox_bytes -= trainer_msgs.batch_bytes(msg)
-                    self._store(msg)
-                busy = self.trainer is not None and not self.done and self.trainer.updates_owed() > 0
-                if busy:
-                    try:
-                        if self.trainer.update().get('restored'):
-                            self.get_logger().error(
-                                f'an update made the networks non-finite: they were put back as the last '
-                                f'weights sent ({self.trainer.restored} times so far)',
-                                throttle_duration_sec=5.0,
-                            )
-                        if self.trainer.weights_due():
-                            self._publish_weights()
-                    except Exception as error:  # never a silent death: say it and stop the node
-                        stop_with_error(self, f'update failed: {error!r}')
-                        return
-            if not (busy or stored):
+            if not self._learn_step():
                 self._work.wait(0.05)
                 self._work.clear()
+
+    def _learn_step(self) -> bool:
+        """Store what arrived (up to STORE_PER_STEP batches), then the checkpoint its episodes
+        made due, then one update if one is owed; weights out when due. Returns whether there
+        was anything to do. One save for all the episodes stored in a step: a resumed trainer
+        that an actor sends a thousand kept episodes at once saved a thousand times, and fell
+        minutes behind (the actor keeps each episode until a checkpoint holds it, so a save
+        made later loses nothing)."""
+        with self._lock:
+            stored = 0
+            while self._inbox and stored < STORE_PER_STEP and not self._stopping.is_set():
+                msg = self._inbox.popleft()
+                with self._inbox_bytes_lock:
+                    self._inbox_bytes -= trainer_msgs.batch_bytes(msg)
+                self._store(msg)
+                stored += 1
+            if self._save_due:
+                self._save_due = False
+                self.save_or_log()
+            busy = self.trainer is not None and not self.done and self.trainer.updates_owed() > 0
+            if busy:
+                try:
+                    if self.trainer.update().get('restored'):
+                        self.get_logger().error(
+                            f'an update made the networks non-finite: they were put back as the last '
+                            f'weights sent ({self.trainer.restored} times so far)',
+                            throttle_duration_sec=5.0,
+                        )
+                    if self.trainer.weights_due():
+                        self._publish_weights()
+                except Exception as error:  # never a silent death: say it and stop the node
+                    self._stopping.set()
+                    stop_with_error(self, f'update failed: {error!r}')
+            return busy or stored > 0
 
     def save(self) -> None:
         self._hold.set()

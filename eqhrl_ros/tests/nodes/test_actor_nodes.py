@@ -10,8 +10,9 @@ import pytest
 import rclpy
 
 from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
+from eqhrl_ros.core.data.summary import EpisodeSummary
 from eqhrl_ros.files.mcap_record import read_record
-from eqhrl_ros.nodes import trainer_msgs
+from eqhrl_ros.nodes import messages, trainer_msgs
 from eqhrl_ros.nodes.actor_node import ActorNode
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
@@ -337,6 +338,31 @@ def test_the_trainers_inbox_is_bounded_in_bytes_and_counts_what_it_drops(harness
         trainer._on_batch(msg)
     assert len(trainer._inbox) == 3 and trainer.dropped_batches == 7
     assert trainer._inbox_bytes <= 1e6
+
+
+def test_a_trainer_saves_once_for_all_the_episodes_it_stores_in_one_step(harness, ros_context, tmp_path, monkeypatch):
+    """checkpoint_every_episodes 1, and forty one-episode batches waiting at once (what an actor
+    sends a resumed trainer: all it kept): one save after the last of them, not forty. Each save
+    writes checkpoint, replay and policy; saving after every stored episode left a resumed trainer
+    80 episodes behind its actor after two minutes (test_actor_processes, in CI)."""
+    trainer = add_trainer(
+        harness, ros_context, tmp_path, checkpoint_every_episodes=1, save_replay=True, learning_starts=1000
+    )
+    trainer.stop_learning()  # the thread ends; the test takes its steps itself
+    trainer._stopping.clear()
+    saved_at = []  # transitions stored at each save
+    save = trainer.save
+    monkeypatch.setattr(trainer, 'save', lambda: (saved_at.append(trainer.learner.tally.total_steps), save())[1])
+    for sequence in range(40):
+        msg = batch_message('/a0/actor', sequence)
+        summary = EpisodeSummary(sequence, 0.0, 5, 0, 0, 0, 0, 0, False, 5 * (sequence + 1), 0.2)
+        msg.episodes = [messages.stats_msg(summary)]
+        trainer._on_batch(msg)
+    assert trainer._learn_step()
+    assert len(trainer.summaries) == 40 and saved_at == [200]
+    assert trainer.trainer.sequences.actors['/a0/actor'].saved_through == 39  # all of them in the checkpoint
+    assert (tmp_path / 'trainer' / 'checkpoint.pt').exists()
+    assert not trainer._learn_step() and saved_at == [200]  # nothing new (and no update owed): no save
 
 
 def test_a_flood_from_an_actor_the_trainer_does_not_hear_never_reaches_its_inbox(harness, ros_context, tmp_path):
