@@ -100,3 +100,26 @@ def test_the_results_pages_tables_are_the_committed_reports():
         again, spliced = splice.splice(page, report, prefix)
         assert spliced == markers
         assert again == page, study
+
+
+def test_the_readmes_camera_example_runs_and_its_memory_figures_are_the_codes():
+    """The code block of "Learning from a camera" runs as written, and the bounds its table
+    states are what FrameReplay holds."""
+    import re
+
+    import numpy as np
+
+    from eqhrl_ros.core.algorithm.memories import frames_bytes_with_advice
+    from eqhrl_ros.core.data.frame_replay import FrameReplay, frame_bytes
+
+    section = README.split('## Learning from a camera', 1)[1].split('\n## ', 1)[0]
+    code = re.search(r'```python\n(.*?)```', section, re.S).group(1)
+    scope: dict = {}
+    exec(compile(code, 'README.md', 'exec'), scope)
+    assert scope['learner'].total_steps == 1 and len(scope['learner'].replay) == 1
+    assert f'hold {frame_bytes(100_000, (3, 84, 84)) / 1e9:.2f} GB of frames' in section
+    advised = FrameReplay(10, (3, 84, 84), 3, 3, 1, isolated=True)
+    per_step = advised.frames.nbytes / advised.capacity
+    assert per_step == np.prod((3 + 1, 3, 84, 84)) and f'{per_step / 1e3:.1f} kB an advised step' in section
+    assert f'frames of D and D_advising: {frames_bytes_with_advice(100_000, (3, 84, 84), 3) / 1e9:.1f} GB' in code
+    assert f'needs {frames_bytes_with_advice(1_000_000, (3, 84, 84), 3) / 1e9:.1f} GB for 84×84' in section

@@ -7,22 +7,23 @@ data/       what is stored and what travels
   advice.py       AdviceRequest, Advice and the expert interface; the kinds of failed advice
   replay.py       replay memories D and D_advising
   camera_frames.py   a camera frame's fields to pixels, compressed frames decoded safely
-  frame_replay.py camera frames held once, stacks gathered by index (issue 49: not yet in the learner)
+  frame_replay.py camera frames held once, stacks gathered by index (D and D_advising with a camera)
   summary.py      one episode's statistics (the record's fields)
   transitions.py  batches of transitions on their way to the trainer; the actor's outbox
   weights.py      the networks an actor needs, as safetensors bytes; which trainer it follows
   signing.py      a deployment's shared key: signed weights, batches and commands (HMAC)
   torch_files.py  torch's zip files written atomically and read safely
 envs/       an env as the learner sees it
-  spec.py         EnvSpec: an env's spaces, pace and success rule, whoever announces it; ActionScaler
+  spec.py         EnvSpec: an env's spaces, pace and success rule, whoever announces it; ActionScaler; CameraSpec
   gymnasium_envs.py gymnasium envs: construction, their EnvSpec, action labels
+  camera_envs.py  a gymnasium env seen through a camera: its rendering, resized and stacked
 algorithm/  EQ-HRL itself
   config.py       every hyperparameter once (default, range, description); the modes
   equations.py    every equation of the paper (Eqs. 4-10), named as the paper names it
   networks.py     the squashed-Gaussian actor and the twin critics
-  image_encoder.py   a conv encoder of frame stacks, random-shift augmentation (issue 49: not yet in the learner)
+  image_encoder.py   a conv encoder of frame stacks (DrQ-v2), random-shift augmentation
   streams.py      the learner's random streams, one per purpose
-  observations.py what the networks read, checked (the seam for an image encoder)
+  observations.py what the networks read, checked: a vector, or a state vector and a camera's frame stack
   policy.py       Policy: pi(.|s), the actor that acts, and E(s)
   critics.py      Critics: the twin critics, their targets, and D(s)
   memories.py     ReplayMemories: D and D_advising, and an update's batches from both

@@ -1,4 +1,4 @@
-"""The image encoder and its augmentation (issue 49, item 2; not yet in the learner).
+"""The image encoder and its augmentation (issue 49, item 2).
 
 The shape DrQ-v2 and SAC-AE use for learning from pixels with an actor-critic:
 - ``ImageEncoder``: a stack of k frames, uint8 [B, k*C, H, W], scaled to [-0.5, 0.5], then four
@@ -10,6 +10,12 @@ The shape DrQ-v2 and SAC-AE use for learning from pixels with an actor-critic:
   (DrQ-v2's augmentation, pad 4 at 84x84). It is applied to the batches an update samples,
   never to the observation the learner acts on.
 
+- ``ObservationEncoder``: what the actor and the critics read from an observation with a camera:
+  its state vector, then the ImageEncoder's features of its frame stack through SAC-AE's head
+  (a linear layer to 50, LayerNorm, tanh). The learner's replay and
+  update carry such an observation flat (observations.CameraObservation): the state, then the
+  stack's values channel-first, as floats in [0, 255].
+
 The gates read the encoded state as they read a vector today: D(s) from the twin critics on
 it, E(s) from the actor's output on it.
 """
@@ -19,8 +25,11 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..envs.spec import CameraSpec
+
 FILTERS = 32
 LAYERS = 4
+FEATURES = 50  # what the encoder gives the networks beside the state (SAC-AE's and DrQ's 50)
 
 
 def conv_output_size(size: int) -> int:
@@ -37,16 +46,21 @@ class ImageEncoder(nn.Module):
 
     def __init__(self, stacked_channels: int, height: int, width: int):
         super().__init__()
-        if min(conv_output_size(height), conv_output_size(width)) < 1:
-            raise ValueError(
-                f'frames of {height}x{width} are too small for the encoder (at least {MIN_SIZE}x{MIN_SIZE})'
-            )
+        self.dim = self.output_dim(stacked_channels, height, width)
         self.input_shape = (int(stacked_channels), int(height), int(width))
         layers: list[nn.Module] = [nn.Conv2d(stacked_channels, FILTERS, 3, stride=2), nn.ReLU()]
         for _ in range(LAYERS - 1):
             layers += [nn.Conv2d(FILTERS, FILTERS, 3, stride=1), nn.ReLU()]
         self.convs = nn.Sequential(*layers)
-        self.dim = FILTERS * conv_output_size(height) * conv_output_size(width)
+
+    @staticmethod
+    def output_dim(stacked_channels: int, height: int, width: int) -> int:
+        """The features' size for such frames, or a ValueError when they are too small."""
+        if min(conv_output_size(height), conv_output_size(width)) < 1:
+            raise ValueError(
+                f'frames of {height}x{width} are too small for the encoder (at least {MIN_SIZE}x{MIN_SIZE})'
+            )
+        return FILTERS * conv_output_size(height) * conv_output_size(width)
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         if frames.dtype != torch.uint8 or tuple(frames.shape[1:]) != self.input_shape:
@@ -54,8 +68,32 @@ class ImageEncoder(nn.Module):
                 f'the encoder reads uint8 [B, {", ".join(map(str, self.input_shape))}], '
                 f'got {frames.dtype} {list(frames.shape)}'
             )
-        x = frames.float() / 255.0 - 0.5
+        return self.scaled(frames.float() / 255.0 - 0.5)
+
+    def scaled(self, x: torch.Tensor) -> torch.Tensor:
+        """Features of float frames already scaled to [-0.5, 0.5]."""
         return self.convs(x).flatten(1)
+
+
+class ObservationEncoder(nn.Module):
+    """A flat observation [B, state_dim + stack values] (CameraObservation's layout) to the
+    features the networks read: [B, state_dim + FEATURES], the state first, unchanged, then the
+    ImageEncoder's output projected to FEATURES values, layer-normalised and squashed by tanh
+    (SAC-AE's head, Section 5: without it the critics' first layer would read 39,200 values
+    at 84x84, ten million weights each)."""
+
+    def __init__(self, state_dim: int, camera: CameraSpec):
+        super().__init__()
+        self.state_dim, self.camera = int(state_dim), camera
+        self.stacked_shape = (camera.stack * camera.channels, camera.height, camera.width)
+        self.image = ImageEncoder(*self.stacked_shape)
+        self.head = nn.Sequential(nn.Linear(self.image.dim, FEATURES), nn.LayerNorm(FEATURES), nn.Tanh())
+        self.dim = self.state_dim + FEATURES
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        state, frames = obs[:, : self.state_dim], obs[:, self.state_dim :]
+        features = self.head(self.image.scaled(frames.reshape(-1, *self.stacked_shape) / 255.0 - 0.5))
+        return torch.cat([state, features], dim=1)
 
 
 def random_shift(frames: torch.Tensor, pad: int, generator: torch.Generator) -> torch.Tensor:

@@ -28,26 +28,26 @@ knows who answers advice. Every equation it uses lives in core/algorithm/equatio
 from __future__ import annotations
 
 import copy
+import dataclasses
 from typing import Optional
 
 import numpy as np
 import torch
 
 from ..data.advice import Advice, AdviceRequest
-from ..data.replay import checked_transition
 from ..data.summary import EpisodeSummary
-from ..envs.spec import ActionScaler, SuccessCriterion
+from ..envs.spec import ActionScaler, CameraSpec, SuccessCriterion
 from . import advice_outcomes as outcomes
 from .advice_counts import AdviceCounts, RunTally
 from .advice_outcomes import Proposal, Resolution
 from .advice_window import AdviceBudget, AdviceWindow
 from .advising import AdvisingGates, GateDecision
-from .config import LearnerConfig, check_value
+from .config import SCORE_MODES, LearnerConfig, check_value
 from .critics import Critics
 from .learner_state import check_state, resumed_settings
 from .memories import ReplayMemories
 from .networks import SquashedGaussianActor, TwinCritic
-from .observations import VectorObservation
+from .observations import CameraObservation, VectorObservation
 from .policy import Policy
 from .state_scores import StateScores
 from .streams import RandomStreams, stream_seeds
@@ -64,13 +64,16 @@ def learning_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def initial_networks(obs_dim: int, action_dim: int, config: LearnerConfig, device) -> tuple:
+def initial_networks(obs_dim: int, action_dim: int, config: LearnerConfig, device, observation=None) -> tuple:
     """(actor, twin critic) initialised from the seed without disturbing the caller's global RNG,
-    on the CPU: the same initial weights on every device."""
+    on the CPU: the same initial weights on every device. ``observation``: a camera's part makes
+    its encoder after them, from the same stream."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(stream_seeds(config.seed)['networks'])
         actor = SquashedGaussianActor(obs_dim, action_dim, config.hidden).to(device)
         critic = TwinCritic(obs_dim, action_dim, config.hidden).to(device)
+        if observation is not None:
+            observation.make_encoder()
     return actor, critic
 
 
@@ -104,18 +107,27 @@ class EQSACLearner:
         action_high,
         config: LearnerConfig | None = None,
         success: SuccessCriterion | None = None,
+        camera: CameraSpec | None = None,
     ):
+        """``obs_dim``: the observation's vector; with a ``camera``, the state vector beside it
+        (0: pixels alone), and an observation is {'state': vector, 'pixels': uint8 [k, H, W, C]}."""
         self.config = cfg = config or LearnerConfig()
         self.device = learning_device(cfg.device)
-        self.observation = VectorObservation(obs_dim, self.device)
+        self.observation: VectorObservation | CameraObservation
+        if camera is None:
+            self.observation = VectorObservation(obs_dim, self.device)
+        else:
+            if cfg.mode in SCORE_MODES:
+                raise ValueError(f"mode '{cfg.mode}' scores the state vector: not with a camera (yet)")
+            self.observation = CameraObservation(obs_dim, camera, self.device)
         scaler = ActionScaler(action_low, action_high)
         self.success = success or SuccessCriterion()
         self.streams = RandomStreams(cfg.seed, self.device)
-        actor, critic = initial_networks(self.observation.dim, scaler.dim, cfg, self.device)
+        actor, critic = initial_networks(self.observation.features_dim, scaler.dim, cfg, self.device, self.observation)
         self.policy = Policy(actor, scaler, self.observation, self.streams, cfg)
         self.critics = Critics(critic)
         self.updater = Updater(cfg, self.policy, self.critics, self.device)
-        self.memories = ReplayMemories(cfg, self.observation.dim, scaler.dim, self.streams, self.device)
+        self.memories = ReplayMemories(cfg, self.observation, scaler.dim, self.streams, self.device)
         self.budget = AdviceBudget(cfg)
         self.gates = gates_for(cfg, self.budget)
         # Modes novelty and advice_gain (extensions) score the state itself (state_scores.py).
@@ -173,14 +185,15 @@ class EQSACLearner:
     def propose(self, obs) -> Proposal:
         """a_t ~ pi(.|s_t), then D(s) (Eq. 8), E(s) (Eq. 9) and the gates (Eq. 7, Eq. 10)."""
         obs_t = self.observation.tensor(obs)
+        features = self.observation.features(obs_t)  # what the networks read (a camera's: encoded)
         warming_up = self.total_steps < self.config.random_warmup_steps
-        mean, log_std, action = self.policy.sample(obs_t, warming_up)
+        mean, log_std, action = self.policy.sample(features, warming_up)
 
         if self.person_budget_left_s <= 0.0:  # the person's seconds are spent: as outside Eq. 7's budget
             decision = GateDecision(False, within_budget=False)
         elif self.gates.needs_evaluation(self.episode):
             gates = self.gates
-            discrepancy = self.critics.discrepancy(obs_t, action) if gates.uses_discrepancy else None
+            discrepancy = self.critics.discrepancy(features, action) if gates.uses_discrepancy else None
             entropy = self.policy.entropy(mean, log_std) if gates.uses_entropy else None
             draw = self.streams.uniform('request') if gates.uses_draw else None
             score = None
@@ -196,7 +209,7 @@ class EQSACLearner:
         request = None
         if decision.fire:
             request = AdviceRequest(
-                observation=obs_t[0].cpu().numpy().copy(),
+                observation=obs_t[0, : self.observation.state_dim].cpu().numpy().copy(),  # the vector part
                 proposed_action=env_action,
                 action_low=self.scaler.low,
                 action_high=self.scaler.high,
@@ -213,7 +226,7 @@ class EQSACLearner:
         resolution = outcomes.resolve(
             self._episode_advice, proposal, advice, failure, self.scaler, self.person_budget_left_s
         )
-        if proposal.request is not None:
+        if proposal.request is not None and self.scores is not None:
             self._remember_gain(self.observation.tensor(proposal.request.observation)[0], proposal, resolution)
         return resolution
 
@@ -301,12 +314,12 @@ class EQSACLearner:
         if store:
             self.store(obs, normalized, reward, next_obs, terminated, advised)
         else:
-            checked_transition(obs, normalized, reward, next_obs, self.obs_dim, self.action_dim)
+            self.memories.check(obs, normalized, reward, next_obs)
 
         self._episode_return += float(reward)
         self.episode_step += 1
         self.tally.total_steps += 1
-        self.success.update(np.asarray(next_obs, dtype=np.float32), float(reward))
+        self.success.update(self.observation.state(next_obs), float(reward))
         if success is not None:
             self._reported_success = bool(success)
 
@@ -355,6 +368,7 @@ class EQSACLearner:
     # ------------------------------------------------------------------ episodes
 
     def _reset_episode(self) -> None:
+        self.memories.episode_ended()  # a camera's next frame opens an episode in D
         self.episode_step = 0
         self.episode_interrupted = False
         self._episode_return = 0.0
@@ -416,6 +430,7 @@ class EQSACLearner:
             'actor': self.actor.state_dict(),
             'critic': self.critic.state_dict(),
             'critic_target': self.critic_target.state_dict(),
+            **self._camera_state(),
             **self.updater.state_dict(),
             'gates': self.gates.state_dict(),
             'counters': {
@@ -427,9 +442,24 @@ class EQSACLearner:
             'rng': self.streams.state_dict(),
         }
 
+    def _camera_state(self) -> dict:
+        """A camera's part of the state: its sizes and the encoder's weights (none for a vector)."""
+        observation = self.observation
+        if observation.camera is None or observation.encoder is None:
+            return {}
+        return {'camera': dataclasses.asdict(observation.camera), 'encoder': observation.encoder.state_dict()}
+
     def load_state_dict(self, state: dict) -> None:
         """Restore from ``state_dict()``. Validates first: on any error the learner is unchanged."""
         check_state(state)
+        camera = self.observation.camera
+        saved_camera = state.get('camera')
+        if (saved_camera is None) != (camera is None) or (
+            camera is not None and saved_camera != dataclasses.asdict(camera)
+        ):
+            raise ValueError(
+                f'checkpoint is for camera {saved_camera}, this learner reads {camera and dataclasses.asdict(camera)}'
+            )
         if int(state['obs_dim']) != self.obs_dim or len(state['action_low']) != self.action_dim:
             raise ValueError(
                 f'checkpoint is for observations of {state["obs_dim"]} and actions of '
@@ -444,7 +474,10 @@ class EQSACLearner:
         actor.load_state_dict(state['actor'])
         critic.load_state_dict(state['critic'])
         critic_target.load_state_dict(state['critic_target'])
-        log_alpha, optimizers = self.updater.loaded_parts(state, actor, critic)
+        encoder = copy.deepcopy(self.observation.encoder)
+        if encoder is not None:
+            encoder.load_state_dict(state['encoder'])
+        log_alpha, optimizers = self.updater.loaded_parts(state, actor, critic, encoder)
         gates = copy.deepcopy(self.gates)
         gates.load_state_dict(state['gates'])
         gates.budget = self.budget
@@ -454,6 +487,8 @@ class EQSACLearner:
 
         self.policy.actor = actor
         self.critics.critic, self.critics.critic_target = critic, critic_target
+        if encoder is not None:
+            self.observation.encoder = encoder
         self.updater.adopt(log_alpha, optimizers, int(counters['updates']))
         self.gates = gates
         self.streams.generators = streams.generators  # the parts hold this RandomStreams

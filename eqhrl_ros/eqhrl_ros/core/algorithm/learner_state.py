@@ -31,6 +31,9 @@ NETWORK_STATE = (
     'alpha_optimizer',
 )
 
+# And, with a camera, its encoder and the encoder's optimiser.
+CAMERA_STATE = ('encoder', 'encoder_optimizer')
+
 
 def check_state(state) -> None:
     """Refuse a saved state whose structure or values no run of this learner can produce."""
@@ -51,7 +54,7 @@ def check_state(state) -> None:
         )
     if not isinstance(counters.get('advice_total'), dict):
         raise ValueError('counters.advice_total must be a dict')
-    for key in NETWORK_STATE:
+    for key in (*NETWORK_STATE, *CAMERA_STATE):
         if any(t.is_floating_point() and not torch.isfinite(t).all() for t in _tensors(state.get(key))):
             raise ValueError(f"'{key}' holds non-finite values (NaN or inf)")
     for key in ('d_queue', 'e_queue'):

@@ -1,40 +1,140 @@
-"""The learner's two replay memories: D, and D_advising for the advised transitions (Section 3.3)."""
+"""The learner's two replay memories: D, and D_advising for the advised transitions (Section 3.3).
+
+With a camera (observations.CameraObservation), both are FrameReplay memories (each frame held
+once, as uint8; data/frame_replay.py), and an update's batches are made flat as the networks
+read them, after DrQ-v2's random shift of every frame stack (pad SHIFT_PAD pixels, drawn from the
+'replay' stream after the batch itself)."""
 
 from __future__ import annotations
 
-import numpy as np
+import os
+from typing import cast
 
-from ..data.replay import Minibatch, ReplayBuffer
+import numpy as np
+import torch
+
+from ..data.frame_replay import FrameBatch, FrameReplay, frame_bytes
+from ..data.replay import Minibatch, ReplayBuffer, checked_transition
 from .config import LearnerConfig, asks_for_advice
+from .image_encoder import random_shift
 from .streams import RandomStreams
+
+SHIFT_PAD = 4  # DrQ-v2's pad at 84x84 (Section 3.1)
+
+
+def advice_capacity_with_frames(capacity: int, stack: int) -> int:
+    """D_advising's capacity with a camera: each advised step holds stack + 1 frames, so it keeps
+    capacity // (stack + 1) of them, and its frames take no more memory than D's."""
+    return max(1, capacity // (stack + 1))
+
+
+def frames_bytes_with_advice(capacity: int, frame_shape: tuple, stack: int) -> int:
+    """Bytes of D's and D_advising's frames together, at replay_capacity ``capacity``."""
+    advice = advice_capacity_with_frames(capacity, stack) * (stack + 1) * int(np.prod(frame_shape))
+    return frame_bytes(capacity, frame_shape) + advice
+
+
+def physical_memory_bytes() -> int:
+    """This machine's memory (0 where the system does not say)."""
+    try:
+        return os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES')
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def check_frames_fit(capacity: int, frame_shape: tuple, stack: int) -> None:
+    """A ValueError, before anything is allocated, when D's and D_advising's frames could not
+    fit in this machine's memory, with the capacity that would take half of it."""
+    needed, memory = frames_bytes_with_advice(capacity, frame_shape, stack), physical_memory_bytes()
+    if memory and needed > memory:
+        per_transition = needed / capacity
+        fits = int(memory / 2 / per_transition)
+        raise ValueError(
+            f'replay_capacity {capacity:,} with {"x".join(map(str, frame_shape))} frames needs {needed / 1e9:.1f} GB '
+            f'for the frames of D and D_advising; this machine has {memory / 1e9:.1f} GB '
+            f'(replay_capacity {fits:,} would take half of it)'
+        )
 
 
 class ReplayMemories:
     """D and D_advising, what goes into each, and an update's batches from both."""
 
-    def __init__(self, config: LearnerConfig, obs_dim: int, action_dim: int, streams: RandomStreams, device):
+    def __init__(self, config: LearnerConfig, observation, action_dim: int, streams: RandomStreams, device):
         self.config = config
+        self.observation = observation
         self.streams = streams
         self.device = device
-        self.replay = ReplayBuffer(config.replay_capacity, obs_dim, action_dim)  # D
-        self.advice_replay = ReplayBuffer(config.replay_capacity, obs_dim, action_dim)  # D_advising
+        camera = observation.camera
+        self.replay: ReplayBuffer | FrameReplay
+        self.advice_replay: ReplayBuffer | FrameReplay
+        if camera is None:
+            self.replay = ReplayBuffer(config.replay_capacity, observation.dim, action_dim)  # D
+            self.advice_replay = ReplayBuffer(config.replay_capacity, observation.dim, action_dim)  # D_advising
+        else:
+            state_dim, shape, stack = observation.state_dim, camera.frame_shape, camera.stack
+            capacity, advice_capacity = (
+                config.replay_capacity,
+                advice_capacity_with_frames(config.replay_capacity, stack),
+            )
+            check_frames_fit(capacity, shape, stack)
+            self.replay = FrameReplay(capacity, shape, stack, state_dim, action_dim)
+            # Advised steps come one by one: each with its whole stack (stack + 1 frames a transition).
+            self.advice_replay = FrameReplay(advice_capacity, shape, stack, state_dim, action_dim, isolated=True)
+        self._episode_starts = True  # the next transition stored opens an episode (a camera's D)
 
     @property
     def keeps_advice(self) -> bool:
         """Whether advised transitions also go to D_advising (QASAC, EQSAC and the like, with dual_replay)."""
         return asks_for_advice(self.config.mode) and self.config.dual_replay
 
+    def check(self, obs, normalized_action, reward: float, next_obs) -> None:
+        """A transition as store() checks it, stored nowhere (ValueError if it is bad)."""
+        if self.observation.camera is None:
+            checked_transition(obs, normalized_action, reward, next_obs, self.observation.dim, self.replay_action_dim)
+            return
+        state, next_state = self.observation.parts(obs)[0], self.observation.parts(next_obs)[0]
+        checked_transition(state, normalized_action, reward, next_state, len(state), self.replay_action_dim)
+
+    @property
+    def replay_action_dim(self) -> int:
+        memory = self.replay
+        return memory.vectors.action_dim if isinstance(memory, FrameReplay) else memory.action_dim
+
     def store(self, obs, normalized_action, reward: float, next_obs, terminated: bool, advised: bool) -> None:
         """(s_t, a_t, r_t, s_{t+1}) into D, and into D_advising when advised (QASAC, EQSAC).
         ``normalized_action`` in [-1, 1]. A bad transition raises ValueError."""
-        self.replay.add(obs, normalized_action, reward, next_obs, terminated)
+        if self.observation.camera is not None:
+            self._store_frames(obs, normalized_action, reward, next_obs, terminated, advised)
+            return
+        cast(ReplayBuffer, self.replay).add(obs, normalized_action, reward, next_obs, terminated)
         if advised and self.keeps_advice:
-            self.advice_replay.add(obs, normalized_action, reward, next_obs, terminated)
+            cast(ReplayBuffer, self.advice_replay).add(obs, normalized_action, reward, next_obs, terminated)
+
+    def _store_frames(self, obs, action, reward: float, next_obs, terminated: bool, advised: bool) -> None:
+        state, pixels = self.observation.parts(obs)
+        next_state, next_pixels = self.observation.parts(next_obs)
+        checked_transition(state, action, reward, next_state, len(state), self.replay_action_dim)
+        replay = self.replay
+        assert isinstance(replay, FrameReplay)
+        if self._episode_starts:  # the episode's first frame: its first stacks repeat it
+            replay.start_episode(pixels[-1])
+            self._episode_starts = False
+        replay.add(state, action, reward, next_pixels[-1], next_state, terminated)
+        if advised and self.keeps_advice:
+            advice = self.advice_replay
+            assert isinstance(advice, FrameReplay)
+            advice.add_stacked(state, action, reward, pixels, next_pixels[-1], next_state, terminated)
+
+    def episode_ended(self) -> None:
+        """The episode ended (or was abandoned): the next transition stored opens another."""
+        self._episode_starts = True
 
     def add_prior(self, observations, normalized_actions, rewards, next_observations, terminated) -> int:
         """Earlier runs' advised and person-initiated transitions, as prior data (RLPD, HIL-SERL):
         into D, and into D_advising where this mode has it. Actions in [-1, 1]. Each row is
         checked as store() checks it (ValueError names the first bad one; the rows before it stay)."""
+        if self.observation.camera is not None:
+            raise ValueError('prior data with a camera is not read yet (issue 49): only vector observations')
         rows = 0
         for obs, action, reward, next_obs, done in zip(
             observations, normalized_actions, rewards, next_observations, terminated
@@ -52,11 +152,30 @@ class ReplayMemories:
         while it is empty or in mode sac), sampled with replacement while it holds fewer than
         the batch asks for; ``advice_batch: proportional``: D_advising's share of the batch."""
         cfg, generator = self.config, self.streams['replay']
-        batch = self.replay.sample(cfg.batch_size, generator).to(self.device)
+        batch = self._flat(self.replay.sample(cfg.batch_size, generator))
         if not asks_for_advice(cfg.mode) or len(self.advice_replay) == 0:
             return batch, None
         size = cfg.batch_size
         if cfg.advice_batch == 'proportional':  # an ablation
             size = max(1, round(cfg.batch_size * len(self.advice_replay) / len(self.replay)))
         advice = self.advice_replay.sample(size, generator, replacement=len(self.advice_replay) < size)
-        return batch, advice.to(self.device)
+        return batch, self._flat(advice)
+
+    def _flat(self, sampled: Minibatch | FrameBatch) -> Minibatch:
+        """A batch on the learner's device as the update reads it: a camera's frame stacks
+        shifted (each its own offset) and laid flat after the state, as CameraObservation.flat."""
+        if isinstance(sampled, Minibatch):
+            return sampled.to(self.device)
+        generator, vectors = self.streams['replay'], sampled.vectors
+
+        def flat(state, frames):
+            shifted = random_shift(frames, SHIFT_PAD, generator)
+            return torch.cat([state, shifted.flatten(1).float()], dim=1)
+
+        return Minibatch(
+            flat(vectors.obs, sampled.frames),
+            vectors.action,
+            vectors.reward,
+            flat(vectors.next_obs, sampled.next_frames),
+            vectors.terminated,
+        ).to(self.device)

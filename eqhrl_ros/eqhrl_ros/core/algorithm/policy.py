@@ -9,7 +9,7 @@ from ..envs.spec import ActionScaler
 from . import equations as eq
 from .config import LearnerConfig
 from .networks import SquashedGaussianActor
-from .observations import VectorObservation
+from .observations import CameraObservation, VectorObservation
 from .streams import RandomStreams
 
 
@@ -21,7 +21,7 @@ class Policy:
         self,
         actor: SquashedGaussianActor,
         scaler: ActionScaler,
-        observation: VectorObservation,
+        observation: VectorObservation | CameraObservation,
         streams: RandomStreams,
         config: LearnerConfig,
     ):
@@ -38,15 +38,16 @@ class Policy:
     @torch.inference_mode()
     def act(self, obs, deterministic: bool = False) -> np.ndarray:
         """The policy's action in env units, without gates or counters (evaluation)."""
-        mean, log_std = self.actor(self.observation.tensor(obs))
+        mean, log_std = self.actor(self.observation.features(self.observation.tensor(obs)))
         if deterministic:
             return self.scaler.to_env(torch.tanh(mean)[0].cpu().numpy())
         noise = self.streams.noise(mean.shape, 'act')
         return self.scaler.to_env(eq.squashed_gaussian_action(mean, log_std, noise)[0].cpu().numpy())
 
     def sample(self, obs_t: torch.Tensor, warming_up: bool) -> tuple:
-        """(mean, log_std, a_t in [-1, 1]) for s_t: a_t ~ pi(.|s_t), or uniform while
-        ``warming_up`` (random_warmup_steps)."""
+        """(mean, log_std, a_t in [-1, 1]) for s_t (``obs_t``: what the networks read, the
+        observation part's features): a_t ~ pi(.|s_t), or uniform while ``warming_up``
+        (random_warmup_steps)."""
         mean, log_std = self.actor(obs_t)
         if warming_up:
             action = self.streams.noise(mean.shape, 'warmup', uniform=True) * 2.0 - 1.0

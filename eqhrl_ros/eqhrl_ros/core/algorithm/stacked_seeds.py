@@ -47,7 +47,7 @@ def batchable(learners: Sequence[EQSACLearner]) -> str:
             return f'their settings differ apart from the seed ({", ".join(differ)})'
         if learner.obs_dim != learners[0].obs_dim or learner.action_dim != learners[0].action_dim:
             return 'their observation or action sizes differ'
-    return refusal(learners[0].config, 'stacked')
+    return refusal(learners[0].config, 'stacked', learners[0].observation.encoder is not None)
 
 
 def _stack(modules: Sequence[nn.Module]) -> nn.Module:

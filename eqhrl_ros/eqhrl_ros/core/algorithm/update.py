@@ -12,6 +12,12 @@ in place, in the paper's order, each equation one call into equations.py. Random
 batches, the noise) are made by the caller, from the learner's streams, in the order
 ``update_noise`` gives; so every path computes the same numbers to float rounding.
 
+With a camera (``nets`` has a third member, the ObservationEncoder; ``weights['encoder']``), the
+networks read the encoder's features of each observation (DrQ-v2, Section 3.1): the critics'
+loss trains the encoder with its own Adam (Eq. 5), the targets read the encoder as it is (no
+target encoder), and the actor's step reads the features the first critic step computed,
+detached, so that the actor's loss never moves the encoder.
+
 Gradients: torch.func when compiling (the compiler traces it), torch.autograd otherwise (the
 same derivatives, without torch.func's per-operation wrapping, which cost an eager update a
 third more). Either way a step differentiates only the weights it updates: the critics are
@@ -29,13 +35,17 @@ from torch.optim.adam import adam as functional_adam
 from ..data.replay import BATCH_COLUMNS, ROW_COLUMNS
 from . import equations as eq
 
+ENCODER = 'encoder/'  # the encoder's weights beside the critic's, in the critic step's gradient
+
 # A batch as the update reads it: its BATCH_COLUMNS (data/replay.py), each with the batch on its
 # first axis ([batch, ...]), or on its second when seeds are stacked ([N, batch, ...]).
 
 
-def refusal(config, path: str) -> str:
-    """Why ``config`` cannot take the update path ``path`` ('compiled' or 'stacked'); ''
-    when it can. The one place where an option is refused a path."""
+def refusal(config, path: str, camera: bool = False) -> str:
+    """Why ``config`` (with a ``camera``, or not) cannot take the update path ``path``
+    ('compiled' or 'stacked'); '' when it can. The one place where an option is refused a path."""
+    if camera:
+        return "a camera's update runs eagerly for now (the compiled and stacked paths do not carry the encoder yet)"
     if config.advice_batch != 'full':
         # A D_advising batch whose size follows |D_advising| changes shape at every step: a
         # compiled program would be recompiled each time, and stacked seeds would not stack.
@@ -122,7 +132,7 @@ def adam_(params: list, grads: list, state: tuple, settings: dict) -> None:
 def soft_targets(nets, weights, batch, advice, target_noise, gamma: float) -> tuple:
     """Eq. 4's y for the batch from D and for the one from D_advising (None when there is none),
     in one pass: a' ~ pi(.|s') from the current actor, Q from the target critics."""
-    actor_net, critic_net = nets
+    actor_net, critic_net = nets[:2]
     sizes = [batch[2].shape[-1]] + ([advice[2].shape[-1]] if advice is not None else [])
     if advice is None:
         both = batch
@@ -132,6 +142,8 @@ def soft_targets(nets, weights, batch, advice, target_noise, gamma: float) -> tu
             for name, pair in zip(BATCH_COLUMNS, zip(batch, advice))
         ]
     _, _, reward, next_obs, terminated = both
+    if len(nets) > 2:  # the encoder's features of s' (its weights as they are: DrQ-v2 keeps no target encoder)
+        next_obs = with_weights(nets[2], weights['encoder'])(next_obs)
     alpha = weights['log_alpha'].exp().unsqueeze(-1)
     next_mean, next_log_std = with_weights(actor_net, weights['actor'])(next_obs)
     next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, target_noise)
@@ -140,21 +152,40 @@ def soft_targets(nets, weights, batch, advice, target_noise, gamma: float) -> tu
     return (y, None) if advice is None else tuple(y.split(sizes, dim=-1))
 
 
+def encoded_critic_step(nets, weights, obs, action, y, seeds, adam_step) -> tuple:
+    """Eq. 5 for Q_theta1 and Q_theta2 through a camera's encoder, which learns from this loss
+    (its own Adam). Returns (loss, the features before this step, detached: the actor's input)."""
+    critic_net, encoder_net = nets[1], nets[2]
+    critic_w, encoder_w = weights['critic'], weights['encoder']
+    joint = {**critic_w, **{ENCODER + name: t for name, t in encoder_w.items()}}
+
+    def loss_of(w):
+        features = with_weights(encoder_net, {name: w[ENCODER + name] for name in encoder_w})(obs)
+        q1, q2 = with_weights(critic_net, {name: w[name] for name in critic_w})(features, action)
+        return seeds * (eq.critic_loss(q1, y) + eq.critic_loss(q2, y)), features
+
+    grads, (loss, features) = gradient_and_value(loss_of, joint, has_aux=True)
+    adam_step('critic', list(critic_w.values()), [grads[name] for name in critic_w])
+    adam_step('encoder', list(encoder_w.values()), [grads[ENCODER + name] for name in encoder_w])
+    return loss / seeds, features
+
+
 def algorithm1_update(
     nets, weights, state, batch, advice, noise, constants, advised=None, step: Optional[Callable] = None
 ) -> dict:
     """One update of Algorithm 1's inner loop, in its order. Returns the losses (tensors).
 
-    ``nets``: (actor, twin critic) modules, for their structure (the weights come from
-    ``weights``: 'actor', 'critic', 'critic_target' name -> tensor dicts and 'log_alpha');
-    ``state``: each network's Adam state ('actor', 'critic', 'alpha': see adam_);
+    ``nets``: (actor, twin critic) modules, and with a camera the ObservationEncoder, for their
+    structure (the weights come from ``weights``: 'actor', 'critic', 'critic_target' name ->
+    tensor dicts, 'log_alpha', and 'encoder' with a camera);
+    ``state``: each network's Adam state ('actor', 'critic', 'alpha', 'encoder': see adam_);
     ``batch``, ``advice``: the batches from D and D_advising (BATCH_COLUMNS order; advice None when
     there is none); ``noise``: update_noise's; ``constants``: gamma, tau, target_entropy, each
     network's Adam settings ('<network>_adam') and 'seeds' (1, or N stacked seeds).
     Stacked seeds: ``advised`` says which seeds have advice (the others' advice batch is a
     stand-in and gets no step), and ``step(network, params, grads, advised)`` replaces adam_.
     """
-    actor_net, critic_net = nets
+    actor_net, critic_net = nets[:2]
     actor_w, critic_w, target_w = weights['actor'], weights['critic'], weights['critic_target']
     seeds = constants['seeds']  # the loss of N stacked seeds is their mean: N x it gives each its own gradient
     losses = {}
@@ -170,19 +201,22 @@ def algorithm1_update(
     target_noise, actor_noise, advice_actor_noise = noise
     y, advice_y = soft_targets(nets, weights, batch, advice, target_noise, constants['gamma'])
 
-    def critic_step(obs, action, y, only=None):  # Eq. 5 for Q_theta1 and Q_theta2
-        def loss_of(w):
-            q1, q2 = with_weights(critic_net, w)(obs, action)
-            return seeds * (eq.critic_loss(q1, y) + eq.critic_loss(q2, y))
+    def critic_step(obs, action, y, only=None):  # Eq. 5 for Q_theta1 and Q_theta2; returns (loss, what they read)
+        if len(nets) == 2:
 
-        grads, loss = gradient_and_value(loss_of, critic_w)
-        adam_step('critic', list(critic_w.values()), list(grads.values()), only)
-        return loss / seeds
+            def loss_of(w):
+                q1, q2 = with_weights(critic_net, w)(obs, action)
+                return seeds * (eq.critic_loss(q1, y) + eq.critic_loss(q2, y))
+
+            grads, loss = gradient_and_value(loss_of, critic_w)
+            adam_step('critic', list(critic_w.values()), list(grads.values()), only)
+            return loss / seeds, obs
+        return encoded_critic_step(nets, weights, obs, action, y, seeds, lambda *a: adam_step(*a, only))
 
     # 1st critic update: the batch from D (Eq. 5); 2nd: the batch from D_advising (Section 3.3).
-    losses['critic_loss'] = critic_step(batch[0], batch[1], y)
+    losses['critic_loss'], features = critic_step(batch[0], batch[1], y)
     if advice is not None:
-        losses['advice_critic_loss'] = critic_step(advice[0], advice[1], advice_y, advised)
+        losses['advice_critic_loss'], advice_features = critic_step(advice[0], advice[1], advice_y, advised)
 
     def actor_and_alpha_step(obs, noise, only=None):
         alpha = weights['log_alpha'].detach().exp().unsqueeze(-1)
@@ -205,9 +239,9 @@ def algorithm1_update(
         return loss / seeds, alpha_loss / seeds
 
     # Actor (Eq. 6) and temperature on the batch from D (and on advice: actor_on_advice).
-    losses['actor_loss'], losses['alpha_loss'] = actor_and_alpha_step(batch[0], actor_noise)
+    losses['actor_loss'], losses['alpha_loss'] = actor_and_alpha_step(features, actor_noise)
     if advice_actor_noise is not None and advice is not None:
-        losses['advice_actor_loss'], _ = actor_and_alpha_step(advice[0], advice_actor_noise, advised)
+        losses['advice_actor_loss'], _ = actor_and_alpha_step(advice_features, advice_actor_noise, advised)
 
     # Target critics: theta^- <- tau * theta + (1 - tau) * theta^-.
     eq.soft_update(list(target_w.values()), list(critic_w.values()), constants['tau'])

@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from .compiled_update import CompiledUpdate
 
 OPTIMIZED = ('actor', 'critic', 'alpha')  # the networks an update steps, each with its Adam
+ENCODER = 'encoder'  # and, with a camera, the image encoder (its Adam at the critic's rate, as DrQ-v2's)
 
 
 def adam(params, lr: float, state: dict | None = None) -> torch.optim.Adam:
@@ -107,6 +108,16 @@ class Updater:
         return self.policy.observation.dim
 
     @property
+    def encoder(self):
+        """The observation's encoder (a camera's), trained with the critics; None for a vector."""
+        return self.policy.observation.encoder
+
+    @property
+    def optimized(self) -> tuple:
+        """The networks this learner's update steps: OPTIMIZED, and the encoder with a camera."""
+        return OPTIMIZED if self.encoder is None else (*OPTIMIZED, ENCODER)
+
+    @property
     def action_dim(self) -> int:
         return self.policy.action_dim
 
@@ -123,6 +134,8 @@ class Updater:
                 'critic': adam(self.critics.critic.parameters(), cfg.critic_lr),
                 'alpha': adam([self.log_alpha], cfg.alpha_lr),
             }
+            if self.encoder is not None:
+                self.optimizers[ENCODER] = adam(self.encoder.parameters(), cfg.critic_lr)
         return self.optimizers
 
     def noise_for(self, batch: Minibatch, advice: Optional[Minibatch]) -> tuple:
@@ -140,7 +153,8 @@ class Updater:
             self.critics.critic,
             self.critics.critic_target,
             self.log_alpha,
-            *(optimizers[name] for name in OPTIMIZED),
+            *(optimizers[name] for name in self.optimized),
+            *(() if self.encoder is None else (self.encoder,)),
         )
 
     def inputs(self) -> tuple:
@@ -150,12 +164,13 @@ class Updater:
         checkpoint does) or the tensors behind them (stacked_seeds.py stacks and releases them);
         an optimiser without moments yet gets torch's initial ones."""
         owners = self._owners()
-        storage = tuple(p.data_ptr() for module in owners[:3] for p in module.parameters()) + (
-            self.log_alpha.data_ptr(),
-        )
+        modules = (*owners[:3], *([] if self.encoder is None else [self.encoder]))
+        storage = tuple(p.data_ptr() for module in modules for p in module.parameters()) + (self.log_alpha.data_ptr(),)
         held, inputs = self._inputs
         if held is None or any(a is not b for a, b in zip(owners, held[0])) or storage != held[1]:
             weights = named_weights(*owners[:4])
+            if self.encoder is not None:
+                weights[ENCODER] = {k: v.detach() for k, v in self.encoder.named_parameters()}
             cfg = self.config
             state = {}
             constants: dict[str, Any] = {
@@ -165,7 +180,7 @@ class Updater:
                 'target_entropy': self.target_entropy,
             }
             optimizers = self.make_optimizers()
-            for name in OPTIMIZED:
+            for name in self.optimized:
                 optimizer = optimizers[name]
                 state[name] = adam_state(optimizer)
                 group = optimizer.param_groups[0]  # Adam's settings from the optimiser itself
@@ -184,6 +199,8 @@ class Updater:
         them their weights, and must not touch the modules the learner acts with)."""
         if self._nets is None:
             self._nets = (copy.deepcopy(self.policy.actor), copy.deepcopy(self.critics.critic))
+            if self.encoder is not None:
+                self._nets += (copy.deepcopy(self.encoder),)
         return self._nets
 
     def update(self, batch: Minibatch, advice: Optional[Minibatch]) -> dict:
@@ -213,7 +230,7 @@ class Updater:
         stays eager, said in one log line. Returns the CompiledUpdate (or None)."""
         from .compiled_update import LOG, CompiledUpdate
 
-        why = refusal(self.config, 'compiled')
+        why = refusal(self.config, 'compiled', self.encoder is not None)
         if why:
             self.compile_refused = why  # asked once, refused once
             (self.log or LOG).warning(f'compile_update: {why}; the learner stays with the eager update')
@@ -227,12 +244,13 @@ class Updater:
         optimizers = self.make_optimizers()
         return {
             'log_alpha': self.log_alpha.detach().clone(),
-            **{f'{name}_optimizer': optimizers[name].state_dict() for name in OPTIMIZED},
+            **{f'{name}_optimizer': optimizers[name].state_dict() for name in self.optimized},
         }
 
-    def loaded_parts(self, state: dict, actor, critic) -> tuple:
+    def loaded_parts(self, state: dict, actor, critic, encoder=None) -> tuple:
         """(log_alpha, optimisers) from a checkpoint's state, for the networks ``actor`` and
-        ``critic`` about to replace the live ones; nothing here changes until adopt()."""
+        ``critic`` (and a camera's ``encoder``) about to replace the live ones; nothing here
+        changes until adopt()."""
         log_alpha = state['log_alpha'].detach().clone().reshape(()).to(self.device).requires_grad_(True)
         cfg = self.config
         optimizers = {
@@ -240,6 +258,8 @@ class Updater:
             'critic': adam(critic.parameters(), cfg.critic_lr, state['critic_optimizer']),
             'alpha': adam([log_alpha], cfg.alpha_lr, state['alpha_optimizer']),
         }
+        if encoder is not None:
+            optimizers[ENCODER] = adam(encoder.parameters(), cfg.critic_lr, state[f'{ENCODER}_optimizer'])
         return log_alpha, optimizers
 
     def adopt(self, log_alpha: torch.Tensor, optimizers: dict, updates: int) -> None:

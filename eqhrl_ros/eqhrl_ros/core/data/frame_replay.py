@@ -18,6 +18,10 @@ part (a ReplayBuffer). 100,000 transitions of 84x84 RGB frames stacked by 3:
 110,000 * 21,168 bytes = 2.33 GB (``frame_bytes`` computes it). A transition whose oldest
 frame has been overwritten (possible only with episodes shorter than 10 steps) is not
 sampled.
+
+``isolated``: for transitions that do not come as whole episodes (D_advising holds only the
+advised steps), each is stored with its whole stack (``add_stacked``): stack + 1 frames a
+transition, ``capacity * (stack + 1)`` frame slots.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .replay import Minibatch, ReplayBuffer
+from .replay import Minibatch, ReplayBuffer, checked_transition
 
 FRAME_RESERVE = 10  # frame_slots = capacity + capacity // FRAME_RESERVE: one episode start per 10 steps
 
@@ -56,16 +60,28 @@ class FrameReplay:
     """Transitions (frame stack and vector, action, reward, next frame stack and vector,
     terminated), each frame held once."""
 
-    def __init__(self, capacity: int, frame_shape: tuple[int, int, int], stack: int, vector_dim: int, action_dim: int):
-        """``frame_shape``: (channels, height, width) of one frame, as a convolution reads it."""
+    def __init__(
+        self,
+        capacity: int,
+        frame_shape: tuple[int, int, int],
+        stack: int,
+        vector_dim: int,
+        action_dim: int,
+        isolated: bool = False,
+    ):
+        """``frame_shape``: (channels, height, width) of one frame, as a convolution reads it.
+        ``isolated``: transitions come one by one, not as episodes (D_advising holds only the
+        advised steps), each stored with its whole stack by ``add_stacked``: stack + 1 frames a
+        transition."""
         if stack < 1:
             raise ValueError(f'frame stack must be >= 1, got {stack}')
         if len(frame_shape) != 3 or min(frame_shape) < 1:
             raise ValueError(f'frame_shape must be (channels, height, width) >= 1, got {frame_shape}')
         self.vectors = ReplayBuffer(capacity, vector_dim, action_dim)
-        self.capacity, self.stack = self.vectors.capacity, int(stack)
-        self.frame_shape = tuple(int(n) for n in frame_shape)
-        self.slots = frame_slots(self.capacity)
+        self.capacity, self.stack, self.isolated = self.vectors.capacity, int(stack), bool(isolated)
+        channels, height, width = (int(n) for n in frame_shape)
+        self.frame_shape = (channels, height, width)
+        self.slots = self.capacity * (self.stack + 1) if isolated else frame_slots(self.capacity)
         self.frames = np.zeros((self.slots, *self.frame_shape), np.uint8)
         # Per frame (by absolute index, at slot index % slots): its episode's first frame.
         self.episode_first = np.zeros(self.slots, np.int64)
@@ -76,6 +92,17 @@ class FrameReplay:
 
     def __len__(self) -> int:
         return len(self.vectors)
+
+    def empty(self) -> 'FrameReplay':
+        """A new, empty memory of the same sizes (to load a saved one into, checked, first)."""
+        vectors = self.vectors
+        return FrameReplay(
+            self.capacity, self.frame_shape, self.stack, vectors.obs_dim, vectors.action_dim, self.isolated
+        )
+
+    def saved_bytes_limit(self) -> int:
+        """The most bytes its state_dict() can hold: the vector part, every frame slot, the indices."""
+        return self.vectors.saved_bytes_limit() + self.frames.nbytes + 8 * (self.slots + self.capacity)
 
     def checked_frame(self, frame) -> np.ndarray:
         """``frame`` as (C, H, W) uint8, from (H, W, C) (a camera's layout, sensor_msgs/Image),
@@ -113,6 +140,20 @@ class FrameReplay:
         self.vectors.add(vector, action, reward, next_vector, terminated)  # raises before any write
         self.next_frame[row] = self._write_frame(next_frame, self.first)
 
+    def add_stacked(self, vector, action, reward: float, frames, next_frame, next_vector, terminated: bool) -> None:
+        """One step stored with the whole stack it started from (``frames``: [k, H, W, C],
+        oldest first), not relying on the steps before it. Nothing is stored if any part is bad."""
+        frames = np.asarray(frames)
+        if frames.ndim != 4 or frames.shape[0] != self.stack:
+            raise ValueError(f'a stack of {self.stack} frames (k, H, W, C) was expected, got shape {frames.shape}')
+        checked = [self.checked_frame(frame) for frame in frames]
+        self.checked_frame(next_frame)
+        checked_transition(vector, action, reward, next_vector, self.vectors.obs_dim, self.vectors.action_dim)
+        self.first = self.frames_written
+        for frame in checked:
+            self._write_frame(frame, self.first)
+        self.add(vector, action, reward, next_frame, next_vector, terminated)
+
     def _valid(self, rows: np.ndarray) -> np.ndarray:
         """Whether each row's frames are all still held: its next frame (else the slot's
         episode start belongs to a later frame), and the oldest of its obs stack."""
@@ -128,11 +169,15 @@ class FrameReplay:
         stacked = self.frames[index]  # [B, k, C, H, W]
         return stacked.reshape(len(j), self.stack * self.frame_shape[0], *self.frame_shape[1:])
 
-    def sample(self, batch_size: int, generator: torch.Generator) -> FrameBatch:
-        """Uniform over the transitions whose frames are all held, with replacement."""
+    def sample(self, batch_size: int, generator: torch.Generator, replacement: bool = True) -> FrameBatch:
+        """Uniform over the transitions whose frames are all held; with replacement by default
+        (without: needs ``batch_size`` transitions; a row whose frames are gone is redrawn with)."""
         if len(self) == 0:
             raise ValueError('cannot sample from an empty replay memory')
-        rows = torch.randint(len(self), (batch_size,), generator=generator).numpy()
+        if replacement:
+            rows = torch.randint(len(self), (batch_size,), generator=generator).numpy()
+        else:
+            rows = torch.randperm(len(self), generator=generator)[:batch_size].numpy()
         bad = ~self._valid(rows)
         for _ in range(100):  # redraw the few whose frames are gone (episodes under 10 steps)
             if not bad.any():
@@ -160,6 +205,7 @@ class FrameReplay:
             'frames_written': self.frames_written,
             'first': self.first,
             'stack': self.stack,
+            'isolated': self.isolated,
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -177,8 +223,11 @@ class FrameReplay:
         oldest = written - held
         if held and not ((first_of <= np.arange(oldest, written)) & (first_of >= 0)).all():
             raise ValueError('saved frames name an episode start after themselves')
-        if int(state['stack']) != self.stack:
-            raise ValueError(f'saved memory stacks {state["stack"]} frames, this one {self.stack}')
+        if int(state['stack']) != self.stack or bool(state.get('isolated', False)) != self.isolated:
+            raise ValueError(
+                f'saved memory stacks {state["stack"]} frames (isolated: {bool(state.get("isolated", False))}), '
+                f'this one {self.stack} (isolated: {self.isolated})'
+            )
         next_frame = state['next_frame'].numpy()
         if next_frame.shape != (int(state['vectors']['size']),):
             raise ValueError(

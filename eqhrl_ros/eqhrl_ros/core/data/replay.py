@@ -112,6 +112,14 @@ class ReplayBuffer:
             index = torch.randperm(self.size, generator=generator)[:batch_size]
         return self.gather(index)
 
+    def empty(self) -> 'ReplayBuffer':
+        """A new, empty memory of the same sizes (to load a saved one into, checked, first)."""
+        return ReplayBuffer(self.capacity, self.obs_dim, self.action_dim)
+
+    def saved_bytes_limit(self) -> int:
+        """The most bytes its state_dict() can hold: full, float32 rows."""
+        return 4 * self.capacity * self.rows.shape[1]
+
     def gather(self, index: torch.Tensor) -> Minibatch:
         """The transitions at rows ``index`` (a memory that keeps more per row draws its own)."""
         return Minibatch(**self._split(self.rows.index_select(0, index)))

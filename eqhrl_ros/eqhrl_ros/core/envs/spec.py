@@ -34,6 +34,53 @@ def builtin_success(name: str) -> tuple[str, float]:
     return 'none', 0.0
 
 
+# A camera the learner can read: at most this many pixels a frame and frames a stack (a 4096x4096
+# frame is 16.8 M pixels; camera_frames.MAX_FRAME_PIXELS bounds a frame decoded from a topic).
+MAX_CAMERA_PIXELS = 4096 * 4096
+MAX_FRAME_STACK = 16
+CAMERA_CHANNELS = (1, 3)  # mono or colour: what camera_frames' encodings give
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """A camera part of an observation: each frame height x width x channels uint8 (a camera's
+    layout, sensor_msgs/Image), and how many of the newest frames the learner reads at once
+    (``stack``; an episode's first stacks repeat its first frame)."""
+
+    height: int
+    width: int
+    channels: int = 3
+    stack: int = 3
+
+    def __post_init__(self):
+        for name in ('height', 'width', 'channels', 'stack'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise ValueError(f'camera {name} must be an integer, got {value!r}')
+            object.__setattr__(self, name, int(value))
+        if self.channels not in CAMERA_CHANNELS:
+            raise ValueError(f'camera channels must be one of {CAMERA_CHANNELS}, got {self.channels}')
+        if not (1 <= self.height and 1 <= self.width and self.height * self.width <= MAX_CAMERA_PIXELS):
+            raise ValueError(f'camera frames of {self.height}x{self.width} (at most {MAX_CAMERA_PIXELS} pixels)')
+        if not 1 <= self.stack <= MAX_FRAME_STACK:
+            raise ValueError(f'camera stack must be in [1, {MAX_FRAME_STACK}], got {self.stack}')
+
+    @property
+    def frame_shape(self) -> tuple[int, int, int]:
+        """(channels, height, width): one frame as a convolution reads it."""
+        return (self.channels, self.height, self.width)
+
+    @property
+    def stack_shape(self) -> tuple[int, int, int, int]:
+        """(stack, height, width, channels): the stack an observation carries, oldest first."""
+        return (self.stack, self.height, self.width, self.channels)
+
+    @property
+    def stack_size(self) -> int:
+        """Values in one stack."""
+        return self.stack * self.height * self.width * self.channels
+
+
 @dataclass(frozen=True, eq=False)
 class EnvSpec:
     """An env's interface: observation size, action bounds, pace and success rule."""

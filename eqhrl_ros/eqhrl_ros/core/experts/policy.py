@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import torch
 
@@ -15,19 +17,24 @@ POLICY_FORMAT = 'eqhrl_ros.policy'
 
 
 def export_policy(learner, path) -> None:
-    """A small file with the actor alone: an expert node can serve it (a learner becomes a teacher)."""
-    atomic_save(
-        {
-            'format': POLICY_FORMAT,
-            'version': FORMAT_VERSION,
-            'obs_dim': learner.obs_dim,
-            'hidden': list(learner.config.hidden),
-            'action_low': learner.scaler.low.tolist(),
-            'action_high': learner.scaler.high.tolist(),
-            'actor': {k: v.cpu() for k, v in learner.actor.state_dict().items()},
-        },
-        path,
-    )
+    """A small file with the actor alone: an expert node can serve it (a learner becomes a teacher).
+    A learner with a camera adds its camera's sizes and its encoder (the actor reads the encoder's
+    features); such a file is not served as an expert yet."""
+    policy = {
+        'format': POLICY_FORMAT,
+        'version': FORMAT_VERSION,
+        'obs_dim': learner.obs_dim,
+        'hidden': list(learner.config.hidden),
+        'action_low': learner.scaler.low.tolist(),
+        'action_high': learner.scaler.high.tolist(),
+        'actor': {k: v.cpu() for k, v in learner.actor.state_dict().items()},
+    }
+    observation = learner.observation
+    if observation.camera is not None and observation.encoder is not None:
+        policy['camera'] = dataclasses.asdict(observation.camera)
+        policy['state_dim'] = observation.state_dim
+        policy['encoder'] = {k: v.cpu() for k, v in observation.encoder.state_dict().items()}
+    atomic_save(policy, path)
 
 
 class PolicyExpert:
@@ -35,6 +42,11 @@ class PolicyExpert:
 
     def __init__(self, path, name: str = 'policy'):
         data = safe_load(path, POLICY_FORMAT)
+        if 'camera' in data:
+            raise CheckpointError(
+                f'{path}: this policy reads a camera; an advice request carries the vector alone, '
+                'so it cannot be served as an expert yet'
+            )
         try:
             self.scaler = ActionScaler(data['action_low'], data['action_high'])
             self.obs_dim = int(data['obs_dim'])

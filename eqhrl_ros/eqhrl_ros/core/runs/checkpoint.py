@@ -46,13 +46,15 @@ def checkpoint_size_limit(learner) -> int:
     """The most bytes a checkpoint of this learner can hold: the actor with its two Adam
     moments, the critics and their target copy with theirs, in float32, plus overhead."""
     actor, critic = _parameter_count(learner.actor), _parameter_count(learner.critic)
-    return 4 * (3 * actor + 4 * critic) * 2 + _OVERHEAD_BYTES
+    encoder = learner.observation.encoder
+    encoder_count = 0 if encoder is None else _parameter_count(encoder)
+    return 4 * (3 * actor + 4 * critic + 3 * encoder_count) * 2 + _OVERHEAD_BYTES
 
 
 def replay_size_limit(learner) -> int:
-    """The most bytes saved replay memories can hold: both memories full, float32 rows."""
+    """The most bytes saved replay memories can hold: both memories full."""
     buffers = (learner.replay, learner.advice_replay)
-    return sum(4 * b.capacity * b.rows.shape[1] for b in buffers) * 2 + _OVERHEAD_BYTES
+    return sum(b.saved_bytes_limit() for b in buffers) * 2 + _OVERHEAD_BYTES
 
 
 def save_checkpoint(learner, path, replay_path=None, extra: dict | None = None) -> None:
@@ -166,9 +168,7 @@ def load_checkpoint(learner, path, replay_path=None, check_extra=None) -> dict |
     candidate_replay = candidate_advice = None
     if replay is not None:
         try:
-            candidate_replay, candidate_advice = (
-                type(b)(b.capacity, b.obs_dim, b.action_dim) for b in (learner.replay, learner.advice_replay)
-            )
+            candidate_replay, candidate_advice = (b.empty() for b in (learner.replay, learner.advice_replay))
             candidate_replay.load_state_dict(replay['replay'])
             candidate_advice.load_state_dict(replay['advice_replay'])
         except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as error:

@@ -136,3 +136,27 @@ def test_a_corrupt_saved_memory_is_refused_and_the_memory_is_left_as_it_was(corr
     after = target.state_dict()
     assert torch.equal(after['frames'], before['frames']) and after['frames_written'] == before['frames_written']
     assert torch.equal(after['vectors']['obs'], before['vectors']['obs'])
+
+
+def test_isolated_transitions_keep_the_stacks_they_were_given_and_their_bound():
+    """D_advising's memory: advised steps come one by one (steps 5 and 9 of one episode), each
+    stored with its own stack, which no later step overwrites; stack + 1 frames a transition."""
+    memory = FrameReplay(50, SHAPE, STACK, vector_dim=2, action_dim=1, isolated=True)
+    assert memory.slots == 50 * (STACK + 1)
+    for step in (5, 9, 4):
+        stack = np.stack([frame(2, s) for s in (step - 2, step - 1, step)])
+        memory.add_stacked([2, step], [0.0], 1.0, stack, frame(2, step + 1), [2, step + 1], terminated=False)
+    check_batch(memory.sample(64, torch.Generator().manual_seed(1)))
+    batch = memory.sample(3, torch.Generator().manual_seed(1), replacement=False)
+    assert sorted(int(v) for v in batch.vectors.obs[:, 1]) == [4, 5, 9]
+    with pytest.raises(ValueError, match='a stack of 3 frames'):
+        memory.add_stacked([2, 1], [0.0], 1.0, frame(2, 1)[None], frame(2, 2), [2, 2], terminated=False)
+    with pytest.raises(ValueError, match='non-finite'):
+        stack = np.stack([frame(2, 0)] * STACK)
+        memory.add_stacked([2, np.nan], [0.0], 1.0, stack, frame(2, 1), [2, 1], terminated=False)
+    assert len(memory) == 3 and memory.frames_written == 3 * (STACK + 1)  # refused ones wrote nothing
+    fresh = memory.empty()
+    fresh.load_state_dict(memory.state_dict())
+    assert fresh.isolated and len(fresh) == 3
+    with pytest.raises(ValueError, match='isolated'):
+        FrameReplay(50, SHAPE, STACK, vector_dim=2, action_dim=1).load_state_dict(memory.state_dict())
