@@ -17,6 +17,8 @@ The observation is what EQSACLearner reads with that CameraSpec: {'state': float
 
 from __future__ import annotations
 
+from typing import cast
+
 import gymnasium as gym
 import numpy as np
 import torch
@@ -41,23 +43,23 @@ def resized(frame: np.ndarray, camera: CameraSpec) -> np.ndarray:
 
 def camera_env(env_id: str, camera: CameraSpec, max_episode_steps: int | None = None) -> gym.Env:
     """``env_id`` (make_env's episode lengths) observed as {'state', 'pixels'}: see the module."""
-    env = AddRenderObservation(
+    rendered = AddRenderObservation(
         make_env(env_id, max_episode_steps, render_mode='rgb_array'),
         render_only=False,
         render_key='pixels',
         obs_key='state',
     )
-    state_space = env.observation_space['state']
+    state_space = cast(gym.spaces.Dict, rendered.observation_space)['state']
     frame_space = gym.spaces.Box(0, 255, (camera.height, camera.width, camera.channels), np.uint8)
-    env = TransformObservation(
-        env,
+    resized_env = TransformObservation(
+        rendered,
         lambda obs: {'state': obs['state'], 'pixels': resized(obs['pixels'], camera)},
         gym.spaces.Dict({'state': state_space, 'pixels': frame_space}),
     )
-    env = FrameStackObservation(env, camera.stack, padding_type='reset')
+    stacked = FrameStackObservation(resized_env, camera.stack, padding_type='reset')
     stack_space = gym.spaces.Box(0, 255, camera.stack_shape, np.uint8)
     return TransformObservation(
-        env,
+        stacked,
         lambda obs: {'state': np.asarray(obs['state'][-1], np.float32), 'pixels': np.asarray(obs['pixels'])},
         gym.spaces.Dict({'state': state_space, 'pixels': stack_space}),
     )
