@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: system-deps setup ros2-tools lint test test-fast demo bench bench-seeds bench-learner bench-ros bench-flood bench-actors bench-multi-host bench-busy profile clean lock
+.PHONY: system-deps setup ros2-tools lint test test-fast demo bench bench-seeds bench-pixels bench-learner bench-ros bench-flood bench-actors bench-multi-host bench-busy profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -140,6 +140,10 @@ bench-busy: $(VENV)/.stamp-eqhrl_ros
 # non-zero exit if 10 seeds together miss 2x (Pendulum) or 1.5x (LunarLander) seeds apart.
 bench-seeds: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_seeds.py
+
+# Learning from pixels at 84x84: our camera learner beside a plain DrQ-v2-style loop (no target).
+bench-pixels: $(VENV)/.stamp-eqhrl_ros
+	$(VPY) benchmarks/bench_pixels.py
 
 # Where a training step's time goes (torch.profiler's top operators).
 profile: $(VENV)/.stamp-eqhrl_ros

@@ -134,6 +134,10 @@ def soft_targets(nets, weights, batch, advice, target_noise, gamma: float) -> tu
     in one pass: a' ~ pi(.|s') from the current actor, Q from the target critics."""
     actor_net, critic_net = nets[:2]
     sizes = [batch[2].shape[-1]] + ([advice[2].shape[-1]] if advice is not None else [])
+    if len(nets) > 2:  # the encoder's features of s' (its weights as they are: DrQ-v2 keeps no target encoder),
+        encode = with_weights(nets[2], weights['encoder'])  # batch by batch: joined, the frames cost twice the time
+        batch = (*batch[:3], encode(batch[3]), batch[4])
+        advice = None if advice is None else (*advice[:3], encode(advice[3]), advice[4])
     if advice is None:
         both = batch
     else:
@@ -142,8 +146,6 @@ def soft_targets(nets, weights, batch, advice, target_noise, gamma: float) -> tu
             for name, pair in zip(BATCH_COLUMNS, zip(batch, advice))
         ]
     _, _, reward, next_obs, terminated = both
-    if len(nets) > 2:  # the encoder's features of s' (its weights as they are: DrQ-v2 keeps no target encoder)
-        next_obs = with_weights(nets[2], weights['encoder'])(next_obs)
     alpha = weights['log_alpha'].exp().unsqueeze(-1)
     next_mean, next_log_std = with_weights(actor_net, weights['actor'])(next_obs)
     next_action, next_log_prob = eq.squashed_gaussian_sample(next_mean, next_log_std, target_noise)

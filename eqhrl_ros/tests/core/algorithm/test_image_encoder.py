@@ -63,3 +63,20 @@ def test_random_shift_crops_each_image_of_its_padded_self_at_its_own_offset():
     again = random_shift(frames, pad, torch.Generator().manual_seed(0))
     assert torch.equal(again, shifted)  # drawn from the given stream only
     assert torch.equal(random_shift(frames, 0, torch.Generator()), frames)
+
+
+def test_a_large_batch_through_the_encoder_in_chunks_gives_each_image_its_own_features_and_gradients():
+    """On the CPU the convolutions take CPU_CHUNK images at a time (a cache effect, measured in
+    ImageEncoder.scaled): every image's features and the weights' gradient are those of one pass."""
+    from eqhrl_ros.core.algorithm.image_encoder import CPU_CHUNK
+
+    torch.manual_seed(0)
+    encoder = ImageEncoder(6, 20, 20)
+    x = torch.rand(2 * CPU_CHUNK + 5, 6, 20, 20) - 0.5
+    chunked = encoder.scaled(x)
+    whole = encoder.convs(x).flatten(1)
+    assert chunked.shape == whole.shape and torch.allclose(chunked, whole, atol=1e-6)
+    weight = encoder.convs[0].weight
+    (grad_chunked,) = torch.autograd.grad(encoder.scaled(x).square().sum(), weight)
+    (grad_whole,) = torch.autograd.grad(encoder.convs(x).flatten(1).square().sum(), weight)
+    assert torch.allclose(grad_chunked, grad_whole, rtol=1e-4, atol=1e-4)
