@@ -109,6 +109,7 @@ def test_the_readmes_camera_example_runs_and_its_memory_figures_are_the_codes():
 
     import numpy as np
 
+    from eqhrl_ros.core.algorithm.config import LearnerConfig
     from eqhrl_ros.core.algorithm.memories import frames_bytes_with_advice
     from eqhrl_ros.core.data.frame_replay import FrameReplay, frame_bytes
 
@@ -122,4 +123,6 @@ def test_the_readmes_camera_example_runs_and_its_memory_figures_are_the_codes():
     per_step = advised.frames.nbytes / advised.capacity
     assert per_step == np.prod((3 + 1, 3, 84, 84)) and f'{per_step / 1e3:.1f} kB an advised step' in section
     assert f'frames of D and D_advising: {frames_bytes_with_advice(100_000, (3, 84, 84), 3) / 1e9:.1f} GB' in code
-    assert f'needs {frames_bytes_with_advice(1_000_000, (3, 84, 84), 3) / 1e9:.1f} GB for 84×84' in section
+    default = LearnerConfig().replay_capacity
+    needed = frames_bytes_with_advice(default, (3, 84, 84), 3) / 1e9
+    assert f'{default:,} (Table 1) needs {needed:.1f} GB for 84×84' in section

@@ -1,4 +1,5 @@
-"""What an acting node (learner or actor) reports on /diagnostics: the expert, the env, the budget."""
+"""What an acting node (learner or actor) reports on /diagnostics: the expert, the env, the budget
+(and the camera, where it reads one)."""
 
 from __future__ import annotations
 
@@ -57,4 +58,5 @@ def acting_checks(node) -> list:
         + (f", {seconds:.0f} s of the person's" if seconds < float('inf') else ''),
         {'episodes left': window.episodes_left, 'person seconds spent': f'{learner.human_time_total_s:.1f}'},
     )
-    return [expert, env, budget]
+    camera = [] if node.camera_input is None else [node.camera_input.health_check()]
+    return [expert, env, budget, *camera]

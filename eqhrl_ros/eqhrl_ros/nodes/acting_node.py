@@ -36,8 +36,9 @@ from ..parameters import LEARNER_CONFIG_PARAMS
 from . import messages
 from .acting_health import acting_checks
 from .advice_client import AdviceClient, PendingAdvice
+from .camera_input import CameraInput
 from .env_info import EnvInfoWatcher, configured_spec, shown
-from .episode_tracking import EpisodeTracking
+from .episode_tracking import EpisodeTracking, episode_line
 from .graph_trust import OnePublisher
 from .health import WARN, Check, Health
 from .messages import printable_name
@@ -127,9 +128,10 @@ class ActingNode(Node):
             self._steady,
             self._lock,
         )
+        self.camera_input: Optional[CameraInput] = None  # camera: made with the learner
         self.env_info = EnvInfoWatcher(
             self,
-            configured_spec(p),
+            None if p.get('camera') else configured_spec(p),  # a camera's size comes from env_info
             self._configure,
             working=lambda: bool(self.learner and self.learner.total_steps),
             on_announced=lambda: self.pace_wait.release(),
@@ -156,8 +158,14 @@ class ActingNode(Node):
     def _configure(self, spec: EnvSpec) -> None:
         """Build the learner for the env's spaces (and what the subclass needs with it). From
         __init__ its errors refuse the start; from env_info they stop the node (exit 1)."""
+        camera = spec.camera(self.params['camera']) if self.params.get('camera') else None
         learner = EQSACLearner(
-            spec.observation_size, spec.action_low, spec.action_high, self.config, spec.success_criterion()
+            spec.observation_size,
+            spec.action_low,
+            spec.action_high,
+            self.config,
+            spec.success_criterion(),
+            camera and camera.spec(self.params['camera_stack']),
         )
         learner.log = self.get_logger()  # compile_update's one line
         self._prepare(learner)
@@ -174,6 +182,16 @@ class ActingNode(Node):
                 messages.observation_layouts(spec.observation_size), 'observation'
             )
             self.spec, self.learner, self.wheel = spec, learner, wheel
+            if camera is not None:
+                self.camera_input = CameraInput(
+                    self,
+                    camera,
+                    self.params['camera_stack'],
+                    self.params['camera_wait_s'],
+                    self._lock,
+                    lambda data: self._on_observation(data, held=True),  # a frame came, or the wait ended
+                    self.params['camera_publisher'],
+                )
         self.get_logger().info(
             f'{self.config.mode} on {shown(spec.name)} ({spec.source}): obs {spec.observation_size}, '
             f'action {spec.action_size}, success {spec.success_rule}, advice protocol {self._protocol_said()}, '
@@ -245,7 +263,8 @@ class ActingNode(Node):
                 if self.recording is not None:
                     self.recording.write_raw(self._observation_topic, Float32MultiArray, data)
             try:
-                env_step = messages.parse_observation(self._observation_reader.values(data), self.learner.obs_dim)
+                state_dim = self.learner.observation.state_dim
+                env_step = messages.parse_observation(self._observation_reader.values(data), state_dim)
             except messages.MessageError as error:
                 self.dropped_messages += 1
                 self.get_logger().error(f'dropped observation: {error}', throttle_duration_sec=5.0)
@@ -256,9 +275,15 @@ class ActingNode(Node):
             if key == self.tracking.key:
                 self.repeated_observations += 1
                 # The env sent the same observation again: our action did not reach it.
+                if self.camera_input is not None:
+                    self.camera_input.seen_again()
                 if self.advice.pending is None and self._last_action is not None:
                     self._publish_action(self._last_action)
                 return
+            if self.camera_input is not None:
+                env_step = self.camera_input.attach(env_step, data)
+                if env_step is None:
+                    return  # its frame is late (it waits), or never came (dropped)
             if self.advice.pending is not None:
                 self._observe_while_waiting(env_step, key)
                 return
@@ -462,34 +487,9 @@ class ActingNode(Node):
         self.summaries.append(summary)
         self._publish_recorded(self.stats_pub, messages.stats_msg(summary))
         self._episode_done(summary)
-        failed = self.learner.advice_total.failed
-        failures = ', '.join(f'{k} {v}' for k, v in failed.items() if v)
         experts = ', '.join(f'{name} {n}' for name, n in self.advice.experts_heard.items())
-        person = (
-            f'  person {summary.human_time_s:.1f} s (total {summary.human_time_total_s:.1f} s)'
-            if summary.human_time_total_s
-            else ''
-        )
-        taken = (
-            f'  taken over {summary.takeover_steps} steps in {summary.takeovers} stretches ({summary.takeover_s:.1f} s)'
-            if summary.takeover_steps
-            else ''
-        )
-        stopped = f'  stopped {summary.stops}x ({summary.stopped_s:.1f} s)' if summary.stops else ''
         self.advice.experts_heard.clear()
-        self.get_logger().info(
-            f'episode {summary.episode:4d}  return {summary.episode_return:9.2f}  len {summary.length:4d}  '
-            f'advice {summary.advice_given}/{summary.advice_asked}'
-            f'{" (%d from a person)" % summary.advice_human if summary.advice_human else ""}'
-            f'{"  declined %d" % summary.advice_declined if summary.advice_declined else ""}'
-            f'{"  failed %d (total: %s)" % (summary.advice_failed, failures) if summary.advice_failed else ""}'
-            f'  success {int(summary.success)}  steps {summary.total_steps}  alpha {summary.alpha:.3f}'
-            f'{"  INTERRUPTED (not seen whole)" if summary.interrupted else ""}'
-            f'{person}'
-            f'{taken}'
-            f'{stopped}'
-            f'{"  answered by: " + experts if experts else ""}'
-        )
+        self.get_logger().info(episode_line(summary, self.learner.advice_total.failed, experts))
         self._after_episode(summary)
 
     def _episode_done(self, summary: EpisodeSummary) -> None:

@@ -17,9 +17,9 @@ from typing import Callable, Optional
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from eqhrl_interfaces.msg import EnvInfo
+from eqhrl_interfaces.msg import CameraPart, EnvInfo
 
-from ..core.envs.spec import EnvSpec, spec_from_parameters
+from ..core.envs.spec import EnvCamera, EnvSpec, spec_from_parameters
 from .graph_trust import publishers
 from .spinning import start_up_errors, stop_with_error
 
@@ -37,6 +37,7 @@ HELD_MESSAGES = 8
 # comes again and is judged again (the env's own, dropped because the graph was slow to show its
 # observation publisher, would otherwise never come back: it is published once).
 RESUBSCRIBE_S = 5.0
+MAX_CAMERAS = 16  # an EnvInfo that announces more is refused
 
 
 def env_info_msg(spec: EnvSpec, publisher: str = '') -> EnvInfo:
@@ -55,6 +56,10 @@ def env_info_msg(spec: EnvSpec, publisher: str = '') -> EnvInfo:
         rate_hz=float(spec.rate_hz),
         success_rule=spec.success_rule,
         success_threshold=float(spec.success_threshold),
+        cameras=[
+            CameraPart(name=c.name, topic=c.topic, height=c.height, width=c.width, encoding=c.encoding)
+            for c in spec.cameras
+        ],
     )
 
 
@@ -66,6 +71,8 @@ def shown(name: str) -> str:
 
 def spec_from_msg(msg: EnvInfo, source: str = TOPIC) -> EnvSpec:
     """The EnvSpec an EnvInfo describes. ValueError names what is inconsistent in it."""
+    if len(msg.cameras) > MAX_CAMERAS:
+        raise ValueError(f'{len(msg.cameras)} cameras announced, at most {MAX_CAMERAS} ({source})')
     if msg.action_size != len(msg.action_low):
         raise ValueError(f'action_size {msg.action_size} but {len(msg.action_low)} action bounds ({source})')
     return EnvSpec(
@@ -80,6 +87,7 @@ def spec_from_msg(msg: EnvInfo, source: str = TOPIC) -> EnvSpec:
         rate_hz=float(msg.rate_hz),
         success_rule=msg.success_rule or 'none',
         success_threshold=float(msg.success_threshold),
+        cameras=tuple(EnvCamera(c.name, c.topic, int(c.height), int(c.width), c.encoding) for c in msg.cameras),
         source=source,
     )
 

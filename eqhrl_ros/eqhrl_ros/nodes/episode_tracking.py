@@ -16,6 +16,7 @@ from typing import Optional
 
 import numpy as np
 
+from ..core.data.summary import EpisodeSummary
 from .messages import EnvStep
 
 
@@ -114,3 +115,33 @@ class EpisodeTracking:
             if learner is not None:
                 learner.note_stopped(held, starts=True)
                 self.log.info(f'stop released after {held:.1f} s: episode {learner.episode} goes on')
+
+
+def episode_line(summary: EpisodeSummary, failed: dict, experts: str) -> str:
+    """The log line of a finished episode (``failed``: the run's failed requests by kind;
+    ``experts``: who answered this episode, and how often)."""
+    failures = ', '.join(f'{k} {v}' for k, v in failed.items() if v)
+    person = (
+        f'  person {summary.human_time_s:.1f} s (total {summary.human_time_total_s:.1f} s)'
+        if summary.human_time_total_s
+        else ''
+    )
+    taken = (
+        f'  taken over {summary.takeover_steps} steps in {summary.takeovers} stretches ({summary.takeover_s:.1f} s)'
+        if summary.takeover_steps
+        else ''
+    )
+    stopped = f'  stopped {summary.stops}x ({summary.stopped_s:.1f} s)' if summary.stops else ''
+    return (
+        f'episode {summary.episode:4d}  return {summary.episode_return:9.2f}  len {summary.length:4d}  '
+        f'advice {summary.advice_given}/{summary.advice_asked}'
+        f'{" (%d from a person)" % summary.advice_human if summary.advice_human else ""}'
+        f'{"  declined %d" % summary.advice_declined if summary.advice_declined else ""}'
+        f'{"  failed %d (total: %s)" % (summary.advice_failed, failures) if summary.advice_failed else ""}'
+        f'  success {int(summary.success)}  steps {summary.total_steps}  alpha {summary.alpha:.3f}'
+        f'{"  INTERRUPTED (not seen whole)" if summary.interrupted else ""}'
+        f'{person}'
+        f'{taken}'
+        f'{stopped}'
+        f'{"  answered by: " + experts if experts else ""}'
+    )

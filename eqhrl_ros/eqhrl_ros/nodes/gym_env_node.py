@@ -9,11 +9,16 @@ A person's stop (std_msgs/Bool, latched, on ``stop``) freezes it: while true, ac
 ignored and no step is taken, lock-step or real-time, so the simulated robot holds where it is
 and nothing of the episode is lost; it steps on from the same state once the stop is released.
 ``max_action_change`` limits how far an action may move from the one before, per step.
+
+``camera``: the env's rendering, resized, as a camera announced in env_info: each step's frame
+on ``<camera>/image_raw`` just before its observation (and again with it when it is re-sent).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from typing import Optional
 
 import numpy as np
 from rclpy.event_handler import PublisherEventCallbacks
@@ -24,8 +29,9 @@ from std_msgs.msg import Bool, Float32MultiArray
 
 from eqhrl_interfaces.msg import EnvInfo
 
+from ..core.envs.camera_envs import resized
 from ..core.envs.gymnasium_envs import gym_spec, make_env
-from ..core.envs.spec import spec_from_parameters
+from ..core.envs.spec import EnvCamera, spec_from_parameters
 from ..parameters import GYM_ENV_PARAMS
 from . import env_info, messages
 from .health import OK, WARN, Check, Health
@@ -42,9 +48,8 @@ class GymEnvNode(Node):
         self.params = declare(self, GYM_ENV_PARAMS)
         self.add_on_set_parameters_callback(choices_validator(GYM_ENV_PARAMS))
         p = self.params
-        self.env = make_env(
-            p['env_id'], p['max_episode_steps'], render_mode='rgb_array' if p['publish_images'] else None
-        )
+        rendered = p['publish_images'] or bool(p['camera'])
+        self.env = make_env(p['env_id'], p['max_episode_steps'], render_mode='rgb_array' if rendered else None)
         self.spec = gym_spec(
             p['env_id'],
             p['max_episode_steps'],
@@ -52,6 +57,14 @@ class GymEnvNode(Node):
             realtime=p['realtime'],
             rate_hz=p['rate_hz'] if p['realtime'] else 0.0,
         )
+        self.camera = self._camera() if p['camera'] else None
+        if self.camera is not None:
+            self.spec = dataclasses.replace(self.spec, cameras=(self.camera,))
+            self.camera_pub = self.create_publisher(
+                Image, self.camera.topic, QOS, event_callbacks=PublisherEventCallbacks(matched=self._on_camera_matched)
+            )
+        self._camera_subscribers_seen = 0
+        self._last_frame: Optional[Image] = None  # the current observation's frame, re-sent with it
         given = spec_from_parameters(p['observation_size'], p['action_low'], p['action_high'])
         if given is not None and self.spec.disagreements(given):
             raise ValueError(f'{p["env_id"]} has {"; ".join(given.disagreements(self.spec))} (parameters)')
@@ -109,14 +122,40 @@ class GymEnvNode(Node):
             f'{"real-time at %.1f Hz" % p["rate_hz"] if p["realtime"] else "lock-step"}'
         )
 
+    def _camera(self) -> EnvCamera:
+        p = self.params
+        topic = self.resolve_topic_name(f'{p["camera"]}/image_raw')
+        return EnvCamera(p['camera'], topic, p['camera_height'], p['camera_width'], p['camera_encoding'])
+
     def _publish(self) -> None:
+        if self._last_frame is not None:  # the step's frame first: the learner pairs it with what follows
+            self.camera_pub.publish(self._last_frame)
         self.observation_pub.publish(self._last_msg)
         self._last_publish = time.monotonic()
+
+    def _shoot(self) -> None:
+        """The camera's frame of the env as it is now (its rendering, resized)."""
+        camera = self.camera
+        if camera is None:
+            return
+        frame = resized(self.env.render(), camera.spec(1))
+        msg = Image(
+            height=camera.height,
+            width=camera.width,
+            encoding=camera.encoding,
+            is_bigendian=0,
+            step=camera.width * camera.channels,
+            data=frame.tobytes(),
+        )
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = camera.name
+        self._last_frame = msg
 
     def _reset(self, seed=None) -> None:
         obs, _ = self.env.reset(seed=seed)
         self.step_index = 0
         self._last_msg = self._observation_out.fill(obs, 0.0, False, False, self.episode, 0)
+        self._shoot()
         self._publish()
 
     def health_checks(self) -> list:
@@ -143,6 +182,7 @@ class GymEnvNode(Node):
         if self.steps_taken == 1:
             self.get_logger().info(f'first env step {seconds_since_process_start():.2f} s after the process started')
         self._last_msg = self._observation_out.fill(obs, reward, terminated, truncated, self.episode, self.step_index)
+        self._shoot()
         self._publish()
         if terminated or truncated:
             if self.params['realtime']:
@@ -220,6 +260,14 @@ class GymEnvNode(Node):
         self._subscribers_seen = info.current_count
         first_in_real_time = self.params['realtime'] and self.steps_taken == 0
         if joined and (not self.params['realtime'] or first_in_real_time) and self._last_msg is not None:
+            self._publish()
+
+    def _on_camera_matched(self, info) -> None:
+        # A learner subscribes to the camera after env_info, so after the observation went out:
+        # lock-step, the frame and its observation go again at once (not a republish period later).
+        joined = info.current_count > self._camera_subscribers_seen
+        self._camera_subscribers_seen = info.current_count
+        if joined and not self.params['realtime'] and self._last_msg is not None:
             self._publish()
 
     def _republish_if_idle(self) -> None:

@@ -34,6 +34,11 @@ class LearnerNode(RunFiles, ActingNode):
         self._open_run_folder()
 
     def _prepare(self, learner: EQSACLearner) -> None:
+        if learner.observation.camera is not None and (self.params['record'] or self.params['prior']):
+            raise ValueError(
+                f'camera {self.params["camera"]!r}: the record and prior do not carry frames yet; '
+                'run with record false and no prior'
+            )
         if self.params['resume']:
             # A bad checkpoint stops start-up with CheckpointError: silently starting
             # from scratch would overwrite the run the person asked to continue.
@@ -99,7 +104,11 @@ class LearnerNode(RunFiles, ActingNode):
             self.get_logger().info(f'the run goes on with {shown}, as at its last save (ros2 param set changes them)')
 
     def _describe(self) -> str:
-        return f', output {self.output_dir}'
+        camera = self.learner and self.learner.observation.camera
+        if not camera:
+            return f', output {self.output_dir}'
+        size = f'{camera.height}x{camera.width}x{camera.channels}'
+        return f', camera {self.params["camera"]!r} {size} stacked by {camera.stack}, output {self.output_dir}'
 
     def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success, source):
         summary = self.learner.step(obs, action, reward, next_obs, terminated, truncated, advised, success)

@@ -28,6 +28,16 @@ GYM_ENV_PARAMS = (
     ),
     Param('image_rate_hz', 10.0, 'Most frames per second on ~/image', (0.1, 120.0)),
     Param(
+        'camera',
+        '',
+        "A camera to publish and announce in env_info under this name: the env's rendering, resized to "
+        "camera_height x camera_width, on <camera>/image_raw (sensor_msgs/Image) before each step's observation "
+        '(empty: none)',
+    ),
+    Param('camera_height', 84, "The camera's frame height in pixels", (15, 4096)),
+    Param('camera_width', 84, "The camera's frame width in pixels", (15, 4096)),
+    Param('camera_encoding', 'rgb8', "The camera's encoding: colour or grey", choices=('rgb8', 'mono8')),
+    Param(
         'republish_period_s',
         1.0,
         'Lock-step: re-send the current observation if no action came for this '

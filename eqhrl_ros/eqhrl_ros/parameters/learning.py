@@ -37,6 +37,26 @@ LEARNER_NODE_PARAMS = (
     *run_params('runs/learner'),
     TORCH_THREADS,
     Param(
+        'camera',
+        '',
+        "Learn from this camera of the env's env_info beside the observation vector (its name there); "
+        'the learner then waits for env_info. Empty: the vector alone',
+    ),
+    Param(
+        'camera_publisher',
+        '',
+        "The node whose frames to take (full name); empty: any one node. While two nodes publish the camera's "
+        'topic, no frame is taken (a stranger could show the learner anything)',
+    ),
+    Param('camera_stack', 3, 'Frames the learner reads at once: the newest and those before it', (1, 16)),
+    Param(
+        'camera_wait_s',
+        0.5,
+        "Longest an observation waits for the step's frame; then the newest frame there is stands in "
+        '(counted as stale), or, with none yet, the observation is dropped',
+        (0.0, 60.0),
+    ),
+    Param(
         'prior',
         None,
         'Records of earlier runs (run folders or .mcap files) whose advised and person-initiated transitions '

@@ -44,7 +44,7 @@ from .advice_window import AdviceBudget, AdviceWindow
 from .advising import AdvisingGates, GateDecision
 from .config import SCORE_MODES, LearnerConfig, check_value
 from .critics import Critics
-from .learner_state import check_state, resumed_settings
+from .learner_state import check_camera, check_state, resumed_settings
 from .memories import ReplayMemories
 from .networks import SquashedGaussianActor, TwinCritic
 from .observations import CameraObservation, VectorObservation
@@ -411,6 +411,7 @@ class EQSACLearner:
         """The caller did not see all of the current episode (a lost step, a mid-episode start):
         its summary will say so, and never count it as a success."""
         self.episode_interrupted = True
+        self.memories.episode_ended()  # a camera's frames before the gap belong to no stack after it
 
     def note_stopped(self, seconds: float, starts: bool = True) -> None:
         """The person's STOP held the current episode for ``seconds`` (``starts``: one more press).
@@ -452,14 +453,7 @@ class EQSACLearner:
     def load_state_dict(self, state: dict) -> None:
         """Restore from ``state_dict()``. Validates first: on any error the learner is unchanged."""
         check_state(state)
-        camera = self.observation.camera
-        saved_camera = state.get('camera')
-        if (saved_camera is None) != (camera is None) or (
-            camera is not None and saved_camera != dataclasses.asdict(camera)
-        ):
-            raise ValueError(
-                f'checkpoint is for camera {saved_camera}, this learner reads {camera and dataclasses.asdict(camera)}'
-            )
+        check_camera(state, self.observation.camera)
         if int(state['obs_dim']) != self.obs_dim or len(state['action_low']) != self.action_dim:
             raise ValueError(
                 f'checkpoint is for observations of {state["obs_dim"]} and actions of '

@@ -66,6 +66,15 @@ def check_state(state) -> None:
         raise ValueError(f'gates.joint_threshold must be a number in [0, 1], found {threshold!r}')
 
 
+def check_camera(state: dict, camera) -> None:
+    """Refuse a saved state for another camera than ``camera`` (a CameraSpec, or None: none)."""
+    import dataclasses
+
+    saved, own = state.get('camera'), None if camera is None else dataclasses.asdict(camera)
+    if saved != own:
+        raise ValueError(f'checkpoint is for camera {saved}, this learner reads {own}')
+
+
 def resumed_settings(saved_config: dict) -> list:
     """The run-time (dynamic) LearnerConfig fields a checkpoint's config holds."""
     from .config import CONFIG_FIELDS

@@ -21,7 +21,6 @@ from typing import cast
 
 import gymnasium as gym
 import numpy as np
-import torch
 from gymnasium.wrappers import AddRenderObservation, FrameStackObservation, TransformObservation
 
 from .gymnasium_envs import make_env
@@ -33,6 +32,8 @@ GREY_WEIGHTS = np.array([0.299, 0.587, 0.114], np.float32)  # ITU-R 601-2 luma
 def resized(frame: np.ndarray, camera: CameraSpec) -> np.ndarray:
     """An (H, W, 3) uint8 rendering at the camera's height x width (area interpolation), grey
     when the camera has one channel: (height, width, channels) uint8."""
+    import torch  # here: gym_env's camera imports this module, and needs torch only for a frame
+
     image = torch.from_numpy(np.ascontiguousarray(frame)).permute(2, 0, 1).unsqueeze(0).float()
     image = torch.nn.functional.interpolate(image, size=(camera.height, camera.width), mode='area')[0]
     pixels = image.permute(1, 2, 0).numpy()

@@ -81,6 +81,38 @@ class CameraSpec:
         return self.stack * self.height * self.width * self.channels
 
 
+@dataclass(frozen=True)
+class EnvCamera:
+    """A camera an env announces beside its observation vector (EnvInfo.cameras): its name, the
+    topic its frames come on, their size and encoding (camera_frames.ENCODINGS)."""
+
+    name: str
+    topic: str
+    height: int
+    width: int
+    encoding: str
+
+    def __post_init__(self):
+        from ..data.camera_frames import ENCODINGS
+
+        if not self.name or not self.topic:
+            raise ValueError(f'a camera needs a name and a topic, got {self.name!r} on {self.topic!r}')
+        if self.encoding not in ENCODINGS:
+            raise ValueError(f'camera {self.name!r}: encoding {self.encoding!r} is not one of {", ".join(ENCODINGS)}')
+        if not (1 <= self.height and 1 <= self.width and self.height * self.width <= MAX_CAMERA_PIXELS):
+            raise ValueError(f'camera {self.name!r}: frames of {self.height}x{self.width} pixels')
+
+    @property
+    def channels(self) -> int:
+        from ..data.camera_frames import ENCODINGS
+
+        return ENCODINGS[self.encoding]
+
+    def spec(self, stack: int) -> 'CameraSpec':
+        """What a learner reads from this camera, ``stack`` frames at a time."""
+        return CameraSpec(self.height, self.width, self.channels, stack)
+
+
 @dataclass(frozen=True, eq=False)
 class EnvSpec:
     """An env's interface: observation size, action bounds, pace and success rule."""
@@ -96,6 +128,7 @@ class EnvSpec:
     rate_hz: float = 0.0
     success_rule: str = 'none'
     success_threshold: float = 0.0
+    cameras: tuple = ()  # EnvCamera each, beside the observation vector
     source: str = field(default='', compare=False)  # where it came from, for messages
 
     def __post_init__(self):
@@ -105,6 +138,7 @@ class EnvSpec:
         object.__setattr__(self, 'action_high', high)
         object.__setattr__(self, 'observation_labels', tuple(self.observation_labels))
         object.__setattr__(self, 'action_labels', tuple(self.action_labels))
+        object.__setattr__(self, 'cameras', tuple(self.cameras))
         where = f' ({self.source})' if self.source else ''
         if not 1 <= self.observation_size <= MAX_OBSERVATION_SIZE:
             raise ValueError(
@@ -132,12 +166,27 @@ class EnvSpec:
             raise ValueError(f'success rule {self.success_rule!r} is not one of {SUCCESS_RULES}{where}')
         if not math.isfinite(self.success_threshold):
             raise ValueError(f'success threshold must be finite{where}')
+        names = [camera.name for camera in self.cameras]
+        if len(set(names)) != len(names) or not all(isinstance(c, EnvCamera) for c in self.cameras):
+            raise ValueError(f'cameras must be EnvCamera with names of their own, got {names}{where}')
+
+    def camera(self, name: str) -> 'EnvCamera':
+        """The camera of that name, or a ValueError that lists those there are."""
+        for camera in self.cameras:
+            if camera.name == name:
+                return camera
+        there = ', '.join(repr(c.name) for c in self.cameras) or 'none'
+        raise ValueError(f'the env announces no camera {name!r} (its cameras: {there})')
 
     def __eq__(self, other) -> bool:
         # Field by field (the bounds are arrays); where the spec came from is not part of it.
         if not isinstance(other, EnvSpec):
             return NotImplemented
-        return all(np.array_equal(getattr(self, f.name), getattr(other, f.name)) for f in fields(self) if f.compare)
+        return self.cameras == other.cameras and all(
+            np.array_equal(getattr(self, f.name), getattr(other, f.name))
+            for f in fields(self)
+            if f.compare and f.name != 'cameras'
+        )
 
     __hash__ = None  # type: ignore[assignment]  # field-wise equality of arrays: not hashable
 

@@ -1,0 +1,189 @@
+"""A learner that sees, through the nodes (issue 49): gym_env publishes its rendering as a camera
+announced in env_info, the learner pairs each observation with its frame and learns from both,
+and every bad frame, a camera that stops and a camera that is not there are met as stated."""
+
+import threading
+
+import numpy as np
+import pytest
+import torch
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+
+from eqhrl_ros.core.envs.spec import CameraSpec, EnvCamera
+from eqhrl_ros.nodes.camera_input import CameraInput
+from eqhrl_ros.nodes.expert_node import ExpertNode
+from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+from eqhrl_ros.nodes.learner_node import LearnerNode
+from eqhrl_ros.nodes.messages import EnvStep
+
+from ros_helpers import params, small_learner_params
+
+CAMERA = dict(camera='camera', camera_height=24, camera_width=24, camera_encoding='mono8')
+
+
+def add_env(harness, ros_context, **extra):
+    values = dict(max_episode_steps=20, **CAMERA)
+    values.update(extra)
+    return harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(**values)))
+
+
+def camera_learner(ros_context, tmp_path, **extra):
+    values = dict(camera='camera', camera_stack=2, learning_starts=30, max_episodes=3, save_replay=True)
+    values.update(extra)
+    return LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, **values))
+
+
+def frame_msg(height=24, width=24, encoding='mono8', value=7, step=None, data=None) -> Image:
+    channels = 1 if encoding == 'mono8' else 3
+    row = width * channels if step is None else step
+    return Image(
+        height=height,
+        width=width,
+        encoding=encoding,
+        step=row,
+        data=bytes([value]) * (row * height) if data is None else data,
+    )
+
+
+def test_the_learner_learns_from_the_gym_envs_camera_and_the_vector_beside_it(harness, ros_context, tmp_path):
+    env = add_env(harness, ros_context)
+    harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
+    node = harness.add(camera_learner(ros_context, tmp_path))
+    assert harness.spin_until(lambda: node.done, timeout=90)
+    learner = node.learner
+    assert env.spec.cameras == (EnvCamera('camera', '/camera/image_raw', 24, 24, 'mono8'),)
+    assert learner.observation.camera == CameraSpec(24, 24, 1, 2) and learner.observation.state_dim == 3
+    assert len(learner.replay) == 60 and learner.replay.frames_written == 60 + 3  # each frame once
+    assert learner.updates > 0 and learner.updater.non_finite_updates == 0
+    assert learner.advice_total.given > 0 and len(learner.advice_replay) == learner.advice_total.given
+    camera = node.camera_input
+    assert camera.refused_frames == 0 and camera.untrusted_frames == 0
+    # At start-up the first observation can come before the camera's subscription is matched at
+    # both ends: it is dropped once, and the env sends it again with its frame (no step lost).
+    assert camera.frameless_observations <= 1
+    assert camera.stale_frames <= 2  # lock-step: each step's frame comes just before its observation
+    assert camera.health_check().message == 'frames arrive on /camera/image_raw'
+    # What D holds is what the env showed: the pendulum moves, so its frames differ, and none is blank.
+    frames = learner.replay.frames[: learner.replay.frames_written]
+    assert len({f.tobytes() for f in frames}) > 30 and all(f.any() for f in frames)
+    saved = torch.load(tmp_path / 'checkpoint.pt', weights_only=True)
+    assert saved['camera'] == {'height': 24, 'width': 24, 'channels': 1, 'stack': 2}
+
+
+def test_while_a_stranger_publishes_on_the_camera_topic_no_frame_is_taken(harness, ros_context, tmp_path):
+    """A second publisher of well-formed frames (showing the learner anything it likes): no frame
+    is taken from either while both publish, so the observations wait and fall back to the
+    frame they had; once the stranger leaves, learning goes on from the env's own frames."""
+    add_env(harness, ros_context)
+    node = harness.add(camera_learner(ros_context, tmp_path, max_episodes=2, camera_wait_s=0.05))
+    assert harness.spin_until(lambda: node.learner is not None and node.learner.total_steps > 5, timeout=30)
+    stranger = Node('stranger', context=ros_context)
+    stranger.create_publisher(Image, '/camera/image_raw', 10)
+    try:
+        assert harness.spin_until(lambda: node.camera_input.untrusted_frames > 3, timeout=30)
+        held = node.camera_input.latest.copy()
+        harness.spin_until(lambda: False, timeout=0.5)
+        assert np.array_equal(node.camera_input.latest, held)  # nothing taken meanwhile
+        assert node.camera_input.stale_frames > 0
+        assert node.camera_input.health_check().message.startswith(
+            "frames refused: '/camera/image_raw' has 2 publishers"
+        )
+    finally:
+        stranger.destroy_node()
+    assert harness.spin_until(lambda: node.done, timeout=90)
+    assert len(node.learner.replay) == 40
+
+
+def test_a_learner_told_a_camera_the_env_does_not_announce_stops_saying_which_it_has(harness, ros_context, tmp_path):
+    add_env(harness, ros_context, camera='')
+    node = harness.add(camera_learner(ros_context, tmp_path, camera='front'))
+    assert harness.spin_until(lambda: getattr(node, 'exit_error', None), timeout=30)
+    assert "the env announces no camera 'front' (its cameras: none)" in node.exit_error
+
+
+def test_the_record_and_prior_refuse_a_camera_until_they_carry_frames(harness, ros_context, tmp_path):
+    add_env(harness, ros_context)
+    node = harness.add(camera_learner(ros_context, tmp_path, record=True))
+    assert harness.spin_until(lambda: getattr(node, 'exit_error', None), timeout=30)
+    assert 'the record and prior do not carry frames yet' in node.exit_error
+
+
+class Retries:
+    def __init__(self):
+        self.data = []
+
+    def __call__(self, data):
+        self.data.append(data)
+
+
+@pytest.fixture
+def camera_input(harness, ros_context):
+    """A CameraInput on a bare node, fed by a publisher node: the pairing rule alone."""
+    node = harness.add(Node('camera_reader', context=ros_context))
+    publisher = harness.add(Node('camera_driver', context=ros_context)).create_publisher(Image, '/cam', 10)
+    retries = Retries()
+    camera = CameraInput(node, EnvCamera('cam', '/cam', 24, 24, 'mono8'), 3, 0.2, threading.RLock(), retries)
+    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0, timeout=10)
+    return camera, publisher, retries
+
+
+def step(episode, index):
+    return EnvStep(np.zeros(3, np.float32), 0.0, False, False, episode, index)
+
+
+def test_an_observation_takes_the_newest_frame_after_the_last_one_used_and_stacks_restart(harness, camera_input):
+    camera, publisher, retries = camera_input
+    publisher.publish(frame_msg(value=1))
+    assert harness.spin_until(lambda: camera.received == 1)
+    first = camera.attach(step(0, 0), b'a')
+    assert [int(f[0, 0, 0]) for f in first.obs['pixels']] == [1, 1, 1]  # an episode's start: repeated
+    for value in (2, 3):
+        publisher.publish(frame_msg(value=value))
+    assert harness.spin_until(lambda: camera.received == 3)
+    second = camera.attach(step(0, 1), b'b')
+    assert [int(f[0, 0, 0]) for f in second.obs['pixels']] == [1, 1, 3]  # the newest
+    # Late: no new frame yet, so the observation waits; its frame comes, and it is acted on.
+    late = b'c'
+    assert camera.attach(step(0, 2), late) is None
+    publisher.publish(frame_msg(value=4))
+    assert harness.spin_until(lambda: retries.data == [late])
+    third = camera.attach(step(0, 2), late)
+    assert [int(f[0, 0, 0]) for f in third.obs['pixels']] == [1, 3, 4]
+    # Missing: none comes within camera_wait_s; the newest stands in, counted as stale.
+    missing = b'd'
+    assert camera.attach(step(0, 3), missing) is None
+    assert harness.spin_until(lambda: retries.data[-1] is missing, timeout=5)
+    fourth = camera.attach(step(0, 3), missing)
+    assert camera.stale_frames == 1
+    assert [int(f[0, 0, 0]) for f in fourth.obs['pixels']] == [3, 4, 4]
+    # A step that does not follow (one was lost) starts the stack over, as D rebuilds it.
+    publisher.publish(frame_msg(value=9))
+    assert harness.spin_until(lambda: camera.received == 5)
+    after_gap = camera.attach(step(0, 6), b'e')
+    assert [int(f[0, 0, 0]) for f in after_gap.obs['pixels']] == [9, 9, 9]
+
+
+def test_frames_that_do_not_fit_the_announcement_are_refused_and_change_nothing(harness, camera_input):
+    camera, publisher, _ = camera_input
+    publisher.publish(frame_msg(value=5))
+    assert harness.spin_until(lambda: camera.received == 1)
+    bad = [
+        frame_msg(height=48),  # another size
+        frame_msg(encoding='rgb8'),  # another encoding
+        frame_msg(data=b'\x00' * 10),  # fewer bytes than its header says
+        frame_msg(step=10),  # rows shorter than the width
+        frame_msg(height=40000, width=40000, data=b''),  # would be gigabytes
+    ]
+    for msg in bad:
+        publisher.publish(msg)
+    assert harness.spin_until(lambda: camera.refused_frames == len(bad))
+    assert camera.received == 1 and int(camera.latest[0, 0, 0]) == 5
+
+
+def test_with_no_frame_ever_an_observation_is_dropped_after_the_wait(harness, camera_input):
+    camera, _, retries = camera_input
+    data = b'x'
+    assert camera.attach(step(0, 0), data) is None
+    assert harness.spin_until(lambda: retries.data == [data], timeout=5)
+    assert camera.attach(step(0, 0), data) is None and camera.frameless_observations == 1
