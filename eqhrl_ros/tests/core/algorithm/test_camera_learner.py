@@ -197,8 +197,8 @@ def test_what_a_camera_learner_cannot_do_yet_is_refused_with_a_reason():
         CameraSpec(20, 20, channels=4)
     compiled = learner(compile_update=True)
     run(compiled, episodes=2)
-    assert compiled.compiled_update is None and 'runs eagerly' in compiled.updater.compile_refused
-    with pytest.raises(ValueError, match='runs eagerly'):
+    assert compiled.compiled_update is None and 'stays eager' in compiled.updater.compile_refused
+    with pytest.raises(ValueError, match='do not stack the encoder'):
         StackedSeeds([learner(seed=1), learner(seed=2)])
     with pytest.raises(ValueError, match='prior data with a camera'):
         learner().add_prior([GOOD], [[0.0]], [0.0], [GOOD], [False])
