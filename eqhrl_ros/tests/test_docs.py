@@ -126,3 +126,22 @@ def test_the_readmes_camera_example_runs_and_its_memory_figures_are_the_codes():
     default = LearnerConfig().replay_capacity
     needed = frames_bytes_with_advice(default, (3, 84, 84), 3) / 1e9
     assert f'{default:,} (Table 1) needs {needed:.1f} GB for 84×84' in section
+
+
+def test_the_results_pages_pixel_table_is_the_committed_report():
+    """docs/results.md's table of learning from pixels is docs/results/pixels/table.md, which
+    benchmarks/learn_from_pixels.py --report makes from the committed episodes.csv."""
+    root = Path(__file__).resolve().parents[2]
+    report = (root / 'docs' / 'results' / 'pixels' / 'table.md').read_text()
+    page = (root / 'docs' / 'results.md').read_text()
+    assert report in page.split('## Learning from pixels', 1)[1].split('\n## ', 1)[0]
+    import csv
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location('learn_from_pixels', root / 'benchmarks' / 'learn_from_pixels.py')
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    with open(root / 'docs' / 'results' / 'pixels' / 'episodes.csv', newline='') as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 * 2 * 3 * 40  # settings x modes x seeds x episodes
+    assert script.table(rows) == report  # made from the committed runs, to the decimal
