@@ -53,10 +53,6 @@ class VectorObservation:
         """``obs`` as a [1, dim] float32 tensor on the learner's device, or a ValueError."""
         return torch.from_numpy(checked_vector(obs, self.dim)).unsqueeze(0).to(self.device)
 
-    def flat(self, obs) -> np.ndarray:
-        """``obs`` checked, as the flat float32 array the replay holds."""
-        return checked_vector(obs, self.dim)
-
     def features(self, obs_t: torch.Tensor) -> torch.Tensor:
         return obs_t
 
