@@ -191,6 +191,7 @@ class ActingNode(Node):
                     self._lock,
                     lambda data: self._on_observation(data, held=True),  # a frame came, or the wait ended
                     self.params['camera_publisher'],
+                    self.params['camera_transport'],
                 )
         self.get_logger().info(
             f'{self.config.mode} on {shown(spec.name)} ({spec.source}): obs {spec.observation_size}, '

@@ -1,8 +1,10 @@
 """CameraInput: the frames of the camera a learner reads, paired with the env's observations.
 
 The env announces its cameras in env_info (eqhrl_interfaces/msg/CameraPart); a learner whose
-``camera`` parameter names one subscribes to its topic (sensor_msgs/Image). The rule that
-pairs a frame with an observation message (which has no header):
+``camera`` parameter names one subscribes to its topic: sensor_msgs/Image, or with
+``camera_transport: compressed`` sensor_msgs/CompressedImage (JPEG or PNG) on ``<topic>/compressed``,
+as image_transport names it. The rule that pairs a frame with an observation message (which has
+no header):
 
 - An observation takes the newest frame that came after the one the step before took (a
   lock-step env publishes each step's frame just before its observation; a real-time camera
@@ -20,9 +22,11 @@ pairs a frame with an observation message (which has no header):
 Frames are taken while one node alone publishes the topic (``camera_publisher``, when set, names
 it): with two, none is, since a stranger's frame cannot be told from the camera's. A frame is
 then checked by meaning against the announcement before it is kept: its encoding, height
-and width as announced, and its row length and size as its header says
-(core/data/camera_frames.py); a frame refused is counted and said (throttled), and changes
-nothing. Only the newest frame is kept: a flood costs a check per message and holds one frame.
+and width as announced, and its row length and size as its header says; a compressed one's
+declared size before it is decoded (no more pixels than announced: a frame that would decode
+to gigabytes costs nothing), then what it decodes to (core/data/camera_frames.py). A frame
+refused is counted and said (throttled), and changes nothing. Only the newest frame is kept: a
+flood costs a check per message and holds one frame.
 """
 
 from __future__ import annotations
@@ -35,9 +39,9 @@ from typing import Callable, Optional
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CompressedImage, Image
 
-from ..core.data.camera_frames import FrameError, frame_array
+from ..core.data.camera_frames import FrameError, decode_compressed, frame_array
 from ..core.envs.spec import EnvCamera
 from .graph_trust import OnePublisher
 from .health import OK, WARN, Check
@@ -58,10 +62,13 @@ class CameraInput:
         lock,
         retry: Callable[[bytes], None],
         publisher: str = '',
+        transport: str = 'raw',
     ):
         """``retry(data)``: the node acts on an observation that waited, once its frame came or
         the wait ended (under the node's ``lock``, as every callback here). ``publisher``: the
-        only node whose frames are taken (empty: any one node, while it publishes alone)."""
+        only node whose frames are taken (empty: any one node, while it publishes alone).
+        ``transport``: 'raw' (sensor_msgs/Image on the topic) or 'compressed' (CompressedImage on
+        <topic>/compressed)."""
         self.node, self.camera, self.stack, self.wait_s = node, camera, int(stack), float(wait_s)
         self._lock, self._retry = lock, retry
         self.latest: Optional[np.ndarray] = None  # the newest frame, (H, W, C) uint8
@@ -70,20 +77,35 @@ class CameraInput:
         self._frames: deque = deque(maxlen=self.stack)
         self._last_key: Optional[tuple] = None
         self._waiting: Optional[tuple] = None  # (observation data, time.monotonic() it began waiting)
-        self.guard = OnePublisher(node, camera.topic, publisher)
+        compressed = transport == 'compressed'
+        self.topic = f'{camera.topic}/compressed' if compressed else camera.topic
+        self.guard = OnePublisher(node, self.topic, publisher)
         self.refused_frames = 0  # for what they hold
         self.untrusted_frames = 0  # for who sent them
         self.stale_frames = 0
         self.frameless_observations = 0
-        node.create_subscription(Image, camera.topic, self._on_frame, FRAME_QOS)
+        if compressed:
+            node.create_subscription(CompressedImage, self.topic, self._on_compressed, FRAME_QOS)
+        else:
+            node.create_subscription(Image, self.topic, self._on_frame, FRAME_QOS)
         node.create_timer(max(0.01, self.wait_s / 4), self._check_wait)
 
-    def _on_frame(self, msg: Image) -> None:
-        camera = self.camera
+    def _trusted(self) -> bool:
         refusal = self.guard.refusal()
         if refusal:
             self.untrusted_frames += 1
             self.node.get_logger().error(f'frames refused: {refusal}', throttle_duration_sec=5.0)
+        return not refusal
+
+    def _refuse(self, error: FrameError) -> None:
+        self.refused_frames += 1
+        self.node.get_logger().error(
+            f'frame on {self.topic} refused: {error} ({self.refused_frames} so far)', throttle_duration_sec=5.0
+        )
+
+    def _on_frame(self, msg: Image) -> None:
+        camera = self.camera
+        if not self._trusted():
             return
         try:
             if msg.encoding != camera.encoding or (msg.height, msg.width) != (camera.height, camera.width):
@@ -93,11 +115,28 @@ class CameraInput:
                 )
             frame = frame_array(msg.encoding, msg.height, msg.width, msg.step, msg.data)
         except FrameError as error:
-            self.refused_frames += 1
-            self.node.get_logger().error(
-                f'frame on {camera.topic} refused: {error} ({self.refused_frames} so far)', throttle_duration_sec=5.0
-            )
+            self._refuse(error)
             return
+        self._keep(frame)
+
+    def _on_compressed(self, msg: CompressedImage) -> None:
+        """A JPEG or PNG frame, decoded only once its header's size is the announced one."""
+        camera = self.camera
+        if not self._trusted():
+            return
+        try:
+            frame = decode_compressed(msg.data, max_pixels=camera.height * camera.width)
+            if frame.shape != (camera.height, camera.width, camera.channels):
+                raise FrameError(
+                    f'a frame that decodes to {frame.shape[1]}x{frame.shape[0]}x{frame.shape[2]}, the env announced '
+                    f'{camera.width}x{camera.height}x{camera.channels}'
+                )
+        except FrameError as error:
+            self._refuse(error)
+            return
+        self._keep(frame)
+
+    def _keep(self, frame: np.ndarray) -> None:
         with self._lock:
             self.latest, self.received = frame, self.received + 1
             waiting = self._waiting
@@ -123,8 +162,8 @@ class CameraInput:
         if refusal:
             return Check('camera', WARN, f'frames refused: {refusal}', values)
         if self.received == 0:
-            return Check('camera', WARN, f'no frame yet on {self.camera.topic}', values)
-        return Check('camera', OK, f'frames arrive on {self.camera.topic}', values)
+            return Check('camera', WARN, f'no frame yet on {self.topic}', values)
+        return Check('camera', OK, f'frames arrive on {self.topic}', values)
 
     def seen_again(self) -> None:
         """The env sent the observation acted on again (with its frame): that frame is used."""
@@ -149,14 +188,14 @@ class CameraInput:
             if self.latest is None:
                 self.frameless_observations += 1
                 self.node.get_logger().warn(
-                    f'no frame on {self.camera.topic} after {self.wait_s:g} s: observation dropped '
+                    f'no frame on {self.topic} after {self.wait_s:g} s: observation dropped '
                     f'({self.frameless_observations} so far)',
                     throttle_duration_sec=5.0,
                 )
                 return None
             self.stale_frames += 1
             self.node.get_logger().warn(
-                f'no new frame on {self.camera.topic} within {self.wait_s:g} s: the newest stands in '
+                f'no new frame on {self.topic} within {self.wait_s:g} s: the newest stands in '
                 f'({self.stale_frames} stale so far)',
                 throttle_duration_sec=5.0,
             )

@@ -48,6 +48,13 @@ LEARNER_NODE_PARAMS = (
         "The node whose frames to take (full name); empty: any one node. While two nodes publish the camera's "
         'topic, no frame is taken (a stranger could show the learner anything)',
     ),
+    Param(
+        'camera_transport',
+        'raw',
+        "How the camera's frames come: raw (sensor_msgs/Image on its topic) or compressed "
+        '(sensor_msgs/CompressedImage, JPEG or PNG, on <topic>/compressed, as image_transport names it)',
+        choices=('raw', 'compressed'),
+    ),
     Param('camera_stack', 3, 'Frames the learner reads at once: the newest and those before it', (1, 16)),
     Param(
         'camera_wait_s',

@@ -185,3 +185,36 @@ def test_with_no_frame_ever_an_observation_is_dropped_after_the_wait(harness, ca
     assert camera.attach(step(0, 0), data) is None
     assert harness.spin_until(lambda: retries.data == [data], timeout=5)
     assert camera.attach(step(0, 0), data) is None and camera.frameless_observations == 1
+
+
+def test_compressed_frames_are_decoded_once_their_declared_size_is_the_announced_one(harness, ros_context):
+    """camera_transport compressed: JPEG or PNG on <topic>/compressed (image_transport's name).
+    A good one is decoded and kept; one of another size, one that does not decode and one whose
+    header declares 40000x40000 pixels are refused, the last before anything is decoded."""
+    import io
+
+    from PIL import Image as PILImage
+    from sensor_msgs.msg import CompressedImage
+
+    node = harness.add(Node('camera_reader', context=ros_context))
+    driver = harness.add(Node('camera_driver', context=ros_context))
+    publisher = driver.create_publisher(CompressedImage, '/cam/compressed', 10)
+    camera = CameraInput(
+        node, EnvCamera('cam', '/cam', 24, 24, 'mono8'), 3, 0.2, threading.RLock(), Retries(), transport='compressed'
+    )
+    assert harness.spin_until(lambda: publisher.get_subscription_count() > 0, timeout=10)
+
+    def encoded(size, fmt='PNG', value=9):
+        out = io.BytesIO()
+        PILImage.fromarray(np.full(size, value, np.uint8)).save(out, format=fmt)
+        return out.getvalue()
+
+    publisher.publish(CompressedImage(format='png', data=encoded((24, 24))))
+    assert harness.spin_until(lambda: camera.received == 1)
+    assert camera.latest.shape == (24, 24, 1) and (camera.latest == 9).all()
+    bomb = bytearray(encoded((1, 1)))
+    bomb[16:24] = (40000).to_bytes(4, 'big') * 2  # the IHDR's width and height
+    for data in (encoded((32, 24)), b'not an image', bytes(bomb), encoded((24, 24, 3), 'JPEG')):
+        publisher.publish(CompressedImage(format='png', data=data))
+    assert harness.spin_until(lambda: camera.refused_frames == 4)
+    assert camera.received == 1 and camera.health_check().message == 'frames arrive on /cam/compressed'
