@@ -3,8 +3,9 @@
 This node is the ROS side; the page and its web server, with the security that keeps strangers
 off it, are console_server.py. Over one websocket per open page it sends
 - to the page: the env's frames (JPEG, from the image topic), the learner's requests
-  (``learner/advice_request``), episode statistics (``learner/episode_stats``), the env's
-  spaces (``env_info``), the learner's advising parameters and whether advice is open now
+  (``learner/advice_request``) with a camera learner's frames asked about (PNG, as it reads
+  them), episode statistics (``learner/episode_stats``), the env's spaces (``env_info``),
+  the learner's advising parameters and whether advice is open now
   (core/algorithm/advice_window.py, computed from those parameters and statistics);
 - from the page: the person's command, deadman, answer and skip (keyboard or gamepad),
   published on ``teleop_command`` exactly as keyboard_teleop publishes it, and parameter
@@ -33,12 +34,14 @@ from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 
 from ..core.algorithm.advice_window import advice_window
 from ..core.algorithm.config import advice_protocol, check_value
+from ..core.data.camera_frames import FrameError
 from ..core.data.signing import CommandSeal, signer_from
 from ..core.envs.spec import EnvSpec
 from ..parameters import CONSOLE_PARAMS
 from . import messages
-from .console_server import ConsoleServer, host_allowed, host_name, is_loopback  # noqa: F401 (the tests' names)
+from .console_server import AskedFrames, ConsoleServer, host_allowed, host_name, is_loopback  # noqa: F401
 from .env_info import EnvInfoWatcher, configured_spec, shown
+from .frame_msgs import stack_of
 from .params import declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
 from .teleop_expert_node import ANSWER_MARGIN_S
@@ -103,6 +106,8 @@ class AdviceConsole(Node):
         self.learner_params: dict = {}
         self.frame: Optional[Image] = None
         self.frame_number = 0
+        self.asked: Optional[AskedFrames] = None  # a camera learner's frames of the latest request with frames
+        self.asked_number = 0
         self.input = PageInput()
         self.pages = 0  # open websockets
         self.published = 0
@@ -156,7 +161,10 @@ class AdviceConsole(Node):
             self._bump()
 
     def _on_request(self, msg: AdviceRequest) -> None:
+        asked = self._asked_frames(msg)  # decoded and encoded before the lock: the page waits for nothing
         with self.lock:
+            if asked is not None and asked != self.asked:
+                self.asked, self.asked_number = asked, self.asked_number + 1
             self.request = {
                 'outcome': OUTCOME_NAMES.get(msg.outcome, '?'),
                 'detail': msg.detail,
@@ -181,6 +189,18 @@ class AdviceConsole(Node):
                 # the page's budget in seconds runs down request by request, not episode by episode.
                 self.person_s_open[(msg.episode, msg.step)] = float(msg.response_time_s)
             self._bump()
+
+    def _asked_frames(self, msg: AdviceRequest) -> Optional['AskedFrames']:
+        """The request's frames as the page shows them, or None (none, or the same request's again:
+        a request is published again as it resolves). Frames that cannot be one stack are said."""
+        asked = self.asked
+        if not msg.frames or (asked is not None and (asked.episode, asked.step) == (msg.episode, msg.step)):
+            return None
+        try:
+            return AskedFrames.of(msg.episode, msg.step, stack_of(msg.frames))
+        except FrameError as error:
+            self.get_logger().warning(f"a request's frames refused: {error}", throttle_duration_sec=5.0)
+            return None
 
     def _on_stats(self, msg: EpisodeStats) -> None:
         with self.lock:
@@ -379,6 +399,8 @@ class AdviceConsole(Node):
                 'action_labels': list(spec.action_labels or []),
             },
             'request': request,
+            # What the learner saw at the latest request with frames (the PNG goes as its own message).
+            'asked_frames': self.asked.shown() if self.asked else None,
             'episodes': self.episodes[-500:],
             'learner': self.learner_params,
             'advice_window': self.advice_window(),

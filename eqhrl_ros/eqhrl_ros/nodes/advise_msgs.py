@@ -8,6 +8,8 @@ import numpy as np
 from eqhrl_interfaces.srv import Advise
 
 from ..core.data.advice import Advice, AdviceRequest
+from ..core.data.camera_frames import FrameError
+from .frame_msgs import stack_msgs, stack_of
 
 
 def request_msg(request: AdviceRequest, timeout_s: float = 0.0) -> Advise.Request:
@@ -22,11 +24,13 @@ def request_msg(request: AdviceRequest, timeout_s: float = 0.0) -> Advise.Reques
         entropy=float(request.entropy),
         episode=int(request.episode),
         step=int(request.step),
+        frames=stack_msgs(request.pixels),
     )
 
 
 def request_from_msg(msg: Advise.Request) -> AdviceRequest:
-    """What an expert is asked, as the core's AdviceRequest."""
+    """What an expert is asked, as the core's AdviceRequest; frames that cannot be one stack
+    raise camera_frames.FrameError (frame_msgs.stack_of)."""
 
     def arr(values):
         return np.asarray(values, dtype=np.float32)
@@ -40,6 +44,7 @@ def request_from_msg(msg: Advise.Request) -> AdviceRequest:
         float(msg.entropy),
         int(msg.episode),
         int(msg.step),
+        stack_of(msg.frames),
     )
 
 
@@ -47,11 +52,22 @@ def answer(expert, msg: Advise.Request, response: Advise.Response, name: str, lo
     """Ask ``expert`` (a core Expert callable) and fill ``response``. A backend that raises
     declines this one request with the error as its reason; the service lives on."""
     try:
-        advice = expert(request_from_msg(msg))
+        request = request_from_msg(msg)
+    except FrameError as error:
+        return fill_response(response, frames_refused(error, logger), name)
+    try:
+        advice = expert(request)
     except Exception as error:  # a backend bug must not take the service down
         logger.error(f'expert backend failed: {error!r}', throttle_duration_sec=5.0)
         advice = Advice.decline(f'expert error: {error}')
     return fill_response(response, advice, name)
+
+
+def frames_refused(error: FrameError, logger) -> Advice:
+    """A request whose frames cannot be one stack (another node's bytes): declined, saying why,
+    and said in the log; the service lives on."""
+    logger.warning(f'a request with frames refused: {error}', throttle_duration_sec=5.0)
+    return Advice.decline(f'frames refused: {error}')
 
 
 def fill_response(response: Advise.Response, advice: Advice, name: str) -> Advise.Response:

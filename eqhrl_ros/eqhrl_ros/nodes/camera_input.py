@@ -41,8 +41,9 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CompressedImage, Image
 
-from ..core.data.camera_frames import FrameError, decode_compressed, frame_array
+from ..core.data.camera_frames import FrameError, decode_compressed
 from ..core.envs.spec import EnvCamera
+from .frame_msgs import frame_of
 from .graph_trust import OnePublisher
 from .health import OK, WARN, Check
 from .messages import EnvStep
@@ -113,7 +114,7 @@ class CameraInput:
                     f'a {msg.width}x{msg.height} {msg.encoding!r} frame, the env announced '
                     f'{camera.width}x{camera.height} {camera.encoding}'
                 )
-            frame = frame_array(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+            frame = frame_of(msg)
         except FrameError as error:
             self._refuse(error)
             return

@@ -11,12 +11,14 @@ half-open ones closed (connection_guard.py), so that a flood of them cannot lock
 
 The ROS side (advice_console_node.py) is the ``console``: the server reads its state() under its
 lock when its version changes, hands it the page's input (take_input) and parameter sets
-(set_learner_parameter), and sends its camera frames as JPEG.
+(set_learner_parameter), and sends its camera frames as JPEG and the frames a camera learner
+asked about as one PNG (AskedFrames); the page tells them apart by their first bytes.
 """
 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import hmac
 import ipaddress
 import json
@@ -25,11 +27,13 @@ import time
 from importlib import resources
 from typing import Optional
 
+import numpy as np
 from aiohttp import WSMsgType, web
 from sensor_msgs.msg import Image
 
 from ..core.data import camera_frames
 from .connection_guard import ConnectionGuard, GuardedProtocol
+from .frame_msgs import frame_of
 
 MAX_PAGE_MESSAGE = 4096  # bytes; the page sends small JSON only
 
@@ -62,10 +66,41 @@ def host_allowed(host_header: str, names) -> bool:
         return host in names
 
 
+@dataclasses.dataclass(frozen=True)
+class AskedFrames:
+    """The frames a camera learner asked about, as the page shows them: one lossless PNG, the
+    stack side by side, oldest left, each pixel as the learner reads it."""
+
+    episode: int
+    step: int
+    stack: int
+    height: int
+    width: int
+    channels: int
+    png: bytes
+
+    @classmethod
+    def of(cls, episode: int, step: int, pixels: np.ndarray) -> 'AskedFrames':
+        k, height, width, channels = pixels.shape
+        return cls(int(episode), int(step), k, height, width, channels, camera_frames.png_bytes(pixels))
+
+    def shown(self) -> dict:
+        """What the page says of them (the PNG goes apart, once)."""
+        encoding = camera_frames.SENT_ENCODINGS[self.channels]
+        return {
+            'episode': self.episode,
+            'step': self.step,
+            'stack': self.stack,
+            'height': self.height,
+            'width': self.width,
+            'encoding': encoding,
+        }
+
+
 def jpeg(frame: Image, quality: int) -> Optional[bytes]:
     """A sensor_msgs/Image as JPEG bytes (None for a frame core.data.camera_frames refuses)."""
     try:
-        pixels = camera_frames.frame_array(frame.encoding, frame.height, frame.width, frame.step, frame.data)
+        pixels = frame_of(frame)
     except camera_frames.FrameError:
         return None
     return camera_frames.jpeg_bytes(pixels, quality)
@@ -197,7 +232,7 @@ class ConsoleServer:
     async def _send_updates(self, socket: web.WebSocketResponse) -> None:
         """State when it changes (and 5 times a second while a request is open or the person
         drives, for the countdowns); frames at most image_rate_hz."""
-        sent_version, sent_frame, last_frame_time, last_state_time = -1, 0, 0.0, 0.0
+        sent_version, sent_frame, last_frame_time, last_state_time, sent_asked = -1, 0, 0.0, 0.0, 0
         frame_period = 1.0 / self.params['image_rate_hz']
         while not socket.closed:
             now = time.monotonic()
@@ -210,6 +245,11 @@ class ConsoleServer:
                 frame = None
                 if console.frame_number != sent_frame and now - last_frame_time >= frame_period:
                     frame, sent_frame, last_frame_time = console.frame, console.frame_number, now
+                asked = None
+                if console.asked_number != sent_asked and console.asked is not None:
+                    asked, sent_asked = console.asked.png, console.asked_number
+            if asked is not None:  # before the state that captions it
+                await socket.send_bytes(asked)
             if state is not None:
                 await socket.send_str(json.dumps(state))
             if frame is not None:

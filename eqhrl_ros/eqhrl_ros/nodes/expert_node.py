@@ -19,12 +19,13 @@ from rclpy.node import Node
 from eqhrl_interfaces.srv import Advise
 
 from ..core.data.advice import Advice
+from ..core.data.camera_frames import FrameError
 from ..core.envs.spec import EnvSpec
 from ..core.experts.controllers import expert_disagreements
 from ..core.experts.factory import make_expert
 from ..core.experts.simulated_human import HumanLimits, SimulatedHuman
 from ..parameters import EXPERT_PARAMS, HUMAN_LIMIT_PARAMS
-from .advise_msgs import answer, fill_response, request_from_msg
+from .advise_msgs import answer, fill_response, frames_refused, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .params import choices_validator, declare, reject_unknown_overrides
 from .recording import introspect
@@ -135,7 +136,11 @@ class ExpertNode(Node):
                 'a longer advice_timeout_s (e.g. params/teleop_pendulum.yaml, 5 s)',
                 throttle_duration_sec=30.0,
             )
-        plan = human.plan(request_from_msg(request))
+        try:
+            asked = request_from_msg(request)
+        except FrameError as error:
+            return fill_response(response, frames_refused(error, self.get_logger()), name)
+        plan = human.plan(asked)
         await pause(self, min(plan.delay_s, window), self._steady)
         return fill_response(response, human.outcome(plan, window), name)
 

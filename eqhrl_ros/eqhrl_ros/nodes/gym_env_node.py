@@ -34,6 +34,7 @@ from ..core.envs.gymnasium_envs import gym_spec, make_env
 from ..core.envs.spec import EnvCamera, spec_from_parameters
 from ..parameters import GYM_ENV_PARAMS
 from . import env_info, messages
+from .frame_msgs import image_msg
 from .health import OK, WARN, Check, Health
 from .params import choices_validator, declare, reject_unknown_overrides
 from .spinning import run_node, seconds_since_process_start, steady_clock
@@ -139,17 +140,7 @@ class GymEnvNode(Node):
         if camera is None:
             return
         frame = resized(self.env.render(), camera.spec(1))
-        msg = Image(
-            height=camera.height,
-            width=camera.width,
-            encoding=camera.encoding,
-            is_bigendian=0,
-            step=camera.width * camera.channels,
-            data=frame.tobytes(),
-        )
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = camera.name
-        self._last_frame = msg
+        self._last_frame = image_msg(frame, camera.name, self.get_clock().now().to_msg())
 
     def _reset(self, seed=None) -> None:
         obs, _ = self.env.reset(seed=seed)
@@ -237,18 +228,8 @@ class GymEnvNode(Node):
     def _publish_image(self) -> None:
         if self.image_pub.get_subscription_count() == 0:
             return  # rendering costs time: only for someone watching
-        frame = np.ascontiguousarray(self.env.render(), dtype=np.uint8)
-        msg = Image(
-            height=frame.shape[0],
-            width=frame.shape[1],
-            encoding='rgb8',
-            is_bigendian=0,
-            step=frame.shape[1] * 3,
-            data=frame.tobytes(),
-        )
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = 'gym_env'
-        self.image_pub.publish(msg)
+        frame = np.asarray(self.env.render(), dtype=np.uint8)
+        self.image_pub.publish(image_msg(frame, 'gym_env', self.get_clock().now().to_msg()))
 
     def _on_subscriber_matched(self, info) -> None:
         # A learner that subscribes after the first observation went out would otherwise

@@ -39,6 +39,7 @@ from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 
 from ..core.data.summary import EpisodeSummary
 from ..core.experts.teleop import COMMAND_FIELDS, REQUEST_FIELD
+from .frame_msgs import stack_msgs
 
 OBS_TAIL = ('reward', 'terminated', 'truncated', 'episode', 'step')
 OBS_SUCCESS = 'success'  # the optional last field of an observation
@@ -393,8 +394,8 @@ def advice_request_msg(
     wheel: bool = False,
     steps_driven: int = 0,
 ) -> AdviceRequest:
-    """learner/advice_request: ``request`` (core AdviceRequest) and what came of it so far
-    (``given_action``: the action used, env units, when it was given; ``wheel``: a request for
+    """learner/advice_request: ``request`` (core AdviceRequest, its frames included) and what
+    came of it so far (``given_action``: the action used, env units, when it was given; ``wheel``: a request for
     the wheel, ``steps_driven`` by the person so far)."""
     return AdviceRequest(
         wheel=bool(wheel),
@@ -411,6 +412,7 @@ def advice_request_msg(
         timeout_s=float(timeout_s),
         observation=np.asarray(request.observation, dtype=np.float32).tolist(),
         proposed_action=np.asarray(request.proposed_action, dtype=np.float32).tolist(),
+        frames=stack_msgs(request.pixels),
     )
 
 

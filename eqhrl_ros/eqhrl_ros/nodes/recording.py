@@ -16,6 +16,7 @@ from rclpy.service_introspection import ServiceIntrospectionState
 from sensor_msgs.msg import CompressedImage, Image
 
 from ..core.data import camera_frames
+from .frame_msgs import frame_of
 from .spinning import steady_clock
 
 # Service events: reliable, so that the record (and ros2 bag) holds every call.
@@ -75,7 +76,7 @@ class NodeRecord:
 
     def _on_frame(self, topic: str, msg: Image) -> None:
         try:
-            pixels = camera_frames.frame_array(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+            pixels = frame_of(msg)
         except camera_frames.FrameError:
             self.failed += 1
             return

@@ -30,12 +30,13 @@ from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
 from eqhrl_interfaces.srv import Advise
 
 from ..core.data.advice import SKIPPED, Advice
+from ..core.data.camera_frames import FrameError
 from ..core.data.signing import CommandCheck, signer_from
 from ..core.envs.spec import EnvSpec
 from ..core.experts.teleop import TWIST_FIELDS, Command, TeleopExpert, array_command, joy_command, twist_command
 from ..parameters import TELEOP_EXPERT_PARAMS
 from . import messages
-from .advise_msgs import answer, fill_response, request_from_msg
+from .advise_msgs import answer, fill_response, frames_refused, request_from_msg
 from .env_info import EnvInfoWatcher, configured_spec
 from .graph_trust import OnePublisher
 from .params import choices_validator, declare, reject_unknown_overrides
@@ -248,6 +249,10 @@ class TeleopExpertNode(Node):
         return answer(self.expert, request, response, self.expert.name, self.get_logger())
 
     async def _on_request_in_window(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        try:
+            asked = request_from_msg(request)
+        except FrameError as error:
+            return fill_response(response, frames_refused(error, self.get_logger()), self.expert.name)
         window = self.params['answer_window_s']
         if request.timeout_s > 0:
             window = min(window, request.timeout_s - ANSWER_MARGIN_S)
@@ -260,7 +265,7 @@ class TeleopExpertNode(Node):
         with self._lock:
             # A request still open is superseded: the learner has given up on it.
             self._settle(self.expert.withdraw('superseded by a newer request'))
-            self.expert.open(request_from_msg(request))
+            self.expert.open(asked)
             self._waiting = future
             self._window_s, self._window_end, self._paused_at = window, time.monotonic() + window, None
         self.get_logger().info(

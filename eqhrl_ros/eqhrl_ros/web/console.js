@@ -44,7 +44,7 @@ function connect() {
     setTimeout(connect, 1000);
   };
   socket.onmessage = (event) => {
-    if (event.data instanceof Blob) { showFrame(event.data); return; }
+    if (event.data instanceof Blob) { blobs = blobs.then(() => showBlob(event.data)); return; }
     const message = JSON.parse(event.data);
     if (message.type === 'state') onState(message);
     else if (message.type === 'set_result') {
@@ -64,12 +64,36 @@ function say(text) { $('message').textContent = text; }
 
 // ------------------------------------------------------------------ what the node sends
 
-function showFrame(blob) {
-  const frame = $('frame');
-  const old = frame.src;
-  frame.src = URL.createObjectURL(blob);
+// Two kinds of images come as binary messages: the env's frames (JPEG) and the frames a camera
+// learner asked about (one PNG, the stack side by side); their first bytes tell them apart.
+let blobs = Promise.resolve();  // shown in the order they came
+async function showBlob(blob) {
+  const head = new Uint8Array(await blob.slice(0, 4).arrayBuffer());
+  const png = head[0] === 0x89 && head[1] === 0x50 && head[2] === 0x4e && head[3] === 0x47;
+  showImage(png ? 'asked' : 'frame', blob);
+}
+
+function showImage(id, blob) {
+  const image = $(id);
+  const old = image.src;
+  image.src = URL.createObjectURL(blob);
   if (old.startsWith('blob:')) URL.revokeObjectURL(old);
-  frame.dataset.frames = String(Number(frame.dataset.frames || 0) + 1);
+  image.dataset.frames = String(Number(image.dataset.frames || 0) + 1);
+}
+
+// What the learner saw when it asked: its own frames at its own size, each pixel drawn as a
+// square block (scaled by a whole number, never smoothed), so the person judges what it judged.
+function showAsked() {
+  const asked = state.asked_frames;
+  $('asked-view').hidden = !asked;
+  if (!asked) return;
+  // As large as fits (at most 240 px high), by a whole number: never smoothed between pixels.
+  const room = $('asked-view').clientWidth || 480;
+  const scale = Math.max(1, Math.min(Math.floor(240 / asked.height), Math.floor(room / (asked.stack * asked.width))));
+  $('asked').style.width = `${asked.stack * asked.width * scale}px`;
+  $('asked-caption').textContent = `what the learner saw when it asked (episode ${asked.episode}, ` +
+    `step ${asked.step}): ${asked.stack} frame${asked.stack > 1 ? 's' : ''} of ${asked.width}x${asked.height} ` +
+    `${asked.encoding}${asked.stack > 1 ? ', oldest left' : ''}, as it reads them, drawn ${scale}x`;
 }
 
 function onState(message) {
@@ -90,6 +114,7 @@ function onState(message) {
   showDriver();
   showLegend();
   showRequest();
+  showAsked();
   showRecent();
   drawBars();
   drawPlots();

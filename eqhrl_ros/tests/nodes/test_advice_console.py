@@ -469,3 +469,61 @@ def test_an_experts_reason_is_shown_as_text_and_never_runs_on_the_page(browser, 
         assert browser.execute_script('return window.ran') is None
     finally:
         graph.close()
+
+
+def test_the_page_shows_the_frames_a_camera_learner_asked_about_pixel_for_pixel(browser, ros_context):
+    """A camera learner's request carries the stack it asks about (learner/advice_request frames):
+    the page shows it beside the env's rendering, at the learner's size and drawn in whole pixels,
+    oldest left, each pixel as sent; frames that cannot be one stack change nothing on the page."""
+    import numpy as np
+    import rclpy
+
+    from eqhrl_interfaces.msg import AdviceRequest
+    from eqhrl_ros.nodes import messages
+    from eqhrl_ros.nodes.frame_msgs import image_msg, stack_msgs
+
+    learner = rclpy.create_node('learner', context=ros_context)
+    requests = learner.create_publisher(AdviceRequest, 'learner/advice_request', messages.LATCHED_QOS)
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    graph = Graph(ros_context, [learner, console])
+    stack = np.zeros((2, 20, 24, 3), np.uint8)
+    stack[0, :, :] = (200, 10, 10)  # the older frame red, the newer blue with a green corner
+    stack[1, :, :] = (10, 10, 200)
+    stack[1, :5, :5] = (10, 220, 10)
+    asked = "const a = document.getElementById('asked'); return [a.naturalWidth, a.naturalHeight, a.dataset.frames]"
+    caption = "return document.getElementById('asked-caption').textContent"
+    pixels = """const a = document.getElementById('asked'); const c = document.createElement('canvas');
+        c.width = a.naturalWidth; c.height = a.naturalHeight; const g = c.getContext('2d');
+        g.drawImage(a, 0, 0);
+        return [[5, 10], [30, 10], [25, 2]].map(([x, y]) => Array.from(g.getImageData(x, y, 1, 1).data.slice(0, 3)));"""
+    try:
+        browser.get(console.url)
+        wait_for(
+            lambda: browser.execute_script("return document.getElementById('connection').textContent") == 'connected'
+        )
+        assert browser.execute_script("return document.getElementById('asked-view').hidden") is True
+        pending = AdviceRequest(
+            outcome=AdviceRequest.PENDING, episode=3, step=17, timeout_s=5.0, frames=stack_msgs(stack)
+        )
+        requests.publish(pending)
+        wait_for(lambda: browser.execute_script(asked)[:2] == [48, 20], what='the stack shown at its size')
+        assert browser.execute_script(pixels) == [[200, 10, 10], [10, 10, 200], [10, 220, 10]]
+        shown = re.fullmatch(
+            r'what the learner saw when it asked \(episode 3, step 17\): 2 frames of 24x20 rgb8, oldest left, '
+            r'as it reads them, drawn (\d+)x',
+            browser.execute_script(caption),
+        )
+        scale = int(shown.group(1))  # a whole number of screen pixels a pixel, as large as the page allows
+        width = browser.execute_script("return document.getElementById('asked').getBoundingClientRect().width")
+        assert 1 <= scale <= 12 and width == 48 * scale
+        # The same request resolved: its frames are not sent again.
+        requests.publish(AdviceRequest(outcome=AdviceRequest.GIVEN, episode=3, step=17, frames=stack_msgs(stack)))
+        wait_for(lambda: console.request and console.request['outcome'] == 'given', what='the answer')
+        # Another node's frames that cannot be one stack: refused, the page keeps what it showed.
+        bad = [image_msg(stack[0], ''), image_msg(stack[1, :10], '')]
+        requests.publish(AdviceRequest(outcome=AdviceRequest.PENDING, episode=3, step=40, frames=bad))
+        wait_for(lambda: console.request and console.request['step'] == 40, what='the bad request')
+        time.sleep(0.3)
+        assert browser.execute_script(asked) == [48, 20, '1'] and console.asked.step == 17
+    finally:
+        graph.close()

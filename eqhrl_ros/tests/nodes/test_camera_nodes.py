@@ -10,12 +10,18 @@ import torch
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
+from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
+from eqhrl_interfaces.srv import Advise
+from eqhrl_ros.core.data.advice import AdviceRequest
 from eqhrl_ros.core.envs.spec import CameraSpec, EnvCamera
+from eqhrl_ros.nodes import advise_msgs, messages
 from eqhrl_ros.nodes.camera_input import CameraInput
 from eqhrl_ros.nodes.expert_node import ExpertNode
+from eqhrl_ros.nodes.frame_msgs import stack_of
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
 from eqhrl_ros.nodes.messages import EnvStep
+from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
 
 from ros_helpers import params, small_learner_params
 
@@ -48,7 +54,12 @@ def frame_msg(height=24, width=24, encoding='mono8', value=7, step=None, data=No
 
 def test_the_learner_learns_from_the_gym_envs_camera_and_the_vector_beside_it(harness, ros_context, tmp_path):
     env = add_env(harness, ros_context)
-    harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
+    expert = harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
+    asked, heuristic = [], expert.backend
+    expert.backend = lambda request: (asked.append(request), heuristic(request))[1]
+    shown = []  # learner/advice_request, as a person's page reads it
+    page = harness.add(Node('page', context=ros_context))
+    page.create_subscription(AdviceRequestMsg, 'learner/advice_request', shown.append, messages.LATCHED_QOS)
     node = harness.add(camera_learner(ros_context, tmp_path))
     assert harness.spin_until(lambda: node.done, timeout=90)
     learner = node.learner
@@ -69,6 +80,14 @@ def test_the_learner_learns_from_the_gym_envs_camera_and_the_vector_beside_it(ha
     assert len({f.tobytes() for f in frames}) > 30 and all(f.any() for f in frames)
     saved = torch.load(tmp_path / 'checkpoint.pt', weights_only=True)
     assert saved['camera'] == {'height': 24, 'width': 24, 'channels': 1, 'stack': 2}
+    # Each request carries the stack it asks about, as the learner read it, to the expert and the page.
+    assert len(asked) == learner.advice_total.asked
+    assert all(r.pixels.shape == (2, 24, 24, 1) and r.pixels[-1].any() for r in asked)
+    assert harness.spin_until(lambda: len({(m.episode, m.step) for m in shown}) == len(asked), timeout=10)
+    for request in asked:
+        frames = [m.frames for m in shown if (m.episode, m.step) == (request.episode, request.step)]
+        assert frames and all(np.array_equal(stack_of(f), request.pixels) for f in frames)
+        assert [(f.encoding, f.height, f.width) for f in frames[0]] == [('mono8', 24, 24)] * 2
 
 
 def test_while_a_stranger_publishes_on_the_camera_topic_no_frame_is_taken(harness, ros_context, tmp_path):
@@ -218,3 +237,54 @@ def test_compressed_frames_are_decoded_once_their_declared_size_is_the_announced
         publisher.publish(CompressedImage(format='png', data=data))
     assert harness.spin_until(lambda: camera.refused_frames == 4)
     assert camera.received == 1 and camera.health_check().message == 'frames arrive on /cam/compressed'
+
+
+def advise_with_frames(frames) -> Advise.Request:
+    request = AdviceRequest(
+        np.zeros(3, np.float32), np.zeros(1, np.float32), np.array([-2.0], np.float32),
+        np.array([2.0], np.float32), 0.1, -1.0, 0, 4,
+        pixels=np.arange(2 * 24 * 24, dtype=np.uint32).astype(np.uint8).reshape(2, 24, 24, 1),
+    )  # fmt: skip
+    msg = advise_msgs.request_msg(request, timeout_s=5.0)
+    assert np.array_equal(advise_msgs.request_from_msg(msg).pixels, request.pixels)  # what the learner sends
+    if frames is not None:
+        msg.frames = frames
+    return msg
+
+
+EXPERTS = {
+    'controller': lambda context: ExpertNode(context=context, parameter_overrides=params(env_id='Pendulum-v1')),
+    'simulated person': lambda context: ExpertNode(
+        context=context,
+        parameter_overrides=params(env_id='Pendulum-v1', backend='simulated_human', reaction_median_s=0.01),
+    ),
+    'teleop, answer window': lambda context: TeleopExpertNode(
+        context=context, parameter_overrides=params(source='array', answer_window_s=0.3)
+    ),
+}
+
+
+@pytest.mark.parametrize('expert', EXPERTS)
+def test_an_expert_declines_a_request_whose_frames_cannot_be_one_stack_and_answers_the_next(
+    harness, ros_context, expert
+):
+    """Frames come from another node: a stack of two sizes, or bytes that do not fit a header,
+    is declined saying why (never an exception in the service), and the next request is answered."""
+    harness.add(EXPERTS[expert](ros_context))
+    client = harness.add(Node('asker', context=ros_context)).create_client(Advise, 'advise')
+    assert harness.spin_until(client.service_is_ready, timeout=10)
+
+    def call(frames):
+        future = client.call_async(advise_with_frames(frames))
+        assert harness.spin_until(future.done, timeout=10)
+        return future.result()
+
+    for bad, reason in (
+        ([frame_msg(), frame_msg(height=23)], 'frames refused: the frames of a stack differ in encoding or size'),
+        ([frame_msg(data=b'short')], 'frames refused: frame holds 5 bytes, its header says 24 x 24 = 576'),
+    ):
+        answer = call(bad)
+        assert not answer.advised and answer.reason.startswith(reason)
+    answer = call(None)
+    assert answer.advised or answer.timed_out or answer.reason  # answered as the backend answers, not refused
+    assert not answer.reason.startswith('frames refused')

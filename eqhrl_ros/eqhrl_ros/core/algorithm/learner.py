@@ -217,6 +217,7 @@ class EQSACLearner:
                 entropy=decision.entropy,
                 episode=self.episode,
                 step=self.episode_step,
+                pixels=None if self.observation.camera is None else self.observation.parts(obs)[1].copy(),
             )
         return Proposal(env_action, decision, request)
 

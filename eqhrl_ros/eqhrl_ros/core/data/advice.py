@@ -24,6 +24,9 @@ class AdviceRequest:
     entropy: float  # E(s), Eq. 9 (NaN in qasac mode)
     episode: int
     step: int
+    # A camera learner's frames the observation was paired with, uint8 [k, H, W, C] oldest first,
+    # as the learner reads them (None without a camera): what a person is shown when asked.
+    pixels: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,10 @@ ENCODINGS = {'rgb8': 3, 'bgr8': 3, 'mono8': 1}
 # Largest frame accepted, raw or decoded: 4096 x 4096 pixels (48 MiB of RGB). A header that
 # declares more is refused before anything is allocated or decoded.
 MAX_FRAME_PIXELS = 4096 * 4096
+# Most frames a learner stacks (CameraSpec.stack), and so most a request carries.
+MAX_FRAME_STACK = 16
+# Channels -> the raw encoding a frame is sent in (what frame_array reads back).
+SENT_ENCODINGS = {3: 'rgb8', 1: 'mono8'}
 
 
 class FrameError(ValueError):
@@ -46,6 +50,31 @@ def frame_array(encoding: str, height: int, width: int, step: int, data, max_pix
     return array[:, :, ::-1].copy() if encoding == 'bgr8' else array
 
 
+def frame_fields(frame: np.ndarray) -> tuple[str, int, int, int, bytes]:
+    """(encoding, height, width, step, data) of a uint8 (H, W, C) frame, RGB or mono: the raw
+    fields frame_array reads back."""
+    frame = np.ascontiguousarray(frame)
+    if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] not in SENT_ENCODINGS:
+        raise FrameError(f'a frame to send is uint8 (H, W, 1 or 3), got {frame.dtype} {frame.shape}')
+    height, width, channels = frame.shape
+    return SENT_ENCODINGS[channels], height, width, width * channels, frame.tobytes()
+
+
+def stack_array(frames, max_pixels: int = MAX_FRAME_PIXELS) -> np.ndarray:
+    """Raw frames, each (encoding, height, width, step, data), oldest first, as one stack uint8
+    [k, H, W, C]: at most MAX_FRAME_STACK frames of one size and encoding, ``max_pixels`` in
+    all, each checked by frame_array before anything is copied."""
+    frames = list(frames)
+    if not 1 <= len(frames) <= MAX_FRAME_STACK:
+        raise FrameError(f'a stack holds 1 to {MAX_FRAME_STACK} frames, got {len(frames)}')
+    kinds = {(encoding, height, width) for encoding, height, width, _, _ in frames}
+    if len(kinds) > 1:
+        raise FrameError(f'the frames of a stack differ in encoding or size: {sorted(kinds)}')
+    _, height, width = kinds.pop()
+    _check_size(height * len(frames), width, max_pixels)
+    return np.stack([frame_array(*fields, max_pixels=max_pixels) for fields in frames])
+
+
 def decode_compressed(data, max_pixels: int = MAX_FRAME_PIXELS) -> np.ndarray:
     """A compressed frame (JPEG or PNG, as sensor_msgs/CompressedImage carries it) as uint8
     (H, W, C), RGB or mono. Its declared size is checked before it is decoded, so a frame that
@@ -68,6 +97,18 @@ def decode_compressed(data, max_pixels: int = MAX_FRAME_PIXELS) -> np.ndarray:
         raise FrameError(f'compressed frame does not decode: {error}') from None
     array = np.asarray(pixels, dtype=np.uint8)
     return array[:, :, None] if array.ndim == 2 else array
+
+
+def png_bytes(frames: np.ndarray) -> bytes:
+    """A stack uint8 [k, H, W, C] as one PNG, its frames side by side, oldest left: lossless, so a
+    person sees each pixel the learner reads."""
+    from PIL import Image
+
+    k, height, width, channels = frames.shape
+    row = frames.transpose(1, 0, 2, 3).reshape(height, k * width, channels)
+    out = io.BytesIO()
+    Image.fromarray(row[:, :, 0] if channels == 1 else row).save(out, format='PNG')
+    return out.getvalue()
 
 
 def jpeg_bytes(frame: np.ndarray, quality: int) -> bytes:

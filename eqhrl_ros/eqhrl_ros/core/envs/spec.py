@@ -13,6 +13,8 @@ from typing import Optional
 
 import numpy as np
 
+from ..data.camera_frames import MAX_FRAME_PIXELS, MAX_FRAME_STACK
+
 # How success is judged (EnvInfo.success_rule; the message's SUCCESS_* constants are checked
 # against this tuple by the tests).
 SUCCESS_RULES = ('none', 'reported', 'return_at_least', 'pendulum_upright')
@@ -34,10 +36,9 @@ def builtin_success(name: str) -> tuple[str, float]:
     return 'none', 0.0
 
 
-# A camera the learner can read: at most this many pixels a frame and frames a stack (a 4096x4096
-# frame is 16.8 M pixels; camera_frames.MAX_FRAME_PIXELS bounds a frame decoded from a topic).
-MAX_CAMERA_PIXELS = 4096 * 4096
-MAX_FRAME_STACK = 16
+# A camera the learner can read: at most this many pixels a frame (a 4096x4096 frame is 16.8 M
+# pixels, what camera_frames accepts from a topic) and frames a stack.
+MAX_CAMERA_PIXELS = MAX_FRAME_PIXELS
 CAMERA_CHANNELS = (1, 3)  # mono or colour: what camera_frames' encodings give
 
 

@@ -70,8 +70,12 @@ def test_a_learner_with_a_camera_acts_asks_and_learns_with_each_frame_held_once(
     assert one.updates == 30 - 12 + 1 and one.updater.non_finite_updates == 0
     asked = [p for p in proposals if p.decision.fire]
     assert asked and len(one.advice_replay) == len(asked) and one.advice_replay.isolated
-    # A request carries the state vector (the frame it asks about: issue 49, item 4, not yet).
+    # A request carries the state vector and the stack it asks about, as the learner read it.
     assert all(p.request.observation.shape == (2,) for p in asked)
+    assert all(p.request.pixels.shape == CAMERA.stack_shape and p.request.pixels.dtype == np.uint8 for p in asked)
+    corners = [p.request.pixels[:, 0, 0, :2].tolist() for p in asked]
+    steps = [(p.request.episode, p.request.step) for p in asked]
+    assert corners == [[[e, max(t - 1, 0)], [e, t]] for e, t in steps]
     # The stacks D gives back are the ones the learner acted on (the corner pixels say which).
     batch = one.replay.sample(64, torch.Generator().manual_seed(0))
     for i in range(64):

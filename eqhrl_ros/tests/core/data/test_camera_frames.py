@@ -2,6 +2,7 @@
 to pixels, compressed frames decoded without trusting their header."""
 
 import io
+import re
 import struct
 import zlib
 
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from eqhrl_ros.core.data import camera_frames
 from eqhrl_ros.core.data.camera_frames import (
     MAX_FRAME_PIXELS,
     FrameError,
@@ -91,3 +93,38 @@ def test_a_compressed_frame_that_would_decode_to_gigabytes_is_refused_from_its_h
 def test_a_compressed_frame_that_does_not_decode_is_refused_saying_why(data, message):
     with pytest.raises(FrameError, match=message):
         decode_compressed(data)
+
+
+def test_a_stack_goes_out_as_raw_frames_and_comes_back_pixel_for_pixel_and_as_one_lossless_png():
+    rng = np.random.default_rng(1)
+    for channels in (1, 3):
+        stack = rng.integers(0, 256, (3, 5, 7, channels), dtype=np.uint8)
+        fields = [camera_frames.frame_fields(frame) for frame in stack]
+        assert [f[0] for f in fields] == ['mono8' if channels == 1 else 'rgb8'] * 3
+        assert np.array_equal(camera_frames.stack_array(fields), stack)
+        shown = np.asarray(Image.open(io.BytesIO(camera_frames.png_bytes(stack))))
+        side_by_side = np.concatenate(list(stack), axis=1)  # oldest left
+        assert np.array_equal(shown.reshape(side_by_side.shape), side_by_side)
+    with pytest.raises(FrameError, match=r'uint8 \(H, W, 1 or 3\)'):
+        camera_frames.frame_fields(np.zeros((5, 7, 2), np.uint8))
+
+
+def raw(height, width, encoding='mono8', count=1):
+    channels = camera_frames.ENCODINGS[encoding]
+    return [(encoding, height, width, width * channels, bytes(height * width * channels))] * count
+
+
+@pytest.mark.parametrize(
+    'frames, message',
+    [
+        ([], 'a stack holds 1 to 16 frames, got 0'),
+        (raw(4, 4, count=17), 'a stack holds 1 to 16 frames, got 17'),
+        (raw(4, 4) + raw(4, 5), 'the frames of a stack differ in encoding or size'),
+        (raw(4, 4) + raw(4, 4, 'rgb8'), 'the frames of a stack differ in encoding or size'),
+        (raw(4096, 4096, count=2), 'over the limit of 16777216 pixels'),  # before any is read
+        ([('mono8', 4, 4, 4, b'short')], 'frame holds 5 bytes, its header says 4 x 4 = 16'),
+    ],
+)
+def test_frames_that_cannot_be_one_stack_are_refused_saying_why(frames, message):
+    with pytest.raises(FrameError, match=re.escape(message)):
+        camera_frames.stack_array(frames)
