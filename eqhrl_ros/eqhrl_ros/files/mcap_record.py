@@ -331,14 +331,36 @@ class Prior:
     terminated: np.ndarray
     files: list
     cut_short: list  # files that ended before their index (read up to their last whole chunk)
+    # A camera learner's: each transition's observation and next observation stacks, uint8
+    # (n, k, H, W, C); None without a camera.
+    pixels: Optional[np.ndarray] = None
+    next_pixels: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         return len(self.rewards)
 
 
-def load_prior(sources, observation_size: int, action_low, action_high) -> Prior:
+def _checked_frames(path, batch, camera) -> None:
+    """A batch's frames fit the learner's camera (CameraSpec; None: no camera), or RecordError."""
+    frames = batch.frames
+    if camera is None and frames is not None:
+        raise RecordError(f'{path}: recorded with a camera; this learner has none')
+    if camera is None or not len(batch):
+        return
+    if frames is None:
+        raise RecordError(f'{path}: recorded without a camera; this learner reads one')
+    height, width, channels = frames.frames.shape[1:]
+    if (frames.stack, height, width, channels) != (camera.stack, camera.height, camera.width, camera.channels):
+        raise RecordError(
+            f'{path}: recorded with {frames.stack} frames of {width}x{height}x{channels}; this learner reads '
+            f'{camera.stack} of {camera.width}x{camera.height}x{camera.channels}'
+        )
+
+
+def load_prior(sources, observation_size: int, action_low, action_high, camera=None) -> Prior:
     """Every advised transition in the records of ``sources`` (run folders, searched below, or
-    .mcap files). A record made on other spaces is refused with RecordError (one line)."""
+    .mcap files), with its frames for a learner with a ``camera`` (core.envs.spec.CameraSpec). A
+    record made on other spaces or another camera is refused with RecordError (one line)."""
     low, high = (np.asarray(v, dtype=np.float32).ravel() for v in (action_low, action_high))
     parts, files, cut_short = [], [], []
     for source in sources:
@@ -364,7 +386,11 @@ def load_prior(sources, observation_size: int, action_low, action_high) -> Prior
                         f'{path}: recorded with actions in [{batch_low.tolist()}, {batch_high.tolist()}]; '
                         f'this env has [{low.tolist()}, {high.tolist()}]'
                     )
+                _checked_frames(path, batch, camera)
                 keep = batch.advised
+                if not keep.any():
+                    continue
+                frames = batch.frames if camera is not None else None
                 parts.append(
                     (
                         batch.observations[keep],
@@ -372,11 +398,18 @@ def load_prior(sources, observation_size: int, action_low, action_high) -> Prior
                         batch.rewards[keep],
                         batch.next_observations[keep],
                         batch.terminated[keep],
+                        *((frames.observation_stacks()[keep], frames.next_stacks()[keep]) if frames else ()),
                     )
                 )
     if not parts:
         columns = [np.zeros((0, observation_size), np.float32), np.zeros((0, low.size), np.float32)]
         columns += [np.zeros(0, np.float32), columns[0], np.zeros(0, bool)]
+        if camera is not None:
+            columns += [np.zeros((0, *camera.stack_shape), np.uint8)] * 2
     else:
         columns = [np.concatenate(column) for column in zip(*parts)]
-    return Prior(*columns, files=files, cut_short=cut_short)
+    return Prior(*columns[:5], files=files, cut_short=cut_short, pixels=_at(columns, 5), next_pixels=_at(columns, 6))
+
+
+def _at(columns: list, index: int):
+    return columns[index] if len(columns) > index else None

@@ -34,11 +34,6 @@ class LearnerNode(RunFiles, ActingNode):
         self._open_run_folder()
 
     def _prepare(self, learner: EQSACLearner) -> None:
-        if learner.observation.camera is not None and (self.params['record'] or self.params['prior']):
-            raise ValueError(
-                f'camera {self.params["camera"]!r}: the record and prior do not carry frames yet; '
-                'run with record false and no prior'
-            )
         if self.params['resume']:
             # A bad checkpoint stops start-up with CheckpointError: silently starting
             # from scratch would overwrite the run the person asked to continue.
@@ -62,11 +57,22 @@ class LearnerNode(RunFiles, ActingNode):
         """Earlier runs' advice into D and D_advising (a record that does not fit refuses the start)."""
         from ..files.mcap_record import RecordError, load_prior
 
+        observation = learner.observation
         try:
-            prior = load_prior(self.params['prior'], learner.obs_dim, learner.scaler.low, learner.scaler.high)
+            prior = load_prior(
+                self.params['prior'], observation.state_dim, learner.scaler.low, learner.scaler.high, observation.camera
+            )
         except RecordError as error:
             raise ValueError(f'prior: {error}') from error
-        learner.add_prior(prior.observations, prior.actions, prior.rewards, prior.next_observations, prior.terminated)
+        learner.add_prior(
+            prior.observations,
+            prior.actions,
+            prior.rewards,
+            prior.next_observations,
+            prior.terminated,
+            prior.pixels,
+            prior.next_pixels,
+        )
         cut = f' ({len(prior.cut_short)} cut short, read up to their last chunk)' if prior.cut_short else ''
         self.get_logger().info(
             f'prior: {len(prior)} advised transitions from {len(prior.files)} record file(s){cut} '
@@ -114,8 +120,12 @@ class LearnerNode(RunFiles, ActingNode):
         summary = self.learner.step(obs, action, reward, next_obs, terminated, truncated, advised, success)
         if self.recording is not None:  # stored: learner.step refuses a bad one with ValueError
             normalized = self.learner.normalize(action)
+            observation = self.learner.observation
+            state, next_state = observation.state(obs), observation.state(next_obs)
+            # A camera's: the stack acted on and the frame that followed (the record holds each frame once).
+            frames = () if observation.camera is None else (obs['pixels'], next_obs['pixels'][-1])
             self._recorded.append(
-                (obs, normalized, reward, next_obs, terminated, advised, ACTION_SOURCES.index(source))
+                (state, normalized, reward, next_state, terminated, advised, ACTION_SOURCES.index(source), *frames)
             )
         return summary
 
@@ -123,6 +133,7 @@ class LearnerNode(RunFiles, ActingNode):
         """The transitions stored since the last write, as the actors send them to a trainer."""
         if self.recording is None or not self._recorded:
             return
+        from ..core.data.transitions import BatchFrames
         from ..core.data.transitions import TransitionBatch as Batch
         from .trainer_msgs import batch_msg
 
@@ -138,6 +149,7 @@ class LearnerNode(RunFiles, ActingNode):
             advised=np.asarray(columns[5], dtype=bool),
             episodes=[summary] if summary is not None else [],
             sources=np.asarray(columns[6], dtype=np.uint8),
+            frames=BatchFrames.of(columns[7], columns[8]) if len(columns) > 7 else None,
         )
         self._recorded = []
         spec = self.spec

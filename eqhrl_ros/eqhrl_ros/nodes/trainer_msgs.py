@@ -16,6 +16,7 @@ from typing import Optional
 
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CompressedImage
 
 from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionAck, TransitionBatch
 
@@ -86,6 +87,10 @@ def batch_parts(msg: TransitionBatch) -> list:
         bytes(bytearray(bool(v) for v in msg.advised)),
         bytes(bytearray(msg.sources)),
         *(_stats_bytes(e) for e in msg.episodes),
+        struct.pack('<I', msg.frame_stack),
+        *(frame.format.encode() + b'\0' + bytes(frame.data) for frame in msg.frames),
+        np.asarray(msg.observation_frames, dtype='<u4').tobytes(),
+        np.asarray(msg.next_frames, dtype='<u4').tobytes(),
     ]
 
 
@@ -145,13 +150,17 @@ def batch_msg(batch: Batch, action_low, action_high) -> TransitionBatch:
         fields[name] = _floats(fields[name])
     fields['episodes'] = [EpisodeStats(**e) for e in fields['episodes']]
     fields['sources'] = array.array('B', fields['sources'])
+    fields['frames'] = [CompressedImage(format='png', data=data) for data in fields['frames']]
+    for name in ('observation_frames', 'next_frames'):
+        fields[name] = array.array('I', fields[name])
     return TransitionBatch(**fields)
 
 
 def batch_bytes(msg: TransitionBatch) -> int:
     """About the memory a received batch holds (its arrays and episode rows)."""
     floats = len(msg.observations) + len(msg.next_observations) + len(msg.actions) + len(msg.rewards)
-    return 4 * floats + len(msg.terminated) + len(msg.advised) + 128 * len(msg.episodes) + len(msg.actor) + 256
+    frames = sum(len(f.data) for f in msg.frames) + 4 * (len(msg.observation_frames) + len(msg.next_frames))
+    return 4 * floats + len(msg.terminated) + len(msg.advised) + 128 * len(msg.episodes) + len(msg.actor) + 256 + frames
 
 
 # A received message into the core's batch: the message's fields are read by name.

@@ -13,7 +13,9 @@ from sensor_msgs.msg import Image
 from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
 from eqhrl_interfaces.srv import Advise
 from eqhrl_ros.core.data.advice import AdviceRequest
+from eqhrl_ros.core.data.transitions import batch_from_fields
 from eqhrl_ros.core.envs.spec import CameraSpec, EnvCamera
+from eqhrl_ros.files.mcap_record import read_record
 from eqhrl_ros.nodes import advise_msgs, messages
 from eqhrl_ros.nodes.camera_input import CameraInput
 from eqhrl_ros.nodes.expert_node import ExpertNode
@@ -119,11 +121,52 @@ def test_a_learner_told_a_camera_the_env_does_not_announce_stops_saying_which_it
     assert "the env announces no camera 'front' (its cameras: none)" in node.exit_error
 
 
-def test_the_record_and_prior_refuse_a_camera_until_they_carry_frames(harness, ros_context, tmp_path):
+def test_the_record_holds_each_frame_once_and_a_later_camera_learner_takes_its_advice_with_the_frames(
+    harness, ros_context, tmp_path
+):
+    """record: true with a camera: each episode's TransitionBatch carries its frames once (PNG,
+    lossless) with each transition's stack by index, read back by mcap and by rosbags; a later
+    camera learner's prior takes the advised transitions with the very stacks they were asked on,
+    and a learner without a camera (or with another) refuses that record in one line."""
     add_env(harness, ros_context)
-    node = harness.add(camera_learner(ros_context, tmp_path, record=True))
-    assert harness.spin_until(lambda: getattr(node, 'exit_error', None), timeout=30)
-    assert 'the record and prior do not carry frames yet' in node.exit_error
+    expert = harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
+    asked, heuristic = [], expert.backend
+    expert.backend = lambda request: (asked.append(request), heuristic(request))[1]
+    first = harness.add(camera_learner(ros_context, tmp_path / 'first', record=True, max_episodes=2))
+    assert harness.spin_until(lambda: first.done, timeout=90)
+    first.close()
+    given = first.learner.advice_total.given
+    assert given > 0 and given == len(asked)  # the heuristic answers every request
+
+    batches = [m.message for m in read_record(tmp_path / 'first' / 'record.mcap').on('/learner/transitions')]
+    frames = [batch_from_fields(b)[0].frames for b in batches]
+    assert [len(b.rewards) for b in batches] == [20, 20]
+    assert all(b.frame_stack == 2 and {f.format for f in b.frames} == {'png'} for b in batches)
+    # Each frame once: at most a step's and the episode's first (two steps may show the same picture).
+    assert all(15 < len(f.frames) <= 21 for f in frames)
+    assert len({frame.tobytes() for f in frames for frame in f.frames}) > 30  # the pendulum moves
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([tmp_path / 'first' / 'record.mcap']) as reader:
+        connections = [c for c in reader.connections if c.topic == '/learner/transitions']
+        read = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=connections)]
+    assert [len(m.frames) for m in read] == [len(f.frames) for f in frames] and read[0].frames[0].format == 'png'
+
+    # Advised transitions, in order, carry the stacks the requests were about.
+    advised = np.concatenate([f.observation_stacks()[np.asarray(b.advised, bool)] for f, b in zip(frames, batches)])
+    assert np.array_equal(advised, np.stack([r.pixels for r in asked]))
+
+    prior = str(tmp_path / 'first')
+    second = harness.add(camera_learner(ros_context, tmp_path / 'second', prior=[prior], max_episodes=1))
+    assert harness.spin_until(lambda: second.learner is not None, timeout=30)
+    memory = second.learner.advice_replay
+    assert len(memory) == len(second.learner.replay) == given and second.learner.total_steps == 0
+    held = memory.frames[: memory.frames_written].reshape(given, 3, 1, 24, 24).transpose(0, 1, 3, 4, 2)
+    assert np.array_equal(held[:, :2], advised)  # each advised step: its stack, then its next frame
+
+    third = harness.add(camera_learner(ros_context, tmp_path / 'third', prior=[prior], camera_stack=3))
+    assert harness.spin_until(lambda: getattr(third, 'exit_error', None), timeout=30)
+    assert 'recorded with 2 frames of 24x24x1; this learner reads 3 of 24x24x1' in third.exit_error
 
 
 class Retries:
@@ -288,3 +331,27 @@ def test_an_expert_declines_a_request_whose_frames_cannot_be_one_stack_and_answe
     answer = call(None)
     assert answer.advised or answer.timed_out or answer.reason  # answered as the backend answers, not refused
     assert not answer.reason.startswith('frames refused')
+
+
+def test_a_signed_batch_covers_its_frames():
+    """With a key_file, a batch's signature covers its frames and their indexes: a frame
+    altered on the way is refused like any other altered field."""
+    from eqhrl_ros.core.data.signing import Signer
+    from eqhrl_ros.core.data.transitions import BatchFrames, TransitionBatch
+    from eqhrl_ros.nodes.trainer_msgs import batch_msg, sign_batch, signature_refusal
+
+    stacks = np.random.default_rng(0).integers(0, 256, (2, 2, 24, 24, 1), dtype=np.uint8)
+    frames = BatchFrames.of(stacks, stacks[:, -1])
+    zeros = np.zeros((2, 3), np.float32)
+    batch = TransitionBatch('a', 0, zeros, np.zeros((2, 1), np.float32), np.zeros(2, np.float32), zeros,
+                            np.zeros(2, bool), np.ones(2, bool), frames=frames)  # fmt: skip
+    signer = Signer(bytes(range(32)))
+    for alter in (
+        lambda msg: msg.frames[0].data.__setitem__(40, msg.frames[0].data[40] ^ 1),
+        lambda msg: msg.next_frames.__setitem__(0, 1 - msg.next_frames[0]),
+        lambda msg: setattr(msg, 'frame_stack', 1),
+    ):
+        msg = sign_batch(batch_msg(batch, [-2.0], [2.0]), signer)
+        assert signature_refusal(msg, signer) == ''
+        alter(msg)
+        assert 'altered on the way' in signature_refusal(msg, signer)

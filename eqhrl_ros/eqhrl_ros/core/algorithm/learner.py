@@ -292,10 +292,14 @@ class EQSACLearner:
         """(s_t, a_t, r_t, s_{t+1}) into D, and into D_advising when advised (memories.py)."""
         self.memories.store(obs, normalized_action, reward, next_obs, terminated, advised)
 
-    def add_prior(self, observations, normalized_actions, rewards, next_observations, terminated) -> int:
-        """Earlier runs' advised transitions as prior data, before the first step (memories.py).
-        They count towards learning_starts."""
-        return self.memories.add_prior(observations, normalized_actions, rewards, next_observations, terminated)
+    def add_prior(
+        self, observations, normalized_actions, rewards, next_observations, terminated, pixels=None, next_pixels=None
+    ) -> int:
+        """Earlier runs' advised transitions as prior data, before the first step (memories.py);
+        with a camera, ``pixels`` and ``next_pixels`` their stacks. They count towards learning_starts."""
+        return self.memories.add_prior(
+            observations, normalized_actions, rewards, next_observations, terminated, pixels, next_pixels
+        )
 
     def count_step(
         self,

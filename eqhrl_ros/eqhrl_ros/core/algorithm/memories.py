@@ -129,18 +129,40 @@ class ReplayMemories:
         """The episode ended (or was abandoned): the next transition stored opens another."""
         self._episode_starts = True
 
-    def add_prior(self, observations, normalized_actions, rewards, next_observations, terminated) -> int:
+    def add_prior(
+        self, observations, normalized_actions, rewards, next_observations, terminated, pixels=None, next_pixels=None
+    ) -> int:
         """Earlier runs' advised and person-initiated transitions, as prior data (RLPD, HIL-SERL):
-        into D, and into D_advising where this mode has it. Actions in [-1, 1]. Each row is
-        checked as store() checks it (ValueError names the first bad one; the rows before it stay)."""
+        into D, and into D_advising where this mode has it. Actions in [-1, 1]. With a camera,
+        ``pixels`` and ``next_pixels`` hold each one's stacks (n, k, H, W, C): they come one by one,
+        not as episodes, so D too holds each with its whole stack. Each row is checked as store()
+        checks it (ValueError names the first bad one; the rows before it stay)."""
         if self.observation.camera is not None:
-            raise ValueError('prior data with a camera is not read yet (issue 49): only vector observations')
+            return self._add_prior_frames(observations, normalized_actions, rewards, next_observations, terminated,
+                                          pixels, next_pixels)  # fmt: skip
         rows = 0
         for obs, action, reward, next_obs, done in zip(
             observations, normalized_actions, rewards, next_observations, terminated
         ):
             self.store(obs, np.clip(action, -1.0, 1.0), float(reward), next_obs, bool(done), advised=True)
             rows += 1
+        return rows
+
+    def _add_prior_frames(self, observations, actions, rewards, next_observations, terminated, pixels, next_pixels):
+        if pixels is None or next_pixels is None or len(pixels) != len(rewards) or len(next_pixels) != len(rewards):
+            raise ValueError("prior data for a learner with a camera needs each transition's frame stacks")
+        memories = [self.replay, *([self.advice_replay] if self.keeps_advice else [])]
+        rows = 0
+        for values in zip(observations, actions, rewards, next_observations, terminated, pixels, next_pixels):
+            obs, action, reward, next_obs, done, stack, next_stack = values
+            state = self.observation.parts({'state': obs, 'pixels': stack})[0]
+            next_state = self.observation.parts({'state': next_obs, 'pixels': next_stack})[0]
+            action = np.clip(action, -1.0, 1.0)
+            for memory in memories:
+                assert isinstance(memory, FrameReplay)
+                memory.add_stacked(state, action, float(reward), stack, next_stack[-1], next_state, bool(done))
+            rows += 1
+        self._episode_starts = True  # the run's own first transition opens an episode after them
         return rows
 
     def ready(self) -> bool:

@@ -204,5 +204,5 @@ def test_what_a_camera_learner_cannot_do_yet_is_refused_with_a_reason():
     assert compiled.compiled_update is None and 'stays eager' in compiled.updater.compile_refused
     with pytest.raises(ValueError, match='do not stack the encoder'):
         StackedSeeds([learner(seed=1), learner(seed=2)])
-    with pytest.raises(ValueError, match='prior data with a camera'):
+    with pytest.raises(ValueError, match="prior data for a learner with a camera needs each transition's frame stacks"):
         learner().add_prior([GOOD], [[0.0]], [0.0], [GOOD], [False])
