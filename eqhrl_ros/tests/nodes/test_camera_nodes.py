@@ -15,7 +15,7 @@ from eqhrl_interfaces.srv import Advise
 from eqhrl_ros.core.data.advice import AdviceRequest
 from eqhrl_ros.core.data.transitions import batch_from_fields
 from eqhrl_ros.core.envs.spec import CameraSpec, EnvCamera
-from eqhrl_ros.files.mcap_record import read_record
+from eqhrl_ros.files.mcap_record import RecordError, load_prior, read_record
 from eqhrl_ros.nodes import advise_msgs, messages
 from eqhrl_ros.nodes.camera_input import CameraInput
 from eqhrl_ros.nodes.expert_node import ExpertNode
@@ -164,6 +164,8 @@ def test_the_record_holds_each_frame_once_and_a_later_camera_learner_takes_its_a
     held = memory.frames[: memory.frames_written].reshape(given, 3, 1, 24, 24).transpose(0, 1, 3, 4, 2)
     assert np.array_equal(held[:, :2], advised)  # each advised step: its stack, then its next frame
 
+    with pytest.raises(RecordError, match='recorded with a camera; this learner has none'):
+        load_prior([prior], 3, [-2.0], [2.0])
     third = harness.add(camera_learner(ros_context, tmp_path / 'third', prior=[prior], camera_stack=3))
     assert harness.spin_until(lambda: getattr(third, 'exit_error', None), timeout=30)
     assert 'recorded with 2 frames of 24x24x1; this learner reads 3 of 24x24x1' in third.exit_error
