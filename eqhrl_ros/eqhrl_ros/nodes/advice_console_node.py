@@ -23,9 +23,8 @@ import time
 from socket import gethostname
 from typing import Optional
 
-from rcl_interfaces.msg import ParameterType
 from rclpy.node import Node
-from rclpy.parameter import Parameter
+from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Image
 from std_msgs.msg import Bool, Float32MultiArray, String
@@ -34,14 +33,13 @@ from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 
 from ..core.algorithm.advice_window import advice_window
 from ..core.algorithm.config import advice_protocol, check_value
-from ..core.data.camera_frames import FrameError
 from ..core.data.signing import CommandSeal, signer_from
 from ..core.envs.spec import EnvSpec
 from ..parameters import CONSOLE_PARAMS
 from . import messages
+from .console_camera import LearnerCamera
 from .console_server import AskedFrames, ConsoleServer, host_allowed, host_name, is_loopback  # noqa: F401
 from .env_info import EnvInfoWatcher, configured_spec, shown
-from .frame_msgs import stack_of
 from .params import declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
 from .teleop_expert_node import ANSWER_MARGIN_S
@@ -53,6 +51,7 @@ LEARNER_CONTROLS = ('advice_enabled', 'advising_budget', 'advising_budget_s')
 LEARNER_SHOWN = (*LEARNER_CONTROLS, 'max_episodes', 'mode')
 # Read apart: a learner without them (an older one, a stand-in) still gets the rest of the page.
 LEARNER_PROTOCOL = ('advice_protocol', 'takeover_threshold')
+LEARNER_CAMERA = ('camera', 'camera_transport', 'camera_publisher')  # the camera the page shows live
 DRIVERS = ('learner', 'person_asked', 'person_unasked')  # learner/driver (nodes/person_wheel.py)
 RECENT_KEPT = 8  # requests ended, shown on the page (one ended 30 ms before the next is still seen)
 # teleop_expert's: how long the person has per request and how a command becomes an action.
@@ -108,6 +107,8 @@ class AdviceConsole(Node):
         self.frame_number = 0
         self.asked: Optional[AskedFrames] = None  # a camera learner's frames of the latest request with frames
         self.asked_number = 0
+        self.learner_camera = LearnerCamera(self, self._on_camera_frame)  # follows the learner's camera parameters
+        self._camera_said = 0.0  # time.monotonic() the page was last told of refused camera frames
         self.input = PageInput()
         self.pages = 0  # open websockets
         self.published = 0
@@ -158,10 +159,12 @@ class AdviceConsole(Node):
         with self.lock:
             self.spec = spec
             self.input.command = [0.0] * spec.action_size
+            self._follow_camera()
             self._bump()
 
     def _on_request(self, msg: AdviceRequest) -> None:
-        asked = self._asked_frames(msg)  # decoded and encoded before the lock: the page waits for nothing
+        # Decoded and encoded before the lock: the page waits for nothing.
+        asked = AskedFrames.of_request(msg, self.asked, self.get_logger())
         with self.lock:
             if asked is not None and asked != self.asked:
                 self.asked, self.asked_number = asked, self.asked_number + 1
@@ -189,18 +192,6 @@ class AdviceConsole(Node):
                 # the page's budget in seconds runs down request by request, not episode by episode.
                 self.person_s_open[(msg.episode, msg.step)] = float(msg.response_time_s)
             self._bump()
-
-    def _asked_frames(self, msg: AdviceRequest) -> Optional['AskedFrames']:
-        """The request's frames as the page shows them, or None (none, or the same request's again:
-        a request is published again as it resolves). Frames that cannot be one stack are said."""
-        asked = self.asked
-        if not msg.frames or (asked is not None and (asked.episode, asked.step) == (msg.episode, msg.step)):
-            return None
-        try:
-            return AskedFrames.of(msg.episode, msg.step, stack_of(msg.frames))
-        except FrameError as error:
-            self.get_logger().warning(f"a request's frames refused: {error}", throttle_duration_sec=5.0)
-            return None
 
     def _on_stats(self, msg: EpisodeStats) -> None:
         with self.lock:
@@ -283,23 +274,12 @@ class AdviceConsole(Node):
             self.teleop_client.get_parameters(list(TELEOP_SETTINGS)).add_done_callback(self._on_teleop_settings)
         if not self.learner_client.services_are_ready():
             return
-        for names in (LEARNER_SHOWN, LEARNER_PROTOCOL):
+        for names in (LEARNER_SHOWN, LEARNER_PROTOCOL, LEARNER_CAMERA):
             future = self.learner_client.get_parameters(list(names))
             future.add_done_callback(lambda f, names=names: self._on_learner_params(f, names))
 
     def _on_teleop_settings(self, future) -> None:
-        try:
-            values = future.result().values
-        except Exception:  # teleop_expert went away meanwhile
-            return
-        read = {}
-        for name, value in zip(TELEOP_SETTINGS, values):
-            if value.type == ParameterType.PARAMETER_DOUBLE:
-                read[name] = value.double_value
-            elif value.type == ParameterType.PARAMETER_INTEGER_ARRAY:
-                read[name] = [int(v) for v in value.integer_array_value]
-            elif value.type == ParameterType.PARAMETER_DOUBLE_ARRAY:
-                read[name] = [float(v) for v in value.double_array_value]
+        read = _parameters_read(future, TELEOP_SETTINGS)  # teleop_expert may have gone meanwhile
         if set(read) != set(TELEOP_SETTINGS):
             return
         with self.lock:
@@ -308,25 +288,34 @@ class AdviceConsole(Node):
                 self._bump()
 
     def _on_learner_params(self, future, names: tuple) -> None:
-        try:
-            values = future.result().values
-        except Exception:  # the learner went away meanwhile (or lacks these): shown as unknown
+        read = _parameters_read(future, names)  # the learner may have gone (or lack these): unknown
+        if not read:
             return
-        read = {}
-        for name, value in zip(names, values):
-            if value.type == ParameterType.PARAMETER_BOOL:
-                read[name] = value.bool_value
-            elif value.type == ParameterType.PARAMETER_INTEGER:
-                read[name] = value.integer_value
-            elif value.type == ParameterType.PARAMETER_DOUBLE:
-                read[name] = value.double_value
-            elif value.type == ParameterType.PARAMETER_STRING:
-                read[name] = value.string_value
         with self.lock:
             known = {name: value for name, value in self.learner_params.items() if name not in names}
             if {**known, **read} != self.learner_params:
                 self.learner_params = {**known, **read}
+                self._follow_camera()
                 self._bump()
+
+    def _follow_camera(self) -> None:
+        """(with the lock held) Show the camera the learner reads, once its parameters and env_info
+        name it (none for a learner without one, or one the env does not announce)."""
+        learner, spec = self.learner_params, self.spec
+        name = learner.get('camera') or ''
+        cameras = {c.name: c for c in spec.cameras} if spec is not None else {}
+        self.learner_camera.follow(
+            cameras.get(name), learner.get('camera_transport', 'raw'), learner.get('camera_publisher', '')
+        )
+
+    def _on_camera_frame(self, refused: bool) -> None:
+        """A frame to send; a refusal, said on the page within a second (not once a frame: a flood)."""
+        with self.lock:
+            now = time.monotonic()
+            if refused and now - self._camera_said >= 1.0:
+                self._camera_said = now
+                self._bump()
+            self._changed.notify_all()
 
     # ------------------------------------------------------------------ the page's input
 
@@ -401,6 +390,7 @@ class AdviceConsole(Node):
             'request': request,
             # What the learner saw at the latest request with frames (the PNG goes as its own message).
             'asked_frames': self.asked.shown() if self.asked else None,
+            'camera': self.learner_camera.shown(),  # the learner's camera, live (its frames go apart)
             'episodes': self.episodes[-500:],
             'learner': self.learner_params,
             'advice_window': self.advice_window(),
@@ -477,6 +467,19 @@ class AdviceConsole(Node):
     def destroy_node(self) -> None:
         self.server.stop()
         super().destroy_node()
+
+
+def _parameters_read(future, names) -> dict:
+    """A get_parameters answer as {name: value} (arrays as lists), those set alone; {} when the
+    node went away meanwhile."""
+    try:
+        values = future.result().values
+    except Exception:
+        return {}
+    read = {name: parameter_value_to_python(value) for name, value in zip(names, values)}
+    return {
+        name: list(v) if not isinstance(v, (bool, int, float, str)) else v for name, v in read.items() if v is not None
+    }
 
 
 def _finite(value: float) -> Optional[float]:

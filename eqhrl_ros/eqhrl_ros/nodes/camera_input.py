@@ -41,9 +41,9 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CompressedImage, Image
 
-from ..core.data.camera_frames import FrameError, decode_compressed
+from ..core.data.camera_frames import FrameError
 from ..core.envs.spec import EnvCamera
-from .frame_msgs import frame_of
+from .frame_msgs import announced_frame
 from .graph_trust import OnePublisher
 from .health import OK, WARN, Check
 from .messages import EnvStep
@@ -85,10 +85,7 @@ class CameraInput:
         self.untrusted_frames = 0  # for who sent them
         self.stale_frames = 0
         self.frameless_observations = 0
-        if compressed:
-            node.create_subscription(CompressedImage, self.topic, self._on_compressed, FRAME_QOS)
-        else:
-            node.create_subscription(Image, self.topic, self._on_frame, FRAME_QOS)
+        node.create_subscription(CompressedImage if compressed else Image, self.topic, self._on_frame, FRAME_QOS)
         node.create_timer(max(0.01, self.wait_s / 4), self._check_wait)
 
     def _trusted(self) -> bool:
@@ -104,34 +101,12 @@ class CameraInput:
             f'frame on {self.topic} refused: {error} ({self.refused_frames} so far)', throttle_duration_sec=5.0
         )
 
-    def _on_frame(self, msg: Image) -> None:
-        camera = self.camera
+    def _on_frame(self, msg) -> None:
+        """A raw or compressed frame, checked against the announcement (frame_msgs.announced_frame)."""
         if not self._trusted():
             return
         try:
-            if msg.encoding != camera.encoding or (msg.height, msg.width) != (camera.height, camera.width):
-                raise FrameError(
-                    f'a {msg.width}x{msg.height} {msg.encoding!r} frame, the env announced '
-                    f'{camera.width}x{camera.height} {camera.encoding}'
-                )
-            frame = frame_of(msg)
-        except FrameError as error:
-            self._refuse(error)
-            return
-        self._keep(frame)
-
-    def _on_compressed(self, msg: CompressedImage) -> None:
-        """A JPEG or PNG frame, decoded only once its header's size is the announced one."""
-        camera = self.camera
-        if not self._trusted():
-            return
-        try:
-            frame = decode_compressed(msg.data, max_pixels=camera.height * camera.width)
-            if frame.shape != (camera.height, camera.width, camera.channels):
-                raise FrameError(
-                    f'a frame that decodes to {frame.shape[1]}x{frame.shape[0]}x{frame.shape[2]}, the env announced '
-                    f'{camera.width}x{camera.height}x{camera.channels}'
-                )
+            frame = announced_frame(msg, self.camera)
         except FrameError as error:
             self._refuse(error)
             return

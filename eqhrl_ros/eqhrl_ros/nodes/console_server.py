@@ -11,8 +11,9 @@ half-open ones closed (connection_guard.py), so that a flood of them cannot lock
 
 The ROS side (advice_console_node.py) is the ``console``: the server reads its state() under its
 lock when its version changes, hands it the page's input (take_input) and parameter sets
-(set_learner_parameter), and sends its camera frames as JPEG and the frames a camera learner
-asked about as one PNG (AskedFrames); the page tells them apart by their first bytes.
+(set_learner_parameter), and sends three kinds of image, each a binary message led by one byte
+that says which (IMAGE_KINDS): the env's rendering (JPEG), the frames a camera learner asked
+about (one PNG, AskedFrames) and the learner's camera live (PNG, lossless, at its size).
 """
 
 from __future__ import annotations
@@ -33,9 +34,11 @@ from sensor_msgs.msg import Image
 
 from ..core.data import camera_frames
 from .connection_guard import ConnectionGuard, GuardedProtocol
-from .frame_msgs import frame_of
+from .frame_msgs import frame_of, stack_of
 
 MAX_PAGE_MESSAGE = 4096  # bytes; the page sends small JSON only
+# The first byte of an image sent to the page: which image it is (console.js reads the same).
+IMAGE_KINDS = {'env': b'E', 'asked': b'A', 'camera': b'C'}
 
 
 def is_loopback(host: str) -> bool:
@@ -83,6 +86,19 @@ class AskedFrames:
     def of(cls, episode: int, step: int, pixels: np.ndarray) -> 'AskedFrames':
         k, height, width, channels = pixels.shape
         return cls(int(episode), int(step), k, height, width, channels, camera_frames.png_bytes(pixels))
+
+    @classmethod
+    def of_request(cls, msg, shown: Optional['AskedFrames'], logger) -> Optional['AskedFrames']:
+        """A learner/advice_request's frames as the page shows them, or None: none, or those of the
+        request ``shown`` already (a request is published again as it resolves). Frames that cannot
+        be one stack (another node's bytes) are logged, and change nothing."""
+        if not msg.frames or (shown is not None and (shown.episode, shown.step) == (msg.episode, msg.step)):
+            return None
+        try:
+            return cls.of(msg.episode, msg.step, stack_of(msg.frames))
+        except camera_frames.FrameError as error:
+            logger.warning(f"a request's frames refused: {error}", throttle_duration_sec=5.0)
+            return None
 
     def shown(self) -> dict:
         """What the page says of them (the PNG goes apart, once)."""
@@ -233,6 +249,7 @@ class ConsoleServer:
         """State when it changes (and 5 times a second while a request is open or the person
         drives, for the countdowns); frames at most image_rate_hz."""
         sent_version, sent_frame, last_frame_time, last_state_time, sent_asked = -1, 0, 0.0, 0.0, 0
+        sent_camera, last_camera_time = 0, 0.0
         frame_period = 1.0 / self.params['image_rate_hz']
         while not socket.closed:
             now = time.monotonic()
@@ -248,14 +265,22 @@ class ConsoleServer:
                 asked = None
                 if console.asked_number != sent_asked and console.asked is not None:
                     asked, sent_asked = console.asked.png, console.asked_number
+                camera, seen = console.learner_camera.latest, console.learner_camera.number
+                if camera is None or seen == sent_camera or now - last_camera_time < frame_period:
+                    camera = None
+                else:
+                    sent_camera, last_camera_time = seen, now
             if asked is not None:  # before the state that captions it
-                await socket.send_bytes(asked)
+                await socket.send_bytes(IMAGE_KINDS['asked'] + asked)
+            if camera is not None:
+                png = await self._loop.run_in_executor(None, camera_frames.png_bytes, camera[None])
+                await socket.send_bytes(IMAGE_KINDS['camera'] + png)
             if state is not None:
                 await socket.send_str(json.dumps(state))
             if frame is not None:
                 data = await self._loop.run_in_executor(None, jpeg, frame, self.params['jpeg_quality'])
                 if data:
-                    await socket.send_bytes(data)
+                    await socket.send_bytes(IMAGE_KINDS['env'] + data)
             await asyncio.sleep(0.03)
 
     def stop(self) -> None:

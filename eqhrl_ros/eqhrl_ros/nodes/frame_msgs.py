@@ -4,12 +4,13 @@ them here, through core/data/camera_frames.py's checks by meaning."""
 
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import Optional, Sequence, Union
 
 import numpy as np
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CompressedImage, Image
 
 from ..core.data import camera_frames
+from ..core.envs.spec import EnvCamera
 
 
 def image_msg(frame: np.ndarray, frame_id: str, stamp=None) -> Image:
@@ -25,6 +26,27 @@ def image_msg(frame: np.ndarray, frame_id: str, stamp=None) -> Image:
 def frame_of(msg: Image, max_pixels: int = camera_frames.MAX_FRAME_PIXELS) -> np.ndarray:
     """A raw Image's pixels, uint8 (H, W, C), or camera_frames.FrameError saying why not."""
     return camera_frames.frame_array(msg.encoding, msg.height, msg.width, msg.step, msg.data, max_pixels)
+
+
+def announced_frame(msg: Union[Image, CompressedImage], camera: EnvCamera) -> np.ndarray:
+    """A camera's frame, raw or compressed (JPEG or PNG), as uint8 (H, W, C), checked against what
+    env_info announced: a raw frame's encoding and size before its bytes are read; a compressed
+    one's declared size before it is decoded (no more pixels than announced: a frame that would
+    decode to gigabytes costs nothing), then what it decodes to. camera_frames.FrameError if not."""
+    if isinstance(msg, CompressedImage):
+        frame = camera_frames.decode_compressed(msg.data, max_pixels=camera.height * camera.width)
+        if frame.shape != (camera.height, camera.width, camera.channels):
+            raise camera_frames.FrameError(
+                f'a frame that decodes to {frame.shape[1]}x{frame.shape[0]}x{frame.shape[2]}, the env announced '
+                f'{camera.width}x{camera.height}x{camera.channels}'
+            )
+        return frame
+    if msg.encoding != camera.encoding or (msg.height, msg.width) != (camera.height, camera.width):
+        raise camera_frames.FrameError(
+            f'a {msg.width}x{msg.height} {msg.encoding!r} frame, the env announced '
+            f'{camera.width}x{camera.height} {camera.encoding}'
+        )
+    return frame_of(msg)
 
 
 def stack_msgs(pixels: Optional[np.ndarray]) -> list[Image]:

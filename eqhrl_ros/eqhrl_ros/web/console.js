@@ -64,13 +64,14 @@ function say(text) { $('message').textContent = text; }
 
 // ------------------------------------------------------------------ what the node sends
 
-// Two kinds of images come as binary messages: the env's frames (JPEG) and the frames a camera
-// learner asked about (one PNG, the stack side by side); their first bytes tell them apart.
+// Images come as binary messages, each led by one byte that says which (console_server.py,
+// IMAGE_KINDS): E the env's rendering (JPEG), A the frames a camera learner asked about (one PNG,
+// the stack side by side), C the learner's camera live (PNG, at its size).
+const IMAGE_KINDS = { E: 'frame', A: 'asked', C: 'camera' };
 let blobs = Promise.resolve();  // shown in the order they came
 async function showBlob(blob) {
-  const head = new Uint8Array(await blob.slice(0, 4).arrayBuffer());
-  const png = head[0] === 0x89 && head[1] === 0x50 && head[2] === 0x4e && head[3] === 0x47;
-  showImage(png ? 'asked' : 'frame', blob);
+  const kind = IMAGE_KINDS[String.fromCharCode(new Uint8Array(await blob.slice(0, 1).arrayBuffer())[0])];
+  if (kind) showImage(kind, blob.slice(1));
 }
 
 function showImage(id, blob) {
@@ -79,18 +80,34 @@ function showImage(id, blob) {
   image.src = URL.createObjectURL(blob);
   if (old.startsWith('blob:')) URL.revokeObjectURL(old);
   image.dataset.frames = String(Number(image.dataset.frames || 0) + 1);
+  if (id === 'camera' && state.camera) showCamera();  // its caption says whether a frame came
 }
 
-// What the learner saw when it asked: its own frames at its own size, each pixel drawn as a
-// square block (scaled by a whole number, never smoothed), so the person judges what it judged.
+// The learner's frames at its own size, each pixel drawn as a square block: scaled by a whole
+// number, as large as fits (at most 240 px high), never smoothed, so the person judges what it judges.
+function drawnScale(image, frames, width, height) {
+  const room = $('learner-views').clientWidth || 480;
+  const scale = Math.max(1, Math.min(Math.floor(240 / height), Math.floor(room / (frames * width))));
+  $(image).style.width = `${frames * width * scale}px`;
+  return scale;
+}
+
+function showCamera() {
+  const camera = state.camera;
+  $('camera-view').hidden = !camera;
+  if (!camera) return;
+  const scale = drawnScale('camera', 1, camera.width, camera.height);
+  $('camera-caption').textContent = `what the learner sees now: camera '${camera.name}' on ${camera.topic}, ` +
+    `${camera.width}x${camera.height} ${camera.encoding}, drawn ${scale}x` +
+    ($('camera').dataset.frames ? '' : ' (no frame yet)') + (camera.refused ? `; ${camera.refused} frames refused` : '');
+}
+
+// What the learner saw when it asked: the stack it judged, oldest left.
 function showAsked() {
   const asked = state.asked_frames;
   $('asked-view').hidden = !asked;
   if (!asked) return;
-  // As large as fits (at most 240 px high), by a whole number: never smoothed between pixels.
-  const room = $('asked-view').clientWidth || 480;
-  const scale = Math.max(1, Math.min(Math.floor(240 / asked.height), Math.floor(room / (asked.stack * asked.width))));
-  $('asked').style.width = `${asked.stack * asked.width * scale}px`;
+  const scale = drawnScale('asked', asked.stack, asked.width, asked.height);
   $('asked-caption').textContent = `what the learner saw when it asked (episode ${asked.episode}, ` +
     `step ${asked.step}): ${asked.stack} frame${asked.stack > 1 ? 's' : ''} of ${asked.width}x${asked.height} ` +
     `${asked.encoding}${asked.stack > 1 ? ', oldest left' : ''}, as it reads them, drawn ${scale}x`;
@@ -115,6 +132,7 @@ function onState(message) {
   showLegend();
   showRequest();
   showAsked();
+  showCamera();
   showRecent();
   drawBars();
   drawPlots();

@@ -527,3 +527,52 @@ def test_the_page_shows_the_frames_a_camera_learner_asked_about_pixel_for_pixel(
         assert browser.execute_script(asked) == [48, 20, '1'] and console.asked.step == 17
     finally:
         graph.close()
+
+
+def test_the_page_shows_the_learners_camera_live_at_its_size(browser, ros_context):
+    """The page follows the camera the learner reads (its camera parameters, the size from
+    env_info) and shows its newest frame, losslessly, at the learner's size; while a stranger
+    publishes on that topic too, its frames are refused, as the learner refuses them."""
+    import numpy as np
+    import rclpy
+    from sensor_msgs.msg import Image
+
+    from eqhrl_ros.nodes.frame_msgs import frame_of, image_msg
+
+    camera = dict(camera='cam', camera_height=20, camera_width=24, camera_encoding='rgb8')
+    env = GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=20, **camera))
+    learner = rclpy.create_node('learner', context=ros_context)
+    for name, value in (('camera', 'cam'), ('camera_transport', 'raw'), ('camera_publisher', '')):
+        learner.declare_parameter(name, value)
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0))
+    graph = Graph(ros_context, [env, learner, console])
+    shown = "const a = document.getElementById('camera'); return [a.naturalWidth, a.naturalHeight]"
+    caption = "return document.getElementById('camera-caption').textContent"
+    pixel = """const a = document.getElementById('camera'); const c = document.createElement('canvas');
+        c.width = a.naturalWidth; c.height = a.naturalHeight; const g = c.getContext('2d'); g.drawImage(a, 0, 0);
+        return Array.from(g.getImageData(arguments[0], arguments[1], 1, 1).data.slice(0, 3));"""
+    try:
+        browser.get(console.url)
+        wait_for(lambda: browser.execute_script(shown) == [24, 20], what="the learner's camera at its size")
+        assert re.fullmatch(
+            r"what the learner sees now: camera 'cam' on /cam/image_raw, 24x20 rgb8, drawn \d+x",
+            browser.execute_script(caption),
+        )
+        frame = frame_of(env._last_frame)  # what the env sent, pixel for pixel
+        for x, y in ((0, 0), (12, 10), (23, 19)):
+            assert browser.execute_script(pixel, x, y) == frame[y, x].tolist()
+        # A stranger on the camera's topic: no frame is taken from it (nor from the env meanwhile).
+        stranger = rclpy.create_node('stranger', context=ros_context)
+        graph.executor.add_node(stranger)
+        graph.nodes.append(stranger)
+        fake = stranger.create_publisher(Image, '/cam/image_raw', 10)
+        wait_for(lambda: console.count_publishers('/cam/image_raw') == 2, what='the stranger on the graph')
+        time.sleep(0.6)  # the graph is judged at most every 0.5 s
+        kept = console.learner_camera.number
+        for _ in range(5):
+            fake.publish(image_msg(np.zeros((20, 24, 3), np.uint8), 'cam'))
+        wait_for(lambda: console.learner_camera.refused >= 5, what='the stranger refused')
+        assert console.learner_camera.number == kept
+        wait_for(lambda: 'frames refused' in browser.execute_script(caption), what='the refusals said on the page')
+    finally:
+        graph.close()
