@@ -9,6 +9,7 @@ data/       what is stored and what travels
   camera_frames.py   a camera frame's fields to pixels, compressed frames decoded safely
   frame_replay.py camera frames held once, stacks gathered by index (D and D_advising with a camera)
   summary.py      one episode's statistics (the record's fields)
+  batch_frames.py a camera's frames in a batch of transitions: each once, stacks by index
   transitions.py  batches of transitions on their way to the trainer; the actor's outbox
   weights.py      the networks an actor needs, as safetensors bytes; which trainer it follows
   signing.py      a deployment's shared key: signed weights, batches and commands (HMAC)

@@ -98,7 +98,7 @@ class ActorNode(ActingNode):
         p = self.params
         self.outbox = Outbox(
             p['actor_name'] or self.get_fully_qualified_name(),
-            learner.obs_dim,
+            learner.observation.state_dim,
             learner.action_dim,
             min(p['batch_transitions'], p['outbox_limit']),
             p['outbox_limit'],
@@ -134,8 +134,20 @@ class ActorNode(ActingNode):
     # ------------------------------------------------------------------ transitions out
 
     def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success, source):
-        summary = self.learner.step(obs, action, reward, next_obs, terminated, truncated, advised, success, learn=False)
-        self.outbox.add(obs, self.learner.normalize(action), reward, next_obs, terminated, advised, source)
+        learner = self.learner
+        summary = learner.step(obs, action, reward, next_obs, terminated, truncated, advised, success, learn=False)
+        observation = learner.observation  # a camera's: the state vectors, and the frames apart
+        frames = None if observation.camera is None else (obs['pixels'], next_obs['pixels'][-1])
+        self.outbox.add(
+            observation.state(obs),
+            learner.normalize(action),
+            reward,
+            observation.state(next_obs),
+            terminated,
+            advised,
+            source,
+            frames,
+        )
         self._send()
         return summary
 

@@ -33,6 +33,7 @@ from ..core.data.errors import CheckpointError
 from ..core.data.signing import signer_from
 from ..core.data.summary import EpisodeSummary
 from ..core.data.weights import encode_weights
+from ..core.envs.spec import CameraSpec
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
 from ..core.runs.trainer import TRAINER_CSV_FIELDS, BatchLimits, Trainer
@@ -126,9 +127,9 @@ class TrainerNode(RunFiles, Node):
         if spec is not None:
             self._build(spec.observation_size, spec.action_low, spec.action_high)
 
-    def _build(self, obs_dim: int, action_low, action_high) -> None:
-        """The learner for these spaces (with resume, from the checkpoint); weights go out at once."""
-        learner = EQSACLearner(obs_dim, action_low, action_high, self.config)
+    def _build(self, obs_dim: int, action_low, action_high, camera: Optional[CameraSpec] = None) -> None:
+        """The learner for these spaces and camera (with resume, from the checkpoint); weights go out at once."""
+        learner = EQSACLearner(obs_dim, action_low, action_high, self.config, camera=camera)
         learner.log = self.get_logger()  # compile_update's one line
         extra = None
         if self.params['resume']:
@@ -146,7 +147,7 @@ class TrainerNode(RunFiles, Node):
             self.recording = NodeRecord(self, path, {'mode': self.config.mode, 'trainer': self.trainer_id})
             self.get_logger().info(f'recording the batches it stores and its episodes into {path}')
         self.learner = learner
-        self.spaces = (learner.obs_dim, learner.scaler.low.copy(), learner.scaler.high.copy())
+        self.spaces = (learner.observation.state_dim, learner.scaler.low.copy(), learner.scaler.high.copy())
         limits = BatchLimits(p['max_abs_observation'], p['max_abs_reward'])
         self.trainer = Trainer(learner, p['updates_per_transition'], p['weights_every_updates'], limits)
         if extra and isinstance(extra.get('sequences'), dict):
@@ -160,8 +161,9 @@ class TrainerNode(RunFiles, Node):
                 f'resumed {len(self.trainer.sequences.actors)} actor stream(s): '
                 'each sends again what came after the save'
             )
+        seen = f'camera {camera.height}x{camera.width}x{camera.channels} stacked by {camera.stack}, ' if camera else ''
         self.get_logger().info(
-            f'{self.config.mode} trainer {self.trainer_id}: obs {obs_dim}, action {learner.action_dim}, '
+            f'{self.config.mode} trainer {self.trainer_id}: obs {obs_dim}, action {learner.action_dim}, {seen}'
             f'{p["updates_per_transition"]:g} updates per transition from {self.config.learning_starts} on, '
             f'weights every {p["weights_every_updates"]} updates, output {self.output_dir}'
         )
@@ -297,9 +299,11 @@ class TrainerNode(RunFiles, Node):
             )
 
     def _build_from(self, batch, low, high) -> bool:
-        """The first batch gives the spaces (no env_id or spaces parameters were set)."""
+        """The first batch gives the spaces and the camera (no env_id or spaces parameters were set)."""
+        frames = batch.frames
         try:
-            self._build(batch.observations.shape[1], low, high)
+            camera = None if frames is None else CameraSpec(*frames.frames.shape[1:], stack=frames.stack)
+            self._build(batch.observations.shape[1], low, high, camera)
         except Exception as error:  # a checkpoint for other spaces, bad bounds: stop, say why
             stop_with_error(self, f'cannot learn from actor {printable_name(batch.actor)}: {error}')
             return False

@@ -32,10 +32,8 @@ def run_params(output_dir: str) -> tuple:
     )
 
 
-LEARNER_NODE_PARAMS = (
-    *ACTING_PARAMS,
-    *run_params('runs/learner'),
-    TORCH_THREADS,
+# The camera a learner or an actor reads beside the observation vector (nodes/camera_input.py).
+CAMERA_PARAMS = (
     Param(
         'camera',
         '',
@@ -63,6 +61,13 @@ LEARNER_NODE_PARAMS = (
         '(counted as stale), or, with none yet, the observation is dropped',
         (0.0, 60.0),
     ),
+)
+
+LEARNER_NODE_PARAMS = (
+    *ACTING_PARAMS,
+    *CAMERA_PARAMS,
+    *run_params('runs/learner'),
+    TORCH_THREADS,
     Param(
         'prior',
         None,
@@ -74,6 +79,7 @@ LEARNER_NODE_PARAMS = (
 
 ACTOR_NODE_PARAMS = (
     *ACTING_PARAMS,
+    *CAMERA_PARAMS,
     Param('actor_name', '', "This actor's name in the trainer's record and log (empty: the node's full name)"),
     KEY_FILE,
     Param(

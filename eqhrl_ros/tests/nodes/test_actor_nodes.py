@@ -471,3 +471,65 @@ def test_a_trainer_told_its_actors_refuses_any_other(harness, ros_context, tmp_p
     assert harness.spin_until(lambda: len(trainer.summaries) >= 2 and trainer.refused_batches > 0, timeout=90)
     assert {actor for _, actor in trainer.summaries} == {'/a0/actor'}
     assert '/stranger/actor' not in trainer.trainer.sequences.actors
+
+
+CAMERA = dict(camera='camera', camera_height=16, camera_width=16, camera_encoding='mono8')
+
+
+def test_two_camera_actors_feed_one_trainer_that_learns_from_their_frames(harness, ros_context, tmp_path):
+    """Actors that see: each batch carries its frames once (PNG) and each transition's stack by
+    index; the trainer takes its camera from the first batch, holds the stacks the actors acted
+    on though their batches arrive interleaved, and sends its encoder with the weights."""
+    actors = []
+    for i in range(2):
+        namespace = f'/c{i}'
+        env = params(max_episode_steps=30, seed=i, **CAMERA)
+        harness.add(GymEnvNode(context=ros_context, namespace=namespace, parameter_overrides=env))
+        expert = params(env_id='Pendulum-v1')
+        harness.add(ExpertNode(context=ros_context, namespace=namespace, parameter_overrides=expert))
+        values = dict(ALGORITHM, advice_timeout_s=1.0, batch_transitions=10, flush_period_s=0.2, replay_capacity=1000)
+        values.update(camera='camera', camera_stack=2)
+        actors.append(
+            harness.add(ActorNode(context=ros_context, namespace=namespace, parameter_overrides=params(**values)))
+        )
+    seen = []  # the stacks each actor acted on, as its batches carried them
+    for actor in actors:
+        sent = actor.transitions_pub.publish
+        actor.transitions_pub.publish = lambda msg, sent=sent: (seen.append(msg), sent(msg))[1]
+    values = {k: v for k, v in ALGORITHM.items() if k != 'env_id'}  # its spaces and camera: from the first batch
+    values.update(output_dir=str(tmp_path / 'trainer'), weights_every_updates=5, checkpoint_every_episodes=0)
+    values.update(accept_any_actor=True, replay_capacity=1000)
+    trainer = harness.add(TrainerNode(context=ros_context, parameter_overrides=params(**values)))
+    assert harness.spin_until(
+        lambda: (
+            trainer.learner is not None and trainer.learner.updates > 10 and all(a.weights_applied >= 2 for a in actors)
+        ),
+        timeout=120,
+    )
+    learner = trainer.learner
+    assert learner.observation.camera is not None and learner.observation.camera.stack_shape == (2, 16, 16, 1)
+    assert trainer.refused_batches == 0 and trainer.trainer.sequences.lost == 0
+    for actor in actors:  # the trainer's encoder reached the actors with the weights
+        theirs = actor.learner.observation.encoder.state_dict()
+        assert theirs.keys() == learner.observation.encoder.state_dict().keys() and actor.weights_version > 0
+    # D holds, for every transition stored, the stack its actor acted on (batches interleaved).
+    from eqhrl_ros.core.data.transitions import batch_from_fields
+
+    sent_stacks = {}
+    for msg in seen:
+        batch = batch_from_fields(msg)[0]
+        if not len(batch):  # episode ends alone: no transitions, no frames
+            assert batch.frames is None and batch.episodes
+            continue
+        for state, stack in zip(batch.observations, batch.frames.observation_stacks()):
+            sent_stacks[state.tobytes()] = stack
+    memory, n = learner.replay, len(learner.replay)
+    j = memory.next_frame[:n]
+    held = memory._stack(j - 1, memory.episode_first[j % memory.slots])  # as sample() gathers a row's stack
+    checked = 0
+    for row in range(n):
+        state = memory.vectors.obs[row].numpy().tobytes()
+        if state in sent_stacks:
+            assert np.array_equal(held[row].reshape(2, 16, 16), sent_stacks[state][..., 0])
+            checked += 1
+    assert checked == n > 60  # every one, from both actors' batches

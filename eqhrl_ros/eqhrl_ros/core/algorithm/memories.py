@@ -125,6 +125,28 @@ class ReplayMemories:
             assert isinstance(advice, FrameReplay)
             advice.add_stacked(state, action, reward, pixels, next_pixels[-1], next_state, terminated)
 
+    def store_framed(
+        self, state, normalized_action, reward: float, next_state, terminated: bool, advised: bool,
+        stack, next_frame, follows: bool,
+    ) -> None:  # fmt: skip
+        """A camera's transition that came from elsewhere (an actor's batch): the state vectors,
+        the stack acted on (k, H, W, C) and the frame that followed. ``follows``: it goes on from
+        the transition this memory stored last (its stack is that one's less the oldest frame,
+        then that one's next frame), so D holds only its next frame; else D holds its whole
+        stack, as for an episode's start: batches of several actors arrive interleaved."""
+        replay = self.replay
+        assert isinstance(replay, FrameReplay), 'store_framed is for a learner with a camera'
+        action = np.asarray(normalized_action, dtype=np.float32)
+        if follows and not self._episode_starts:
+            replay.add(state, action, reward, next_frame, next_state, terminated)
+        else:
+            replay.add_stacked(state, action, reward, stack, next_frame, next_state, terminated)
+        self._episode_starts = False
+        if advised and self.keeps_advice:
+            advice = self.advice_replay
+            assert isinstance(advice, FrameReplay)
+            advice.add_stacked(state, action, reward, stack, next_frame, next_state, terminated)
+
     def episode_ended(self) -> None:
         """The episode ended (or was abandoned): the next transition stored opens another."""
         self._episode_starts = True

@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import camera_frames
 from .advice import ACTION_SOURCES
+from .batch_frames import BatchFrames, frame_fields, frames_from
 from .summary import EpisodeSummary
 
 # A sent batch no acknowledgement has covered for this long went into a cut link (or its
@@ -36,100 +36,6 @@ RESEND_AFTER_S = 1.0
 # What the trainer holds past a missing batch, per actor, and names as missing in one acknowledgement.
 MAX_HELD_BATCHES = 1024
 MAX_MISSING = 256
-
-
-# Most pixels the frames of one batch may decode to (about 800 MB of RGB): a 1,000-step episode
-# of 84x84 frames holds 7 M; a message that declares more is refused before decoding.
-MAX_BATCH_FRAME_PIXELS = 2**28
-
-
-@dataclass
-class BatchFrames:
-    """A camera's frames of a batch: each frame once, uint8 (m, H, W, C), and per transition the
-    indexes of its observation's stack (n, k), oldest first, and of its next observation's newest
-    frame (n,). The next observation's stack is the observation's less its oldest, then that frame."""
-
-    frames: np.ndarray
-    observation_frames: np.ndarray
-    next_frames: np.ndarray
-
-    @classmethod
-    def of(cls, stacks, next_frames) -> 'BatchFrames':
-        """From each transition's observation stack [k, H, W, C] and next newest frame [H, W, C]:
-        a frame that comes again (the stacks overlap) is held once."""
-        held: dict[bytes, int] = {}
-        frames: list = []
-
-        def index(frame) -> int:
-            key = np.ascontiguousarray(frame).tobytes()
-            if key not in held:
-                held[key] = len(frames)
-                frames.append(frame)
-            return held[key]
-
-        observation = [[index(f) for f in stack] for stack in stacks]
-        following = [index(f) for f in next_frames]
-        return cls(np.stack(frames), np.asarray(observation, np.int64), np.asarray(following, np.int64))
-
-    @property
-    def stack(self) -> int:
-        return self.observation_frames.shape[1]
-
-    def observation_stacks(self) -> np.ndarray:
-        """(n, k, H, W, C): each transition's observation stack."""
-        return self.frames[self.observation_frames]
-
-    def next_stacks(self) -> np.ndarray:
-        """(n, k, H, W, C): each transition's next observation stack."""
-        stacks = self.observation_stacks()
-        return np.concatenate([stacks[:, 1:], self.frames[self.next_frames][:, None]], axis=1)
-
-
-def _frame_fields(frames: 'BatchFrames | None') -> dict:
-    if frames is None:
-        return {'frame_stack': 0, 'frames': [], 'observation_frames': [], 'next_frames': []}
-    return {
-        'frame_stack': frames.stack,
-        'frames': [camera_frames.png_bytes(frame[None]) for frame in frames.frames],  # lossless, once each
-        'observation_frames': frames.observation_frames.ravel().tolist(),
-        'next_frames': frames.next_frames.tolist(),
-    }
-
-
-def _frames_from(msg, n: int) -> 'BatchFrames | None':
-    """A message's frames, checked by meaning before any is decoded: a stack in [1, MAX_FRAME_STACK],
-    an index per stack place and next frame, each naming a frame there, no more frames than the
-    transitions can read, PNG or JPEG of one size, MAX_BATCH_FRAME_PIXELS in all."""
-    stack = int(getattr(msg, 'frame_stack', 0))
-    compressed = list(getattr(msg, 'frames', ()))
-    observation = np.asarray(list(getattr(msg, 'observation_frames', ())), np.int64)
-    following = np.asarray(list(getattr(msg, 'next_frames', ())), np.int64)
-    if stack == 0:
-        if len(compressed) or len(observation) or len(following):
-            raise BatchError('frames without a frame_stack')
-        return None
-    if not 1 <= stack <= camera_frames.MAX_FRAME_STACK:
-        raise BatchError(f'frame_stack {stack} is not in [1, {camera_frames.MAX_FRAME_STACK}]')
-    if len(observation) != n * stack or len(following) != n:
-        raise BatchError(
-            f'observation_frames has {len(observation)} and next_frames {len(following)} values; '
-            f'{n} transitions of stacks of {stack} need {n * stack} and {n}'
-        )
-    if not 1 <= len(compressed) <= n * (stack + 1):
-        raise BatchError(f'{len(compressed)} frames for {n} transitions of stacks of {stack}')
-    if n and int(max(observation.max(), following.max())) >= len(compressed):
-        raise BatchError(f'a frame index past the {len(compressed)} frames')
-    decoded, pixels = [], 0
-    for frame in compressed:
-        try:
-            array = camera_frames.decode_compressed(frame.data)
-        except camera_frames.FrameError as error:
-            raise BatchError(f'frame {len(decoded)}: {error}') from None
-        pixels += array.shape[0] * array.shape[1]
-        if pixels > MAX_BATCH_FRAME_PIXELS or (decoded and array.shape != decoded[0].shape):
-            raise BatchError(f'frame {len(decoded)} is of another size or past {MAX_BATCH_FRAME_PIXELS} pixels in all')
-        decoded.append(array)
-    return BatchFrames(np.stack(decoded), observation.reshape(n, stack), following)
 
 
 @dataclass
@@ -179,7 +85,7 @@ def batch_fields(batch: TransitionBatch, action_low, action_high) -> dict:
         'advised': [bool(v) for v in batch.advised],
         'sources': np.asarray(batch.sources, dtype=np.uint8).tolist(),
         'episodes': [dataclasses.asdict(s) for s in batch.episodes],
-        **_frame_fields(batch.frames),  # frames as PNG bytes: the node makes CompressedImage of them
+        **frame_fields(batch.frames),  # frames as PNG bytes: the node makes CompressedImage of them
     }
 
 
@@ -225,7 +131,7 @@ def batch_from_fields(msg) -> tuple[TransitionBatch, np.ndarray, np.ndarray]:
         run=msg.actor_run,
         oldest_kept=int(msg.oldest_kept),
         sources=sources,
-        frames=_frames_from(msg, n),
+        frames=frames_from(msg, n, BatchError),
     )
     low, high = (np.asarray(v, dtype=np.float32) for v in (msg.action_low, msg.action_high))
     return batch, low, high
@@ -287,12 +193,23 @@ class Outbox:
         return bool(self.sealed or self._again)
 
     def add(
-        self, obs, normalized_action, reward: float, next_obs, terminated: bool, advised: bool, source: str = 'learner'
+        self,
+        obs,
+        normalized_action,
+        reward: float,
+        next_obs,
+        terminated: bool,
+        advised: bool,
+        source: str = 'learner',
+        frames: tuple | None = None,
     ) -> None:
-        """One transition; ``source``: who chose its action (one of ACTION_SOURCES)."""
+        """One transition; ``source``: who chose its action (one of ACTION_SOURCES). A camera
+        actor's ``frames``: (the stack acted on [k, H, W, C], the frame that followed [H, W, C]);
+        the sealed batch holds each frame once (BatchFrames)."""
         if self._since is None:
             self._since = time.monotonic()
-        self._rows.append((obs, normalized_action, reward, next_obs, terminated, advised, ACTION_SOURCES.index(source)))
+        source_index = ACTION_SOURCES.index(source)
+        self._rows.append((obs, normalized_action, reward, next_obs, terminated, advised, source_index, frames))
         if len(self._rows) >= self.batch_transitions:
             self.seal()
 
@@ -321,6 +238,7 @@ class Outbox:
             list(self._episodes),
             run=self.run,
             sources=np.asarray([r[6] for r in rows], dtype=np.uint8),
+            frames=BatchFrames.of(*zip(*(r[7] for r in rows))) if rows and rows[0][7] is not None else None,
         )
         self.next_sequence += 1
         self.sealed.append(batch)

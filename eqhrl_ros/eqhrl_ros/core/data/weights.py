@@ -1,9 +1,10 @@
 """The networks an actor node needs, as bytes on the wire: safetensors, never pickle.
 
 The trainer sends its actor (the policy) and its twin critics (an actor node evaluates D(s)
-with them, Eq. 8) every few updates. safetensors holds only named tensors and a JSON header:
-reading it cannot run code, unlike torch.save's pickle. Names are ``actor.<key>`` and
-``critic.<key>`` of the two state dicts.
+with them, Eq. 8) every few updates, and a camera learner's image encoder (both read its
+features). safetensors holds only named tensors and a JSON header: reading it cannot run code,
+unlike torch.save's pickle. Names are ``actor.<key>``, ``critic.<key>`` and ``encoder.<key>`` of
+the state dicts.
 """
 
 from __future__ import annotations
@@ -13,6 +14,15 @@ from safetensors import SafetensorError
 from safetensors.torch import load, save
 
 NETWORKS = ('actor', 'critic')
+
+
+def _networks(learner) -> dict:
+    """The modules sent, by name: the actor and critics, and a camera learner's encoder."""
+    networks = {name: getattr(learner, name) for name in NETWORKS}
+    encoder = learner.observation.encoder
+    return networks if encoder is None else {**networks, 'encoder': encoder}
+
+
 # How the trainer may send the tensors (weights_on_wire): float16 halves the bytes; the trainer
 # keeps learning in float32 and an actor casts them back to its own float32 on arrival.
 WIRE_DTYPES = {'float32': torch.float32, 'float16': torch.float16}
@@ -26,8 +36,8 @@ def encode_weights(learner, wire_dtype: str = 'float32') -> bytes:
     """The learner's actor and twin critics as safetensors bytes, floating tensors in ``wire_dtype``."""
     dtype = WIRE_DTYPES[wire_dtype]
     tensors = {}
-    for network in NETWORKS:
-        for key, tensor in getattr(learner, network).state_dict().items():
+    for network, module in _networks(learner).items():
+        for key, tensor in module.state_dict().items():
             tensor = tensor.detach().cpu()
             tensors[f'{network}.{key}'] = (tensor.to(dtype) if tensor.is_floating_point() else tensor).contiguous()
     return save(tensors)
@@ -40,9 +50,15 @@ def apply_weights(learner, data: bytes) -> None:
         tensors = load(bytes(data))
     except (SafetensorError, ValueError, OSError) as error:
         raise WeightsError(f'not safetensors data: {error}') from error
-    states = {}
-    for network in NETWORKS:
-        own = getattr(learner, network).state_dict()
+    states, networks = {}, _networks(learner)
+    unknown = [name for name in tensors if name.split('.', 1)[0] not in networks]
+    if unknown:  # first: another kind of learner's (a camera's encoder) says so, not a shape
+        raise WeightsError(f'unexpected tensors {sorted(unknown)[:5]}')
+    absent = [network for network in networks if not any(name.startswith(f'{network}.') for name in tensors)]
+    if absent:  # a camera learner given a vector learner's weights: no encoder
+        raise WeightsError(f'no {" or ".join(absent)} tensors in these weights')
+    for network, module in networks.items():
+        own = module.state_dict()
         prefix = f'{network}.'
         received = {name[len(prefix) :]: t for name, t in tensors.items() if name.startswith(prefix)}
         if set(received) != set(own):
@@ -59,11 +75,8 @@ def apply_weights(learner, data: bytes) -> None:
                 raise WeightsError(f'{network}.{key} holds non-finite values (NaN or inf)')
             received[key] = tensor.to(own[key].dtype)  # float16 on the wire: back to float32
         states[network] = received
-    unknown = [name for name in tensors if name.split('.', 1)[0] not in NETWORKS]
-    if unknown:
-        raise WeightsError(f'unexpected tensors {sorted(unknown)[:5]}')
     for network, state in states.items():
-        getattr(learner, network).load_state_dict(state)
+        networks[network].load_state_dict(state)
 
 
 # How far one weights message may move an actor on. A trainer publishes every weights_every

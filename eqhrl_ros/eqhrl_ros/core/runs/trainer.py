@@ -127,15 +127,22 @@ class Trainer:
     def _store(self, batch: TransitionBatch, payload, rows: list, stored: list) -> None:
         learner = self.learner
         starts = learner.config.learning_starts
+        frames = batch.frames
+        if frames is not None:
+            stacks, following = frames.observation_stacks(), frames.frames[frames.next_frames]
+            # A transition goes on from the one before it in the batch when its stack is that one's
+            # less the oldest, then that one's next frame (by index): not at an episode's start.
+            index = frames.observation_frames
+            chained = np.concatenate([index[:-1, 1:], frames.next_frames[:-1, None]], axis=1)
+            follows = np.concatenate([[False], (index[1:] == chained).all(axis=1)])
         for i in range(len(batch)):
-            learner.store(
-                batch.observations[i],
-                batch.actions[i],
-                float(batch.rewards[i]),
-                batch.next_observations[i],
-                bool(batch.terminated[i]),
-                bool(batch.advised[i]),
-            )
+            values = (batch.observations[i], batch.actions[i], float(batch.rewards[i]), batch.next_observations[i])
+            if frames is None:
+                learner.store(*values, bool(batch.terminated[i]), bool(batch.advised[i]))
+            else:
+                learner.memories.store_framed(
+                    *values, bool(batch.terminated[i]), bool(batch.advised[i]), stacks[i], following[i], follows[i]
+                )
             learner.tally.total_steps += 1  # env steps over all actors
             if len(learner.replay) >= starts:
                 self.eligible += 1
@@ -183,7 +190,7 @@ class Trainer:
         return highest, gaps
 
     def _check(self, batch: TransitionBatch) -> None:
-        n, obs_dim, action_dim = len(batch), self.learner.obs_dim, self.learner.action_dim
+        n, obs_dim, action_dim = len(batch), self.learner.observation.state_dim, self.learner.action_dim
         shapes = {
             'observations': (batch.observations, (n, obs_dim)),
             'actions': (batch.actions, (n, action_dim)),
@@ -211,6 +218,18 @@ class Trainer:
                 raise ValueError(
                     f'{name} of actor {batch.actor!r} reach {float(np.abs(values).max()):.3g}, beyond {bound:g}'
                 )
+        camera = self.learner.observation.camera
+        if (batch.frames is None) != (camera is None) and n:  # a batch of episode ends alone holds no frames
+            has = 'sends no camera frames' if batch.frames is None else 'sends camera frames'
+            raise ValueError(f'actor {batch.actor!r} {has}; the trainer learns {"from" if camera else "without"} a camera')
+        if camera is not None and batch.frames is not None and (batch.frames.stack, *batch.frames.frames.shape[1:]) != (
+            camera.stack, camera.height, camera.width, camera.channels
+        ):
+            shape = (batch.frames.stack, *batch.frames.frames.shape[1:])
+            raise ValueError(
+                f'actor {batch.actor!r} sends stacks of (k, H, W, C) = {shape}; the trainer reads '
+                f'{(camera.stack, camera.height, camera.width, camera.channels)}'
+            )
         if len(batch.episodes) > max(1, n):  # each episode ends with a transition of its batch
             raise ValueError(f'{len(batch.episodes)} episodes end in a batch of {n} transitions')
         for summary in batch.episodes:

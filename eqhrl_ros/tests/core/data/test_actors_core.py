@@ -1,6 +1,8 @@
 """Acting apart from learning, without ROS: an actor-side learner that only acts,
 the trainer that learns from its transitions, the outbox, sequences and the weights codec."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -523,3 +525,54 @@ def test_weights_travel_as_float16_and_arrive_as_float32():
         for key, value in mine.items():
             assert value.dtype == theirs[key].dtype
             assert torch.allclose(value, theirs[key], rtol=1e-3, atol=1e-4), key
+
+
+def camera_learner(stack: int = 2, seed: int = 0) -> EQSACLearner:
+    from eqhrl_ros.core.envs.spec import CameraSpec
+
+    config = LearnerConfig(mode='eqsac', hidden=(16, 16), batch_size=8, learning_starts=8, seed=seed)
+    return EQSACLearner(2, [-2.0], [2.0], config, camera=CameraSpec(16, 16, 1, stack))
+
+
+def test_a_camera_learners_weights_carry_its_encoder_and_a_learner_without_one_refuses_them():
+    trainer, actor = camera_learner(seed=1), camera_learner(seed=2)
+    apply_weights(actor, encode_weights(trainer))
+    for mine, theirs in ((actor.observation.encoder, trainer.observation.encoder), (actor.actor, trainer.actor)):
+        assert all(torch.equal(a, b) for a, b in zip(mine.state_dict().values(), theirs.state_dict().values()))
+    with pytest.raises(WeightsError, match=r"unexpected tensors \['encoder\."):
+        apply_weights(
+            EQSACLearner(2, [-2.0], [2.0], LearnerConfig(mode='eqsac', hidden=(16, 16))), encode_weights(trainer)
+        )
+    with pytest.raises(WeightsError, match='no encoder tensors in these weights'):
+        apply_weights(
+            actor, encode_weights(EQSACLearner(2, [-2.0], [2.0], LearnerConfig(mode='eqsac', hidden=(16, 16))))
+        )
+
+
+def framed_batch(stack: int, size: int = 16, n: int = 4) -> TransitionBatch:
+    from eqhrl_ros.core.data.transitions import BatchFrames
+
+    frames = np.random.default_rng(0).integers(0, 256, (n + stack, size, size, 1), dtype=np.uint8)
+    stacks = np.stack([frames[t : t + stack] for t in range(n)])
+    zeros = np.zeros((n, 2), np.float32)
+    return _batch(
+        n=n, observations=zeros, next_observations=zeros, frames=BatchFrames.of(stacks, frames[stack : stack + n])
+    )
+
+
+@pytest.mark.parametrize(
+    'batch, problem',
+    [
+        (lambda: framed_batch(3), r"stacks of \(k, H, W, C\) = \(3, 16, 16, 1\); the trainer reads \(2, 16, 16, 1\)"),
+        (lambda: framed_batch(2, size=17), r'sends stacks of .* = \(2, 17, 17, 1\)'),
+        (lambda: _batch(n=4, observations=np.zeros((4, 2), np.float32), next_observations=np.zeros((4, 2), np.float32)),
+         'sends no camera frames; the trainer learns from a camera'),
+    ],
+)  # fmt: skip
+def test_a_camera_trainer_refuses_a_batch_of_another_camera_or_none_whole(batch, problem):
+    trainer = Trainer(camera_learner(), updates_per_transition=1.0, weights_every=10)
+    trainer.receive(framed_batch(2))
+    assert len(trainer.learner.replay) == 4
+    with pytest.raises(ValueError, match=problem):
+        trainer.receive(dataclasses.replace(batch(), sequence=1))
+    assert len(trainer.learner.replay) == 4
