@@ -2,6 +2,8 @@
 trained by the critics' loss alone, the gates on the encoded state, the frames held once in D,
 saved and resumed, and every bad input refused with a clear error."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -143,14 +145,23 @@ def test_a_learner_with_a_camera_saves_and_resumes_with_its_frames(tmp_path):
         load_checkpoint(EQSACLearner(2, [-2.0], [2.0], config()), tmp_path / 'checkpoint.pt')
 
 
-def test_an_exported_policy_with_a_camera_carries_its_encoder_and_is_not_served_as_an_expert(tmp_path):
-    one = learner()
+def test_an_exported_camera_policy_carries_its_encoder_and_serves_from_the_frames_a_request_carries(tmp_path):
+    one = learner(random_warmup_steps=0)
+    run(one, episodes=1)  # the encoder has moved from its first weights
     export_policy(one, tmp_path / 'policy.pt')
     saved = torch.load(tmp_path / 'policy.pt', weights_only=True)
     assert saved['camera'] == {'height': 20, 'width': 24, 'channels': 3, 'stack': 2} and saved['state_dim'] == 2
     assert set(saved['encoder']) == set(one.observation.encoder.state_dict())
-    with pytest.raises(CheckpointError, match='reads a camera'):
-        PolicyExpert(tmp_path / 'policy.pt')
+    expert = PolicyExpert(tmp_path / 'policy.pt')
+    assert expert.observation_size == 2 and expert.camera == CAMERA
+    requests = [p.request for p in run(learner(advising_budget=5), episodes=2) if p.request is not None]
+    assert requests
+    for request in requests:  # the learner's own deterministic action, from the frames asked about
+        obs = {'state': request.observation, 'pixels': request.pixels}
+        advice = expert(request)
+        assert advice.advised and np.allclose(advice.action, one.act(obs, deterministic=True), atol=1e-5)
+    frameless = expert(dataclasses.replace(requests[0], pixels=None))
+    assert not frameless.advised and 'reads a camera, and the request carries no frames' in frameless.reason
 
 
 GOOD = next(Frames().episode(0, 1))
