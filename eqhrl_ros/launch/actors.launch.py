@@ -18,7 +18,9 @@ with an error (a trainer refusing to start) stops the launch, which exits non-ze
 One params file configures everything:
 its learner: section gives the algorithm to the actors and the trainer (and each the keys of
 its own table); gym_env: and expert: go to every actor's env and expert; /**: to all. Actor i
-runs with seed + i (its env's start states and its action noise differ from the others').
+runs with seed + i (its env's start states and its action noise differ from the others'). With
+camera: in the learner: section (and the camera in gym_env:), the actors read it and the
+trainer is given no env_id: it takes its spaces and camera from the actors' first batch.
 """
 
 import os
@@ -33,7 +35,10 @@ from launch_ros.actions import Node
 
 from eqhrl_ros.files.yaml_files import load_mapping
 from eqhrl_ros.nodes.launching import dds_profile_env, fail_launch_on_error
-from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, TRAINER_PARAMS, learner_section_for
+from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, SPACE_PARAMS, TRAINER_PARAMS, learner_section_for
+
+# What a trainer is told of the env; camera actors' trainer takes it (and the camera) from their batches.
+ENV_NAMES = ('env_id', *(p.name for p in SPACE_PARAMS))
 
 
 def _section(data: dict, name: str) -> dict:
@@ -96,6 +101,8 @@ def _nodes(context):
     nodes = []
     if with_trainer == 'true':
         trainer = {**shared, **learner_section_for(learner, TRAINER_PARAMS), **key}
+        if learner.get('camera'):  # actors that see: the trainer learns the camera from their first batch
+            trainer = {name: value for name, value in trainer.items() if name not in ENV_NAMES}
         # Whom the trainer hears: the actors named, else those started here (with a key_file, also
         # any actor that signs with it). Neither, and no key: it refuses to start, and says why.
         named = [a.strip() for a in LaunchConfiguration('trainer_actors').perform(context).split(',') if a.strip()]

@@ -185,7 +185,7 @@ def test_actor_and_trainer_help_lists_their_parameters():
     assert 'batch_transitions' in help_text('actor') and 'updates_per_transition' in help_text('trainer')
 
 
-def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeypatch):
+def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeypatch, tmp_path):
     """actors.launch.py run with stand-ins for the launch packages (not on PyPI): which nodes it
     starts, in which namespaces, with which parameters; every key of each params file's
     learner: section reaches the actor or the trainer, and each node accepts what it gets."""
@@ -306,6 +306,24 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
     arguments.update(trainer_actors='')
     (alone,) = launched()
     assert 'actors' not in alone['parameters'][0]  # so it refuses to start, and the launch exits non-zero
+    # Actors that see: a camera in the learner: section reaches the actors; the trainer is told
+    # no env (it takes its spaces and camera from their first batch).
+    import yaml
+
+    data = yaml.safe_load((PARAMS_DIR / 'pendulum.yaml').read_text())
+    data['learner']['ros__parameters'].update(camera='camera', camera_stack=3, replay_capacity=100_000)
+    data['gym_env']['ros__parameters'].update(camera='camera')
+    (tmp_path / 'camera.yaml').write_text(yaml.safe_dump(data))
+    arguments.update(params_file=str(tmp_path / 'camera.yaml'), actors='2', actor_offset='0', actor_prefix='')
+    nodes = launched()
+    by_kind = {}
+    for node in nodes:
+        by_kind.setdefault(node['executable'], []).append(node['parameters'][0])
+    assert 'env_id' not in by_kind['trainer'][0] and by_kind['trainer'][0]['replay_capacity'] == 100_000
+    assert all(
+        a['camera'] == 'camera' and a['camera_stack'] == 3 and a['env_id'] == 'Pendulum-v1' for a in by_kind['actor']
+    )
+    assert all(e['camera'] == 'camera' for e in by_kind['gym_env'])
 
 
 def test_weights_wait_steps_keeps_a_lock_step_actor_within_reach_of_the_trainer(harness, ros_context, tmp_path):
