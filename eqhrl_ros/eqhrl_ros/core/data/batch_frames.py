@@ -90,16 +90,19 @@ def frames_from(msg, n: int, refusal=ValueError) -> 'BatchFrames | None':
         )
     if not 1 <= len(compressed) <= n * (stack + 1):
         raise refusal(f'{len(compressed)} frames for {n} transitions of stacks of {stack}')
-    if n and int(max(observation.max(), following.max())) >= len(compressed):
-        raise refusal(f'a frame index past the {len(compressed)} frames')
+    indexes = np.concatenate([observation, following])
+    if n and (int(indexes.min()) < 0 or int(indexes.max()) >= len(compressed)):
+        raise refusal(f'a frame index outside the {len(compressed)} frames')
     decoded, pixels = [], 0
     for frame in compressed:
+        # Each frame's declared size is held to what is left of the batch's pixels before it is decoded.
+        left = min(camera_frames.MAX_FRAME_PIXELS, MAX_BATCH_FRAME_PIXELS - pixels)
         try:
-            array = camera_frames.decode_compressed(frame.data)
+            array = camera_frames.decode_compressed(frame.data, max_pixels=left)
         except camera_frames.FrameError as error:
             raise refusal(f'frame {len(decoded)}: {error}') from None
+        if decoded and array.shape != decoded[0].shape:
+            raise refusal(f'frame {len(decoded)} is {array.shape}, frame 0 {decoded[0].shape}: one camera has one size')
         pixels += array.shape[0] * array.shape[1]
-        if pixels > MAX_BATCH_FRAME_PIXELS or (decoded and array.shape != decoded[0].shape):
-            raise refusal(f'frame {len(decoded)} is of another size or past {MAX_BATCH_FRAME_PIXELS} pixels in all')
         decoded.append(array)
     return BatchFrames(np.stack(decoded), observation.reshape(n, stack), following)

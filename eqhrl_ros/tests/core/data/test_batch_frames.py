@@ -76,11 +76,12 @@ def bad(**change):
         (bad(frame_stack=0), 'frames without a frame_stack'),
         (bad(frame_stack=17), 'frame_stack 17 is not in [1, 16]'),
         (bad(next_frames=[0, 1, 2]), 'observation_frames has 12 and next_frames 3 values; 4 transitions of stacks'),
-        (bad(next_frames=[0, 1, 2, 9]), 'a frame index past the 5 frames'),
+        (bad(next_frames=[0, 1, 2, 9]), 'a frame index outside the 5 frames'),
+        (bad(next_frames=[0, 1, 2, -1]), 'a frame index outside the 5 frames'),
         (bad(frames=[png(np.zeros((H, W, C), np.uint8))] * 17), '17 frames for 4 transitions of stacks of 3'),
         (bad(frames=[SimpleNamespace(format='png', data=b'not a png')] * 5), 'frame 0: compressed frame does not'),
         (bad(frames=[png(np.zeros((H, W, C), np.uint8))] * 4 + [png(np.zeros((H, W + 1, C), np.uint8))]),
-         'frame 4 is of another size'),
+         'frame 4 is (16, 19, 3), frame 0 (16, 18, 3): one camera has one size'),
     ],
 )  # fmt: skip
 def test_frames_that_do_not_fit_their_transitions_are_refused_saying_why(msg, reason):
