@@ -217,7 +217,9 @@ class EQSACLearner:
                 entropy=decision.entropy,
                 episode=self.episode,
                 step=self.episode_step,
-                pixels=None if self.observation.camera is None else self.observation.parts(obs)[1].copy(),
+                pixels=self.observation.parts(obs)[1].copy()
+                if isinstance(self.observation, CameraObservation)
+                else None,
             )
         return Proposal(env_action, decision, request)
 

@@ -93,7 +93,8 @@ def frames_from(msg, n: int, refusal=ValueError) -> 'BatchFrames | None':
     indexes = np.concatenate([observation, following])
     if n and (int(indexes.min()) < 0 or int(indexes.max()) >= len(compressed)):
         raise refusal(f'a frame index outside the {len(compressed)} frames')
-    decoded, pixels = [], 0
+    decoded: list[np.ndarray] = []
+    pixels = 0
     for frame in compressed:
         # Each frame's declared size is held to what is left of the batch's pixels before it is decoded.
         left = min(camera_frames.MAX_FRAME_PIXELS, MAX_BATCH_FRAME_PIXELS - pixels)

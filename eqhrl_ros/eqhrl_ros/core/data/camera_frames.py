@@ -72,7 +72,7 @@ def stack_array(frames, max_pixels: int = MAX_FRAME_PIXELS) -> np.ndarray:
         raise FrameError(f'the frames of a stack differ in encoding or size: {sorted(kinds)}')
     _, height, width = kinds.pop()
     _check_size(height * len(frames), width, max_pixels)
-    return np.stack([frame_array(*fields, max_pixels=max_pixels) for fields in frames])
+    return np.stack([frame_array(e, h, w, s, data, max_pixels=max_pixels) for e, h, w, s, data in frames])
 
 
 def decode_compressed(data, max_pixels: int = MAX_FRAME_PIXELS) -> np.ndarray:
