@@ -88,7 +88,10 @@ def test_actors_outlive_their_trainer_and_take_the_weights_of_the_next(tmp_path)
     env, actor = start_actor(0, tmp_path)
     processes = [trainer, env, actor]
     try:
-        assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= 3, 90), output(trainer)
+        # A row is written as its episode is stored, the checkpoint at the end of that learning step:
+        # under load the kill can fall between them, and there is then nothing to resume.
+        saved = out / 'checkpoint.pt'
+        assert wait_for(lambda: len(rows_from(out, '/actor0/actor')) >= 3 and saved.exists(), 90), output(trainer)
         trainer.send_signal(signal.SIGKILL)  # no save at exit: the last periodic checkpoint counts
         trainer.wait()
         saved_rows = len(rows_from(out, '/actor0/actor'))

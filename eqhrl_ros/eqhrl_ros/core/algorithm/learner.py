@@ -217,9 +217,7 @@ class EQSACLearner:
                 entropy=decision.entropy,
                 episode=self.episode,
                 step=self.episode_step,
-                pixels=self.observation.parts(obs)[1].copy()
-                if isinstance(self.observation, CameraObservation)
-                else None,
+                pixels=self.observation.pixels(obs),  # a camera's stack, for the person asked
             )
         return Proposal(env_action, decision, request)
 

@@ -59,6 +59,9 @@ class VectorObservation:
     def state(self, obs) -> np.ndarray:
         return np.asarray(obs, dtype=np.float32).reshape(-1)
 
+    def pixels(self, obs) -> None:
+        return None  # no camera
+
 
 class CameraObservation:
     """A state vector of ``state_dim`` finite floats (0: pixels alone) and a camera's frame
@@ -110,3 +113,7 @@ class CameraObservation:
 
     def state(self, obs) -> np.ndarray:
         return self.parts(obs)[0]
+
+    def pixels(self, obs) -> np.ndarray:
+        """A copy of the observation's frame stack, uint8 [k, H, W, C]."""
+        return self.parts(obs)[1].copy()
