@@ -95,6 +95,11 @@ def test_the_results_pages_tables_are_the_committed_reports():
         ('study_pendulum_gates', 'GATES', ['GATES_TESTS', 'GATES_ARMS', 'GATES_PLACEMENT', 'GATES_DIFFS']),
         ('study_pendulum_scores', 'SCORES', ['SCORES_TESTS', 'SCORES_ARMS', 'SCORES_PLACEMENT']),
         ('study_pendulum_wheel', 'WHEEL', ['WHEEL_TESTS', 'WHEEL_PERSON']),
+        (
+            'study_pendulum_imperfect',
+            'IMPERFECT',
+            ['IMPERFECT_TESTS', 'IMPERFECT_ARMS', 'IMPERFECT_PERSON', 'IMPERFECT_PLACEMENT'],
+        ),
     ):
         report = (root / 'docs' / 'results' / study / 'table.md').read_text()
         again, spliced = splice.splice(page, report, prefix)
