@@ -107,16 +107,26 @@ def write_advice_record(directory: Path, learner, action_space) -> None:
     """An in-process run's record: its advised transitions (D_advising at the end, in the order
     stored while it was not full) as one TransitionBatch in <run>/record.mcap, what --prior
     reads. (A learner node's record holds much more: README, "The record".)"""
-    import numpy as np
-
     from ..core.data.replay import BATCH_COLUMNS
-    from ..core.data.transitions import TransitionBatch, batch_fields
-    from ..files.mcap_record import RECORD_NAME, McapRecord
+    from ..files.mcap_record import RECORD_NAME
 
     memory, n = learner.advice_replay, len(learner.advice_replay)
     columns = [getattr(memory, name)[:n].numpy() for name in BATCH_COLUMNS]
-    batch = TransitionBatch('in_process', 0, *columns[:4], columns[4] > 0.5, np.ones(n, bool))
-    record = McapRecord(directory / RECORD_NAME)
+    write_transitions_record(directory / RECORD_NAME, columns, action_space)
+
+
+def write_transitions_record(path: Path, columns: list, action_space) -> None:
+    """Transitions (BATCH_COLUMNS: observations, actions in [-1, 1], rewards, next observations,
+    terminated) as one TransitionBatch marked advised, in the .mcap file ``path``: what --prior
+    loads into D and D_advising."""
+    import numpy as np
+
+    from ..core.data.transitions import TransitionBatch, batch_fields
+    from ..files.mcap_record import McapRecord
+
+    n = len(columns[2])
+    batch = TransitionBatch('in_process', 0, *columns[:4], np.asarray(columns[4]) > 0.5, np.ones(n, bool))
+    record = McapRecord(path)
     try:
         fields = batch_fields(batch, action_space.low, action_space.high)
         record.write_fields('/learner/transitions', 'eqhrl_interfaces/msg/TransitionBatch', fields)
