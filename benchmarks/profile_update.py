@@ -1,0 +1,146 @@
+"""Inside the compiled update: products, fused kernels, and the call around them (issue 48, item 1).
+
+    .venv/bin/python benchmarks/profile_update.py [--env Pendulum-v1] [--calls 300] [--threads 2]
+
+For SAC and EQSAC (Table 1 sizes, batch 256, EQSAC with a full D_advising batch), the update that
+compile_update: true runs is compiled in this thread with inductor's kernel profiling on (each
+generated C++ kernel records its name), and called on one fixed pair of batches and noise:
+
+- call: the wall time of one call of the compiled update, as the learner makes it;
+- without guards: the same call under torch.compiler.set_stance(skip_guard_eval_unsafe=True),
+  so the difference is what checking the program's guards costs each call;
+- then one profiled stretch of calls, split by operator into the products (aten mm, addmm, bmm,
+  baddbmm: the kernels torch calls for the matrix products), inductor's fused kernels (the
+  element-wise work, the reductions, Adam), and the rest of the call (Python, the guards, the
+  wrappers around the program, threads waiting);
+- a 256x256x256 float32 product timed alone, and the update's count of them (PRODUCTS of
+  bench_learner.py) at that time: the floor of the products.
+
+Medians of 5 interleaved rounds. Evidence, no target, no exit code; docs/performance.md keeps the
+figures with the machine they were measured on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections import defaultdict
+
+import numpy as np
+import torch
+import torch._inductor.config as inductor_config
+from torch.profiler import ProfilerActivity, profile
+
+from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
+
+PRODUCT_OPS = ('aten::mm', 'aten::addmm', 'aten::bmm', 'aten::baddbmm')
+PRODUCTS = {'sac': 16, 'eqsac': 25}  # 256^3 products per update (bench_learner.py says which)
+
+
+def compiled_update(env_id: str, mode: str, warmup: int):
+    """(the compiled function, its arguments) for ``mode``'s learner after ``warmup`` steps."""
+    env = make_env(env_id)
+    config = LearnerConfig(mode=mode, learning_starts=warmup, advising_budget=10**6, seed=0, compile_update=False)
+    learner = EQSACLearner(
+        int(np.prod(env.observation_space.shape)), env.action_space.low, env.action_space.high, config
+    )
+    expert = heuristic_expert(env_id)
+    while learner.total_steps < warmup:  # inside the budget: D_advising fills with the expert's answers
+        run_episode(env, learner, expert, seed=learner.total_steps)
+    updater = learner.updater
+    learner.update()  # an eager update first: the optimisers' state exists
+    compiled = updater.start_compiling(background=False)
+    assert compiled is not None and compiled.ready, f'the update did not compile: {compiled and compiled.failed}'
+    batch, advice = learner.memories.sample()
+    noise = updater.noise_for(batch, advice)
+    weights, state, constants = updater.inputs()
+    arguments = (updater.nets, weights, state, batch.columns(), advice and advice.columns(), noise, constants)
+    return compiled.function, arguments
+
+
+def timed(function, arguments, calls: int, skip_guards: bool = False) -> float:
+    """ms per call of ``function(*arguments)``."""
+    stance = torch.compiler.set_stance('default', skip_guard_eval_unsafe=skip_guards)
+    with stance:
+        start = time.perf_counter()
+        for _ in range(calls):
+            function(*arguments)
+        return (time.perf_counter() - start) / calls * 1e3
+
+
+def split(function, arguments, calls: int) -> dict:
+    """ms per call in the products, in inductor's fused kernels, and in all, from one profile."""
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        start = time.perf_counter()
+        for _ in range(calls):
+            function(*arguments)
+        wall = (time.perf_counter() - start) / calls * 1e3
+    parts: dict = defaultdict(float)
+    for event in prof.key_averages():
+        name = event.key
+        if name in PRODUCT_OPS:
+            parts['products'] += event.self_cpu_time_total
+        elif 'cpp_fused' in name:
+            parts['fused kernels'] += event.self_cpu_time_total
+    out = {name: value / calls / 1e3 for name, value in parts.items()}
+    out['profiled call'] = wall
+    return out
+
+
+def product_alone(calls: int = 200) -> float:
+    a, b = torch.randn(256, 256), torch.randn(256, 256)
+    for _ in range(20):
+        torch.mm(a, b)
+    start = time.perf_counter()
+    for _ in range(calls):
+        torch.mm(a, b)
+    return (time.perf_counter() - start) / calls * 1e3
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--env', default='Pendulum-v1')
+    parser.add_argument('--warmup', type=int, default=1000)
+    parser.add_argument('--calls', type=int, default=300)
+    parser.add_argument('--rounds', type=int, default=5)
+    parser.add_argument('--threads', type=int, default=2)
+    parser.add_argument('--cpp-wrapper', action='store_true', help="inductor's C++ wrapper instead of its Python one")
+    args = parser.parse_args()
+    inductor_config.cpp_wrapper = args.cpp_wrapper
+    torch.set_num_threads(args.threads)
+    inductor_config.cpp.enable_kernel_profile = True  # each generated kernel names itself in the profile
+    modes = ('sac', 'eqsac')
+    programs = {mode: compiled_update(args.env, mode, args.warmup) for mode in modes}
+    figures: dict = defaultdict(lambda: defaultdict(list))
+    for _ in range(args.rounds):
+        for mode, (function, arguments) in programs.items():
+            figures[mode]['call'].append(timed(function, arguments, args.calls))
+            figures[mode]['without guards'].append(timed(function, arguments, args.calls, skip_guards=True))
+            for name, value in split(function, arguments, max(args.calls // 3, 20)).items():
+                figures[mode][name].append(value)
+        figures['product']['alone'].append(product_alone())
+    product = statistics.median(figures['product']['alone'])
+    print(f'{args.env}, {args.threads} threads, medians of {args.rounds} rounds, ms per update call')
+    print('| part | ' + ' | '.join(modes) + ' |')
+    print('|---|' + '---|' * len(modes))
+    rows = ('call', 'without guards', 'profiled call', 'products', 'fused kernels')
+    medians = {mode: {row: statistics.median(figures[mode][row] or [0.0]) for row in rows} for mode in modes}
+    for row in rows:
+        print(f'| {row} | ' + ' | '.join(f'{medians[m][row]:.3f}' for m in modes) + ' |')
+    rest = {m: medians[m]['profiled call'] - medians[m]['products'] - medians[m]['fused kernels'] for m in modes}
+    print('| rest of the profiled call | ' + ' | '.join(f'{rest[m]:.3f}' for m in modes) + ' |')
+    floor = {m: PRODUCTS[m] * product for m in modes}
+    print(
+        f'| {"/".join(str(PRODUCTS[m]) for m in modes)} products at {product:.3f} ms alone | '
+        + ' | '.join(f'{floor[m]:.3f}' for m in modes)
+        + ' |'
+    )
+    print(
+        f'EQSAC / SAC, call: {medians["eqsac"]["call"] / medians["sac"]["call"]:.2f}x '
+        f'(products: {PRODUCTS["eqsac"] / PRODUCTS["sac"]:.2f}x)'
+    )
+
+
+if __name__ == '__main__':
+    main()
