@@ -58,6 +58,22 @@ MODES = tuple(TARGETS)
 PRODUCTS = {'sac': 16, 'eqsac': 25}
 
 
+def cpu_model() -> str:
+    """The CPU as /proc/cpuinfo names it, with its family and model (which generation: the
+    figures differ between them) and whether it has AVX-512; 'unknown' where it cannot say."""
+    try:
+        lines = Path('/proc/cpuinfo').read_text().splitlines()
+    except OSError:
+        return 'unknown'
+    info: dict = {}
+    for line in lines:
+        key, _, value = line.partition(':')
+        info.setdefault(key.strip(), value.strip())
+    avx512 = 'AVX-512' if 'avx512f' in info.get('flags', '').split() else 'no AVX-512'
+    name = info.get('model name', 'unknown')
+    return f'{name}, family {info.get("cpu family", "?")} model {info.get("model", "?")}, {avx512}'
+
+
 class OursLoop:
     """Algorithm 1's loop, advanced a given number of env steps at a time."""
 
@@ -269,7 +285,8 @@ def main() -> int:
     global CACHE
     CACHE = inductor_cache_state()
     print(
-        f'torch {torch.__version__}, {args.threads} threads, {os.cpu_count()} CPUs; per env and contender '
+        f'torch {torch.__version__}, {args.threads} threads, {os.cpu_count()} CPUs ({cpu_model()}); '
+        'per env and contender '
         f'{args.rounds} x {args.round_steps} timed steps, interleaved, after {args.warmup} without updates'
     )
     steps = args.round_steps

@@ -30,12 +30,12 @@ from collections import defaultdict
 import numpy as np
 import torch
 import torch._inductor.config as inductor_config
+from bench_learner import PRODUCTS, cpu_model  # the products an update does, and the CPU's name
 from torch.profiler import ProfilerActivity, profile
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
 
 PRODUCT_OPS = ('aten::mm', 'aten::addmm', 'aten::bmm', 'aten::baddbmm')
-PRODUCTS = {'sac': 16, 'eqsac': 25}  # 256^3 products per update (bench_learner.py says which)
 
 
 def compiled_update(env_id: str, mode: str, warmup: int):
@@ -121,7 +121,7 @@ def main() -> None:
                 figures[mode][name].append(value)
         figures['product']['alone'].append(product_alone())
     product = statistics.median(figures['product']['alone'])
-    print(f'{args.env}, {args.threads} threads, medians of {args.rounds} rounds, ms per update call')
+    print(f'{args.env}, {args.threads} threads ({cpu_model()}), medians of {args.rounds} rounds, ms per update call')
     print('| part | ' + ' | '.join(modes) + ' |')
     print('|---|' + '---|' * len(modes))
     rows = ('call', 'without guards', 'profiled call', 'products', 'fused kernels')
