@@ -1,7 +1,7 @@
 """A prior of uniform-random actions: the control for prior data of a person's advice.
 
     .venv/bin/python tools/random_prior.py --env Pendulum-v1 --episode-steps 100 \
-        --transitions 1684 --seed 0 --output docs/results/study_pendulum_prior_first/random/record.mcap
+        --transitions 1684 --seed 0 --output docs/results/study_pendulum_prior_controlled/random_prior/record.mcap
 
 Writes ``--transitions`` transitions of a policy that draws each action uniformly from the
 action space (episodes of ``--episode-steps``, the env reset with ``--seed``, ``--seed + 1``, ...)
@@ -20,19 +20,23 @@ from pathlib import Path
 import numpy as np
 
 from eqhrl_ros.core import make_env
+from eqhrl_ros.core.envs.spec import ActionScaler
 from eqhrl_ros.experiments.seed_runs import write_transitions_record
 
 
 def random_transitions(env, count: int, seed: int) -> list:
     """``count`` transitions of uniform-random actions, as BATCH_COLUMNS (actions in [-1, 1])."""
     rng = np.random.default_rng(seed)
-    low, high = env.action_space.low, env.action_space.high
+    scaler = ActionScaler(env.action_space.low, env.action_space.high)
     rows: list = [[], [], [], [], []]
     episode = 0
     obs, _ = env.reset(seed=seed)
     while len(rows[2]) < count:
-        scaled = rng.uniform(-1.0, 1.0, size=low.shape).astype(np.float32)
-        action = low + (scaled + 1.0) * 0.5 * (high - low)
+        scaled = rng.uniform(-1.0, 1.0, size=scaler.dim).astype(np.float32)
+        # low + (a + 1) (high - low) / 2 is ActionScaler.to_env written another way: the committed
+        # control record (pendulum_prior_controlled) was made with this form, and to_env's rounding
+        # moves Pendulum's states by 1e-5; kept so that the documented command remakes it bit for bit.
+        action = scaler.low + (scaled + 1.0) * 0.5 * (scaler.high - scaler.low)
         next_obs, reward, terminated, truncated, _ = env.step(action)
         for column, value in zip(rows, (obs, scaled, reward, next_obs, float(terminated))):
             column.append(value)
@@ -53,6 +57,8 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     if args.transitions < 1:
         parser.error('--transitions must be at least 1')
+    if args.episode_steps is not None and args.episode_steps < 1:
+        parser.error('--episode-steps must be at least 1')
     env = make_env(args.env, args.episode_steps)
     columns = random_transitions(env, args.transitions, args.seed)
     args.output.parent.mkdir(parents=True, exist_ok=True)

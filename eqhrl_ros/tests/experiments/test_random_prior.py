@@ -38,3 +38,17 @@ def test_the_same_seed_gives_the_same_prior_and_another_seed_another(tmp_path):
     a, b, c = (load_prior([tmp_path / name], 3, [-2.0], [2.0]) for name in 'abc')
     assert np.array_equal(a.actions, b.actions) and np.array_equal(a.observations, b.observations)
     assert not np.array_equal(a.actions, c.actions)
+
+
+def test_bad_counts_are_refused_in_one_line_and_write_nothing(tmp_path, capsys):
+    import pytest
+
+    tool = _tool()
+    for argv, why in (
+        (['--transitions', '0'], '--transitions must be at least 1'),
+        (['--transitions', '5', '--episode-steps', '0'], '--episode-steps must be at least 1'),
+    ):
+        with pytest.raises(SystemExit):
+            tool.main([*argv, '--output', str(tmp_path / 'record.mcap')])
+        assert why in capsys.readouterr().err
+    assert not (tmp_path / 'record.mcap').exists()
