@@ -14,7 +14,10 @@ generated C++ kernel records its name), and called on one fixed pair of batches 
   element-wise work, the reductions, Adam), and the rest of the call (Python, the guards, the
   wrappers around the program, threads waiting);
 - a 256x256x256 float32 product timed alone, and the update's count of them (PRODUCTS of
-  bench_learner.py) at that time: the floor of the products.
+  bench_learner.py) at that time: the floor of the products;
+- the twin critics' pair of products as one batched bmm against two mm, in the forward layout
+  and the backward pass's transposed ones.
+--cpp-wrapper and --max-autotune compile with those inductor options instead (item 2).
 
 Medians of 5 interleaved rounds. Evidence, no target, no exit code; docs/performance.md keeps the
 figures with the machine they were measured on.
@@ -98,6 +101,27 @@ def product_alone(calls: int = 200) -> float:
     return (time.perf_counter() - start) / calls * 1e3
 
 
+def pair_products(calls: int = 300) -> dict:
+    """ms for the twin critics' pair of 256x256x256 products: one batched bmm against two mm, in
+    the forward layout and in the backward pass's two transposed ones."""
+    a, b = torch.randn(2, 256, 256), torch.randn(2, 256, 256)
+    out, one, two = torch.empty(2, 256, 256), torch.empty(256, 256), torch.empty(256, 256)
+    layouts = {'forward': (a, b), 'A^T': (a.transpose(1, 2), b), 'B^T': (a, b.transpose(1, 2))}
+    figures = {}
+    for name, (x, y) in layouts.items():
+        for kind, run in (
+            ('bmm', lambda x=x, y=y: torch.bmm(x, y, out=out)),
+            ('2 mm', lambda x=x, y=y: (torch.mm(x[0], y[0], out=one), torch.mm(x[1], y[1], out=two))),
+        ):
+            for _ in range(20):
+                run()
+            start = time.perf_counter()
+            for _ in range(calls):
+                run()
+            figures[f'{name} {kind}'] = (time.perf_counter() - start) / calls * 1e3
+    return figures
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--env', default='Pendulum-v1')
@@ -106,8 +130,15 @@ def main() -> None:
     parser.add_argument('--rounds', type=int, default=5)
     parser.add_argument('--threads', type=int, default=2)
     parser.add_argument('--cpp-wrapper', action='store_true', help="inductor's C++ wrapper instead of its Python one")
+    parser.add_argument(
+        '--max-autotune', action='store_true', help="inductor's autotuner over its CPP GEMM templates and ATen"
+    )
     args = parser.parse_args()
     inductor_config.cpp_wrapper = args.cpp_wrapper
+    if args.max_autotune:
+        inductor_config.max_autotune = True
+        inductor_config.max_autotune_gemm_backends = 'CPP,ATEN'
+
     torch.set_num_threads(args.threads)
     inductor_config.cpp.enable_kernel_profile = True  # each generated kernel names itself in the profile
     modes = ('sac', 'eqsac')
@@ -120,6 +151,8 @@ def main() -> None:
             for name, value in split(function, arguments, max(args.calls // 3, 20)).items():
                 figures[mode][name].append(value)
         figures['product']['alone'].append(product_alone())
+        for name, value in pair_products().items():
+            figures['pair'][name].append(value)
     product = statistics.median(figures['product']['alone'])
     print(f'{args.env}, {args.threads} threads ({cpu_model()}), medians of {args.rounds} rounds, ms per update call')
     print('| part | ' + ' | '.join(modes) + ' |')
@@ -136,6 +169,8 @@ def main() -> None:
         + ' | '.join(f'{floor[m]:.3f}' for m in modes)
         + ' |'
     )
+    pairs = ', '.join(f'{name} {statistics.median(v):.3f}' for name, v in figures['pair'].items())
+    print(f'the twin pair of products, ms: {pairs}')
     print(
         f'EQSAC / SAC, call: {medians["eqsac"]["call"] / medians["sac"]["call"]:.2f}x '
         f'(products: {PRODUCTS["eqsac"] / PRODUCTS["sac"]:.2f}x)'
