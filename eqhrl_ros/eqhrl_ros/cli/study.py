@@ -28,7 +28,9 @@ learner settings and expert:
   in number and in timing. With ``match_timing: steps`` (an extension; the named arm needs
   ``gate_trace``), each episode asks at the steps the named arm asked at in that episode of seed k,
   moved round the episode by a random offset (random_ask_steps): matched in number, gaps and runs
-  of requests; the report's placement table checks it.
+  of requests; where this arm's episode ends before a request's step, the next episode asks it
+  (owed, so that the run's count holds on an env whose episodes end at different steps); the
+  report's placement table checks it.
 - ``match`` and ``thins`` (mode ask_random): the arm's random_ask_rate for seed k is the
   ``match`` arm's requests over the ``thins`` arm's (e.g. EQSAC's over QASAC's): the ask gate
   thinned by chance to about the number of requests the entropy gate let through.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import random
 import statistics
 from collections import deque
 from dataclasses import dataclass
@@ -31,6 +32,21 @@ def step_patterns(flat: tuple) -> list:
     if block:
         raise ValueError('random_ask_steps: the last episode is not ended by -1')
     return patterns
+
+
+def place_owed(placed: set, owed: list, length: int, offset: int) -> set:
+    """``placed`` with the ``owed`` steps added as one block (their gaps kept) moved round
+    ``length`` by ``offset``; a step already taken moves to the next free one. Owed requests
+    beyond the episode's free steps are dropped (they would need more steps than it has)."""
+    placed = set(placed)
+    for s in owed:
+        if len(placed) >= length:
+            break
+        place = (s - owed[0] + offset) % length
+        while place in placed:
+            place = (place + 1) % length
+        placed.add(place)
+    return placed
 
 
 class FifoQueue:
@@ -120,7 +136,8 @@ class AdvisingGates:
       another run episode by episode, so that it asks when that run asked, at other states.
       With ``random_ask_steps`` (an extension), matched step by step: each episode asks at the
       steps the other run asked at, moved round the episode's length by a random offset, so the
-      count, the gaps between requests and their runs are that run's, the place is chance's.
+      count, the gaps between requests and their runs are that run's, the place is chance's;
+      requests at steps this run's episode ended before are owed to its next episode.
     - ``ask_random`` (baseline): asks when D(s) > max(D_queue) and a uniform draw is below
       ``random_ask_rate``: the ask gate thinned at random, where EQSAC thins it by E(s).
     Extensions beyond the paper (labelled so in every table):
@@ -179,6 +196,7 @@ class AdvisingGates:
         self.step_patterns = step_patterns(check_value('random_ask_steps', random_ask_steps))
         self._shifted_episode = -1
         self._shifted_steps: frozenset[int] = frozenset()  # the steps to ask at in that episode
+        self._shifted_reached = -1  # the last step of that episode the gates saw
         self.request_refractory_steps = check_value('request_refractory_steps', request_refractory_steps)
         self._last_request = (-1, 0)  # (episode, step) of the last request made
         self.gate_target_rate = check_value('gate_target_rate', gate_target_rate)
@@ -362,13 +380,21 @@ class AdvisingGates:
 
     def _shifted_request(self, episode: int, step: int, draw: float) -> bool:
         """random_ask_steps: the episode's pattern moved round its length by an offset drawn with
-        the episode's first draw (the same count, gaps and runs, at a random place)."""
+        the episode's first draw (the same count, gaps and runs, at a random place). Requests at
+        steps this arm's episode ended before reaching (its episodes end elsewhere than the
+        reference's) are owed: the next episode of the pattern asks them too, as a block with
+        their gaps moved round its length by a second random offset, so the run's count holds."""
         if episode != self._shifted_episode:
-            self._shifted_episode, self._shifted_steps = episode, frozenset()
+            owed = sorted(s for s in self._shifted_steps if s > self._shifted_reached)
+            self._shifted_episode, self._shifted_steps, self._shifted_reached = episode, frozenset(), -1
             if episode < len(self.step_patterns):
                 length, steps = self.step_patterns[episode]
                 offset = min(int(draw * length), length - 1)
-                self._shifted_steps = frozenset((s + offset) % length for s in steps)
+                placed = {(s + offset) % length for s in steps}
+                if owed:  # a second offset from the same draw's bits: no stream of its own to keep
+                    placed = place_owed(placed, owed, length, random.Random(int(draw * 2**53)).randrange(length))
+                self._shifted_steps = frozenset(placed)
+        self._shifted_reached = max(self._shifted_reached, step)
         return step in self._shifted_steps
 
     def state_dict(self) -> dict:
@@ -377,6 +403,7 @@ class AdvisingGates:
             'e_queue': self.e_queue.values(),
             'joint_threshold': self.joint_threshold,
             's_queue': self.s_queue.values(),
+            'shifted': [self._shifted_episode, self._shifted_reached, sorted(self._shifted_steps)],
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -385,3 +412,7 @@ class AdvisingGates:
         self.e_queue = FifoQueue(length, state['e_queue'])
         self.joint_threshold = float(state.get('joint_threshold', 1.0))  # absent before the extension
         self.s_queue = FifoQueue(self.s_queue.length, state.get('s_queue', ()))  # absent before novelty and advice_gain
+        # random_ask_steps: the episode in flight and what it owes (absent before owed requests)
+        episode, reached, steps = state.get('shifted', (-1, -1, ()))
+        self._shifted_episode, self._shifted_reached = int(episode), int(reached)
+        self._shifted_steps = frozenset(int(s) for s in steps)

@@ -190,7 +190,9 @@ class LearnerConfig:
         'Mode random, matched step by step (an extension): per episode from the first, its length L and '
         'the steps another run asked at, each episode ended by -1 (L, s1, s2, ..., -1, L, ..., -1). It asks '
         'at (s + o) mod L, o drawn uniformly once per episode: the same count, gaps and runs of requests, '
-        'at a random place. Overrides random_ask_schedule and random_ask_rate. Empty: not used',
+        'at a random place; requests at steps its own episode ended before are asked in the next episode, '
+        "as a block moved by a second offset, so the run's count holds where episodes end elsewhere. "
+        'Overrides random_ask_schedule and random_ask_rate. Empty: not used',
         range=(-1, INT_MAX),
     )
     random_ask_horizon: int = hyper(

@@ -64,6 +64,15 @@ def check_state(state) -> None:
     threshold = state['gates'].get('joint_threshold', 1.0)
     if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0.0 <= threshold <= 1.0:
         raise ValueError(f'gates.joint_threshold must be a number in [0, 1], found {threshold!r}')
+    _check_shifted(state['gates'].get('shifted', [-1, -1, []]))
+
+
+def _check_shifted(shifted) -> None:
+    """gates.shifted (random_ask_steps): [episode, last step seen, steps to ask at], integers."""
+    ok = isinstance(shifted, (list, tuple)) and len(shifted) == 3 and isinstance(shifted[2], (list, tuple))
+    numbers = [*shifted[:2], *shifted[2]] if ok else []
+    if not ok or not all(isinstance(v, int) and not isinstance(v, bool) and v >= -1 for v in numbers):
+        raise ValueError(f'gates.shifted must be [episode, step, [steps]] of integers >= -1, found {shifted!r}')
 
 
 def check_camera(state: dict, camera) -> None:

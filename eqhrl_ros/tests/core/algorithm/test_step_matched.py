@@ -6,7 +6,8 @@ import re
 import numpy as np
 import pytest
 
-from eqhrl_ros.core.algorithm.advising import AdvisingGates, step_patterns
+from eqhrl_ros.core.algorithm.advising import AdvisingGates, place_owed, step_patterns
+from eqhrl_ros.core.algorithm.learner_state import check_state
 
 
 def fired_steps(gates, episode, length, rng):
@@ -40,6 +41,55 @@ def test_episodes_past_the_pattern_ask_nothing_and_the_budget_still_ends_advice(
     assert len(fired_steps(gates, 0, 5, rng)) == 5
     assert fired_steps(gates, 1, 5, rng) == []
     assert not gates.decide(5, draw=0.0, step=0).within_budget
+
+
+def test_requests_an_episode_ended_before_are_asked_in_the_next_one_with_their_gaps():
+    # The reference's episode 0 lasted 20 steps and asked at 15, 16, 17; this arm's lasts 10.
+    pattern = (20, 15, 16, 17, -1, 20, 2, -1, 20, -1)
+    rng = np.random.default_rng(2)
+    owed_anywhere = 0
+    for _ in range(40):
+        gates = AdvisingGates('random', advising_budget=3, random_ask_steps=pattern)
+        short = fired_steps(gates, 0, 10, rng)
+        second, third = fired_steps(gates, 1, 20, rng), fired_steps(gates, 2, 20, rng)
+        assert len(short) + len(second) + len(third) == 4  # the run's count holds
+        assert third == []  # nothing was owed past the episode that paid it
+        owed = 3 - len(short)
+        owed_anywhere += owed
+        if owed == 3:  # the whole run of three, still a run (round the episode) beside the own request
+            runs = [s for s in second if {(s + 1) % 20, (s + 2) % 20} <= set(second)]
+            assert len(second) == 4 and runs
+    assert owed_anywhere > 40  # the short episode did end before most of them
+
+
+def test_owed_requests_survive_a_save_between_episodes():
+    pattern = (30, 20, 21, 25, -1, 30, 4, -1)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        gates = AdvisingGates('random', advising_budget=2, random_ask_steps=pattern)
+        fired_steps(gates, 0, 5, rng)
+        resumed = AdvisingGates('random', advising_budget=2, random_ask_steps=pattern)
+        resumed.load_state_dict(gates.state_dict())
+        draws = rng.random(30)
+        expected = [s for s in range(30) if gates.decide(1, draw=float(draws[s]), step=s).fire]
+        assert [s for s in range(30) if resumed.decide(1, draw=float(draws[s]), step=s).fire] == expected
+
+
+def test_placing_owed_requests_moves_past_taken_steps_and_never_overfills():
+    assert place_owed({3, 4}, [7, 8, 10], length=12, offset=3) == {3, 4, 5, 6, 7}
+    assert place_owed({0, 1}, [5, 6, 7, 8], length=4, offset=0) == {0, 1, 2, 3}
+
+
+@pytest.mark.parametrize('shifted', [[0, 1], [0, 1, [2.5]], [0, True, []], [0, -2, []], 'x'])
+def test_a_checkpoint_with_a_bad_shifted_pattern_is_refused(shifted):
+    state = {
+        'config': {},
+        'rng': {},
+        'counters': {'episode': 0, 'total_steps': 0, 'updates': 0, 'advice_total': {}},
+        'gates': {'d_queue': [], 'e_queue': [], 'shifted': shifted},
+    }
+    with pytest.raises(ValueError, match='gates.shifted'):
+        check_state(state)
 
 
 @pytest.mark.parametrize(
