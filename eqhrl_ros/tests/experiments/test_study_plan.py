@@ -1,5 +1,7 @@
 """A study's plan (experiments/study_plan.py) and what its runs say about themselves (study_runs.py)."""
 
+from pathlib import Path
+
 import pytest
 
 from eqhrl_ros.experiments import study_plan, study_runs
@@ -13,6 +15,14 @@ def test_the_shipped_plan_loads_and_names_every_group(capsys):
     assert len(main[0].seeds) >= 10 and {a.mode for a in main} == {'sac', 'qasac', 'eqsac', 'random'}
     for arm in plan.arms:
         study_plan.arm_settings(plan, arm)  # every arm's settings are ones the learner accepts
+
+
+@pytest.mark.parametrize('name', sorted(p.stem for p in (Path(__file__).parents[2] / 'studies').glob('*.yaml')))
+def test_every_shipped_plan_loads_with_settings_the_learner_accepts(name):
+    plan = study_plan.load_plan(name)
+    assert plan.name == name and plan.arms
+    for arm in plan.arms:
+        study_plan.arm_settings(plan, arm)
 
 
 def test_the_lunar_lander_plan_has_the_papers_budget_inside_its_episodes():
