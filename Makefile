@@ -151,6 +151,7 @@ profile: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/profile_learner.py --mode sac
 	$(VPY) benchmarks/profile_learner.py --mode eqsac
 	$(VPY) benchmarks/profile_update.py
+	$(VPY) benchmarks/kernel_options.py
 
 # Refresh constraints.txt from the current .venv (after changing requirements.txt).
 lock: $(VENV)/.stamp-deps
