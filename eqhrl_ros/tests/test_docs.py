@@ -94,6 +94,7 @@ def test_the_results_pages_tables_are_the_committed_reports():
         ('study_pendulum_prior', 'PRIOR', ['PRIOR_TESTS', 'PRIOR_PERSON']),
         ('study_pendulum_prior_controlled', 'PRIORC', ['PRIORC_TESTS', 'PRIORC_PERSON']),
         ('study_lunar_lander_steps', 'LUNARS', ['LUNARS_TESTS', 'LUNARS_ARMS', 'LUNARS_PLACEMENT']),
+        ('study_lunar_lander_owed', 'LUNARO', ['LUNARO_TESTS', 'LUNARO_ARMS', 'LUNARO_PLACEMENT']),
         ('study_pendulum_gates', 'GATES', ['GATES_TESTS', 'GATES_ARMS', 'GATES_PLACEMENT', 'GATES_DIFFS']),
         ('study_pendulum_scores', 'SCORES', ['SCORES_TESTS', 'SCORES_ARMS', 'SCORES_PLACEMENT']),
         ('study_pendulum_wheel', 'WHEEL', ['WHEEL_TESTS', 'WHEEL_PERSON']),
