@@ -17,6 +17,9 @@ time.perf_counter around:
 - noise: the update's noise (updater.noise_for);
 - update: algorithm1_update, compiled or eager, to its losses as floats.
 
+Then, in each round, the same learner's propose, sampling and update called back to back on one
+input ("alone"): what each part costs without the loop's other parts between its calls.
+
 Prints the median ms per step of each part and mode, and each mode's total and its ratio to
 SAC's speed; also, timed alone in the same rounds, the two products that bound an update (a
 256x256x256 float32 matrix product). Evidence, no target, no exit code.
@@ -94,6 +97,32 @@ def timed_round(env, learner, expert, steps: int, obs) -> tuple:
     return {name: 1e3 * value / steps for name, value in parts.items()}, obs
 
 
+def alone_round(learner, obs, calls: int = 50) -> dict:
+    """ms per call of propose, of sampling and of the update, each called back to back on the
+    same input (no env step, no other part between calls): beside the loop's figures, what the
+    loop's interleaving costs each part (caches, the threads' wake-ups)."""
+    updater, clock, out = learner.updater, time.perf_counter, {}
+    batch, advice = learner.memories.sample()
+    noise = updater.noise_for(batch, advice)
+    weights, state, constants = updater.inputs()
+    compiled = updater.compiled
+    function = compiled.function if compiled is not None and compiled.ready else None
+    if function is None:
+        from eqhrl_ros.core.algorithm.update import algorithm1_update as function
+    arguments = (updater.nets, weights, state, batch.columns(), advice and advice.columns(), noise, constants)
+    for name, call in (
+        ('propose', lambda: learner.propose(obs)),
+        ('sample', learner.memories.sample),
+        ('update', lambda: function(*arguments)),
+    ):
+        call()
+        start = clock()
+        for _ in range(calls):
+            call()
+        out[name] = 1e3 * (clock() - start) / calls
+    return out
+
+
 def product_ms(repeats: int = 50) -> float:
     a, b = torch.randn(256, 256), torch.randn(256, 256)
     for _ in range(5):
@@ -118,11 +147,13 @@ def main() -> None:
     contenders = {mode: make(args.env, mode, args) for mode in args.modes}
     observations = {mode: env.reset(seed=1)[0] for mode, (env, _, _) in contenders.items()}
     rounds: dict = {mode: [] for mode in args.modes}
+    alone: dict = {mode: [] for mode in args.modes}
     products = []
     for _ in range(args.rounds):
         for mode, (env, learner, expert) in contenders.items():
             parts, observations[mode] = timed_round(env, learner, expert, args.steps, observations[mode])
             rounds[mode].append(parts)
+            alone[mode].append(alone_round(learner, observations[mode]))
         products.append(product_ms())
     path = 'compiled' if args.compile else 'eager'
     print(f'{args.env}, {path}, {args.threads} threads, {args.rounds} x {args.steps} steps per mode, interleaved')
@@ -132,6 +163,11 @@ def main() -> None:
     for name in PARTS:
         print(f'{name:22s}' + ''.join(f'{statistics.median(r[name] for r in rounds[m]):9.3f}' for m in args.modes))
     print(f'{"total":22s}' + ''.join(f'{totals[m]:9.3f}' for m in args.modes))
+    for name in ('propose', 'sample', 'update'):
+        print(
+            f'{name + ", alone":22s}'
+            + ''.join(f'{statistics.median(r[name] for r in alone[m]):9.3f}' for m in args.modes)
+        )
     if 'sac' in totals:
         print(f'{"speed vs SAC":22s}' + ''.join(f'{totals["sac"] / totals[m]:9.2f}' for m in args.modes))
 
