@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
+from eqhrl_ros.core.algorithm.update import algorithm1_update
 
 PARTS = ('propose', 'expert', 'env', 'store', 'sample', 'noise', 'update')
 
@@ -56,6 +57,12 @@ def make(env_id: str, mode: str, args) -> tuple:
         compiled = learner.start_compiling(background=False)
         assert compiled is not None and compiled.ready, 'the update did not compile'
     return env, learner, expert
+
+
+def update_function(updater):
+    """The update the learner runs now: its compiled program once ready, else the eager one."""
+    compiled = updater.compiled
+    return compiled.function if compiled is not None and compiled.ready else algorithm1_update
 
 
 def timed_round(env, learner, expert, steps: int, obs) -> tuple:
@@ -80,10 +87,7 @@ def timed_round(env, learner, expert, steps: int, obs) -> tuple:
         noise = updater.noise_for(batch, advice)
         t6 = clock()
         weights, state, constants = updater.inputs()
-        compiled = updater.compiled
-        function = compiled.function if compiled is not None and compiled.ready else None
-        if function is None:
-            from eqhrl_ros.core.algorithm.update import algorithm1_update as function
+        function = update_function(updater)
         losses = function(updater.nets, weights, state, batch.columns(), advice and advice.columns(), noise, constants)
         {name: float(value) for name, value in losses.items()}
         t7 = clock()
@@ -105,10 +109,7 @@ def alone_round(learner, obs, calls: int = 50) -> dict:
     batch, advice = learner.memories.sample()
     noise = updater.noise_for(batch, advice)
     weights, state, constants = updater.inputs()
-    compiled = updater.compiled
-    function = compiled.function if compiled is not None and compiled.ready else None
-    if function is None:
-        from eqhrl_ros.core.algorithm.update import algorithm1_update as function
+    function = update_function(updater)
     arguments = (updater.nets, weights, state, batch.columns(), advice and advice.columns(), noise, constants)
     for name, call in (
         ('propose', lambda: learner.propose(obs)),
