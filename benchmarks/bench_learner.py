@@ -41,6 +41,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import eqhrl_ros  # noqa: F401 - first, as in a user's nodes: OpenMP's spin (eqhrl_ros/__init__.py) before torch loads it
+
+# isort: split
 import numpy as np
 import torch
 
@@ -72,6 +75,12 @@ def cpu_model() -> str:
     avx512 = 'AVX-512' if 'avx512f' in info.get('flags', '').split() else 'no AVX-512'
     name = info.get('model name', 'unknown')
     return f'{name}, family {info.get("cpu family", "?")} model {info.get("model", "?")}, {avx512}'
+
+
+def openmp_spin() -> str:
+    """GOMP_SPINCOUNT as this process's OpenMP read it: eqhrl_ros's 1,000 (what a user's nodes
+    get), or a value set in the environment before the run."""
+    return os.environ.get('GOMP_SPINCOUNT', "libgomp's default")
 
 
 class OursLoop:
@@ -285,8 +294,8 @@ def main() -> int:
     global CACHE
     CACHE = inductor_cache_state()
     print(
-        f'torch {torch.__version__}, {args.threads} threads, {os.cpu_count()} CPUs ({cpu_model()}); '
-        'per env and contender '
+        f'torch {torch.__version__}, {args.threads} threads, {os.cpu_count()} CPUs ({cpu_model()}), '
+        f'OpenMP spin {openmp_spin()}; per env and contender '
         f'{args.rounds} x {args.round_steps} timed steps, interleaved, after {args.warmup} without updates'
     )
     steps = args.round_steps

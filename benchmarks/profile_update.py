@@ -30,6 +30,9 @@ import statistics
 import time
 from collections import defaultdict
 
+import eqhrl_ros  # noqa: F401 - first, as in a user's nodes: OpenMP's spin (eqhrl_ros/__init__.py) before torch loads it
+
+# isort: split
 import numpy as np
 import torch
 import torch._inductor.config as inductor_config

@@ -32,8 +32,12 @@ import statistics
 import time
 from collections import defaultdict
 
+import eqhrl_ros  # noqa: F401 - first, as in a user's nodes: OpenMP's spin (eqhrl_ros/__init__.py) before torch loads it
+
+# isort: split
 import numpy as np
 import torch
+from bench_learner import openmp_spin
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
 from eqhrl_ros.core.algorithm.update import algorithm1_update
@@ -157,7 +161,10 @@ def main() -> None:
             alone[mode].append(alone_round(learner, observations[mode]))
         products.append(product_ms())
     path = 'compiled' if args.compile else 'eager'
-    print(f'{args.env}, {path}, {args.threads} threads, {args.rounds} x {args.steps} steps per mode, interleaved')
+    print(
+        f'{args.env}, {path}, {args.threads} threads, OpenMP spin {openmp_spin()}, '
+        f'{args.rounds} x {args.steps} steps per mode, interleaved'
+    )
     print(f'one 256x256x256 float32 product alone: {statistics.median(products):.3f} ms (median of rounds)')
     print(f'{"part (ms per step)":22s}' + ''.join(f'{mode:>9s}' for mode in args.modes))
     totals = {mode: statistics.median(sum(r.values()) for r in rounds[mode]) for mode in args.modes}

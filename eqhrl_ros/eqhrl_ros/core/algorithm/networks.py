@@ -70,7 +70,14 @@ def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.T
     (weight [N, out, in], bias [N, out], x [N, batch, in]) with one batched product (stacked_seeds.py)."""
     if weight.dim() == 2:
         return F.linear(x, weight, bias)
-    return torch.baddbmm(bias.unsqueeze(-2), x, weight.transpose(-1, -2))
+    return biased_product(x, weight.transpose(-1, -2), bias.unsqueeze(-2))
+
+
+def biased_product(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """bias + x @ weight for a stack of layers ([groups, batch, in] @ [groups, in, out]): one
+    batched product with its bias (the twin critics, stacked networks). One function, so that
+    benchmarks/kernel_options.py can measure the compiled update with the bias written apart."""
+    return torch.baddbmm(bias, x, weight)
 
 
 def _kaiming_linear(in_features: int, out_features: int, nonlinearity: Literal['relu', 'linear', 'tanh']) -> nn.Linear:
@@ -152,7 +159,9 @@ class TwinCritic(nn.Module):
         # folded to [groups, batch, width]; a view, not a copy, for a single twin critic.
         x = x.unsqueeze(-3).expand(*lead, batch, width).reshape(-1, batch, width)
         for weight, bias in zip(weights, biases):
-            x = torch.relu(torch.baddbmm(bias.reshape(-1, *bias.shape[-2:]), x, weight.reshape(-1, *weight.shape[-2:])))
+            x = torch.relu(
+                biased_product(x, weight.reshape(-1, *weight.shape[-2:]), bias.reshape(-1, *bias.shape[-2:]))
+            )
         # [groups, batch, width] * [groups, 1, width], summed over width: [groups, batch].
         q = (x * last_weight.reshape(-1, *last_weight.shape[-2:]).transpose(1, 2)).sum(-1) + last_bias.reshape(-1, 1)
         q = q.view(*lead, batch)
