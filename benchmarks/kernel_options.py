@@ -26,11 +26,11 @@ both together:
   fused into the activation's kernel: the library's addmm / baddbmm first copies the bias into
   every row of its output.
 
-Prints each set's median ms per call and its speed against the default's (the median of the rounds'
-ratios, each round's sets side by side), per mode, and whether the
-set's losses equal the default's on the same inputs (to float rounding: a kernel option may
-only reorder sums; the exp tanh is within 1e-7 of tanh). Evidence, no target, no exit code;
-docs/performance.md keeps the figures with the machine they were measured on.
+Prints each set's median ms per call and its speed against the default's (the median of the
+rounds' ratios, each round's sets side by side), per mode, and whether the set's losses equal
+the default's on the same inputs (to float rounding: a kernel option may only reorder sums; the
+exp tanh is within 1e-7 of tanh). Evidence, no target, no exit code; docs/performance.md keeps
+the figures with the machine they were measured on.
 """
 
 from __future__ import annotations
