@@ -146,12 +146,14 @@ bench-pixels: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/bench_pixels.py
 
 # Where a training step's time goes (torch.profiler's top operators), and inside the compiled
-# update: products, fused kernels and the rest of the call (docs/performance.md, issue 48).
+# update: products, fused kernels and the rest of the call; each thread of the loop, its
+# sleeps and, with linux perf, where its time goes (docs/performance.md, issue 48).
 profile: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/profile_learner.py --mode sac
 	$(VPY) benchmarks/profile_learner.py --mode eqsac
 	$(VPY) benchmarks/profile_update.py
 	$(VPY) benchmarks/kernel_options.py
+	$(VPY) benchmarks/profile_threads.py
 
 # Refresh constraints.txt from the current .venv (after changing requirements.txt).
 lock: $(VENV)/.stamp-deps
