@@ -133,7 +133,7 @@ bench-multi-host: $(VENV)/.stamp-eqhrl_ros
 # speed beside one CPU-bound process, in-process and through ROS.
 bench-busy: $(VENV)/.stamp-eqhrl_ros
 	a=0; b=0; $(VPY) benchmarks/bench_busy.py --hidden 256 --batch 256 || a=$$?; \
-	$(VPY) benchmarks/bench_busy.py --rounds 2 --ros-episodes 8 --settings "2:default" "2:spin 1000" || b=$$?; \
+	$(VPY) benchmarks/bench_busy.py --rounds 2 --ros-episodes 8 --settings "2:default:fitted" "2:spin 1000" || b=$$?; \
 	exit $$(( a || b ))
 
 # Seeds together against seeds apart: the curve for N seeds, and a

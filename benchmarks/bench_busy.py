@@ -13,9 +13,11 @@ setting's busy/quiet ratio. A learner's fair share beside one CPU-bound process 
 
 Settings: torch threads (1 or 2) x OpenMP's waiting: the default (libgomp spins a while
 before it sleeps), OMP_WAIT_POLICY=PASSIVE (sleeps at once), or a shorter spin
-(GOMP_SPINCOUNT, libgomp's own setting; torch's CPU wheels use libgomp). --settings picks.
-Our default (2 threads, 1,000 spins) must keep at
-least 40 % of its quiet speed beside the busy process: the script exits 1
+(GOMP_SPINCOUNT, libgomp's own setting; torch's CPU wheels use libgomp), and whether the
+thread count is fixed (core/algorithm/cpu_threads.fix, as a node's torch_threads > 0 does) or
+fitted to the machine after each update (core/algorithm/cpu_threads.py, as with torch_threads 0).
+--settings picks, as THREADS:WAITING[:fitted]. Our default (2 threads fitted, libgomp's own
+spin) must keep at least 40 % of its quiet speed beside the busy process: the script exits 1
 on a miss. The figures are in docs/performance.md.
 """
 
@@ -36,6 +38,9 @@ import sys, time
 import numpy as np
 import torch
 torch.set_num_threads(int(sys.argv[1]))
+from eqhrl_ros.core.algorithm import cpu_threads
+if sys.argv[5] == 'fixed':
+    cpu_threads.fix(int(sys.argv[1]))  # else fitted to the machine after each update, as in a node
 from eqhrl_ros.core.algorithm.learner import EQSACLearner, LearnerConfig
 learner = EQSACLearner(3, np.array([-2.0], np.float32), np.array([2.0], np.float32),
                        LearnerConfig(hidden=(int(sys.argv[3]),) * 2, batch_size=int(sys.argv[4]),
@@ -64,10 +69,11 @@ WAITING = {
     'spin 1000': {'GOMP_SPINCOUNT': '1000'},
     'spin 100': {'GOMP_SPINCOUNT': '100'},
 }
-SETTINGS = [(threads, policy) for threads in (2, 1) for policy in ('default', 'spin 1000', 'PASSIVE')]
+SETTINGS = [(threads, policy, False) for threads in (2, 1) for policy in ('default', 'spin 1000', 'PASSIVE')]
+SETTINGS.insert(0, (2, 'default', True))
 # What eqhrl_ros runs with unless told otherwise (eqhrl_ros/__init__.py; torch's own threads),
 # and the share of its quiet speed it must keep beside one busy process.
-OURS = (2, 'spin 1000')
+OURS = (2, 'default', True)
 TARGET = 0.40
 
 # The ROS path: eqhrl-train (env, expert and learner nodes in one process), Pendulum at
@@ -79,7 +85,7 @@ gym_env:
 learner:
   ros__parameters:
     learning_starts: 256
-    torch_threads: {threads}
+    torch_threads: {threads}  # 0: fitted to the machine (core/algorithm/cpu_threads.py)
 /**:
   ros__parameters:
     env_id: Pendulum-v1
@@ -87,12 +93,12 @@ learner:
 EPISODE_LINE = re.compile(r'\[(\d+\.\d+)\] \[learner\]: episode\s+(\d+) .*? steps (\d+)')
 
 
-def measure_ros(threads: int, policy: str, episodes: int) -> float:
+def measure_ros(threads: int, policy: str, fitted: bool, episodes: int) -> float:
     env = {k: v for k, v in os.environ.items() if k not in ('OMP_WAIT_POLICY', 'GOMP_SPINCOUNT')}
     env.update(WAITING[policy])
     with tempfile.TemporaryDirectory() as tmp:
         params = Path(tmp) / 'busy.yaml'
-        params.write_text(ROS_PARAMS.format(threads=threads))
+        params.write_text(ROS_PARAMS.format(threads=0 if fitted else threads))
         command = [str(Path(sys.prefix) / 'bin' / 'eqhrl-train'), '--params', str(params), '--output', tmp + '/run']
         command += ['--episodes', str(episodes)]
         done = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
@@ -101,14 +107,23 @@ def measure_ros(threads: int, policy: str, episodes: int) -> float:
     return (rows[-1][2] - rows[0][2]) / (rows[-1][0] - rows[0][0])
 
 
-def measure(threads: int, policy: str, seconds: float, hidden: int, batch: int, ros_episodes: int = 0) -> float:
+def measure(
+    threads: int, policy: str, fitted: bool, seconds: float, hidden: int, batch: int, ros_episodes: int = 0
+) -> float:
     if ros_episodes:
-        return measure_ros(threads, policy, ros_episodes)
+        return measure_ros(threads, policy, fitted, ros_episodes)
     env = {k: v for k, v in os.environ.items() if k not in ('OMP_WAIT_POLICY', 'GOMP_SPINCOUNT')}
     env.update(WAITING[policy])
     command = [sys.executable, '-c', MEASURE, str(threads), str(seconds), str(hidden), str(batch)]
+    command.append('fitted' if fitted else 'fixed')
     out = subprocess.run(command, env=env, check=True, capture_output=True, text=True).stdout
     return float(out.strip().splitlines()[-1])
+
+
+def setting_of(item: str) -> tuple:
+    """'THREADS:WAITING[:fitted]' -> (threads, waiting, fitted)."""
+    threads, waiting, *fitted = item.split(':')
+    return int(threads), waiting, fitted == ['fitted']
 
 
 def main() -> int:
@@ -120,7 +135,8 @@ def main() -> int:
     parser.add_argument(
         '--settings',
         nargs='+',
-        help=f'THREADS:WAITING pairs, WAITING one of {", ".join(WAITING)} (default: 2 and 1 threads x '
+        help=f'THREADS:WAITING[:fitted], WAITING one of {", ".join(WAITING)}; fitted: the thread count '
+        'fitted to the machine (default: 2 fitted with the default spin, then 2 and 1 fixed threads x '
         'default, spin 1000, PASSIVE)',
     )
     parser.add_argument(
@@ -132,8 +148,8 @@ def main() -> int:
     args = parser.parse_args()
     settings = SETTINGS
     if args.settings:
-        settings = [(int(t), w) for t, w in (item.split(':', 1) for item in args.settings)]
-        unknown = [w for _, w in settings if w not in WAITING]
+        settings = [setting_of(item) for item in args.settings]
+        unknown = [w for _, w, _ in settings if w not in WAITING]
         if unknown:
             parser.error(f'unknown waiting {unknown}; one of {list(WAITING)}')
     quiet = {s: [] for s in settings}
@@ -160,7 +176,8 @@ def main() -> int:
     ok = True
     for setting in settings:
         q, b = statistics.median(quiet[setting]), statistics.median(busy[setting])
-        line = f'{setting[0]:>13d} {setting[1]:>16s} {q:8.1f} {b:8.1f} {b / q:10.0%}'
+        threads = f'{setting[0]}{" fitted" if setting[2] else ""}'
+        line = f'{threads:>13s} {setting[1]:>16s} {q:8.1f} {b:8.1f} {b / q:10.0%}'
         if setting == OURS:
             met = b / q >= TARGET
             ok = ok and met

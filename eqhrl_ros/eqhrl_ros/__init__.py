@@ -11,12 +11,6 @@ cli/          the programs: each main parses, calls the wings above, and prints
 web/          the person's page (console.html, console.js), served by nodes/console_server.py
 """
 
-import os
-
-# torch's CPU threads come from OpenMP (libgomp), whose idle threads spin about 300,000 times
-# before they sleep. Beside another busy process (a simulator, a camera driver, a second run)
-# they spin against it for the cores, and a learner kept 27 % of its quiet speed. With 1,000
-# spins it keeps 48-51 % (its fair share beside one busy process on 2 cores is 50 %) at 96-98 %
-# of the quiet speed (docs/performance.md, "A busy machine"). libgomp reads this once, when
-# torch loads it: set here, before any of our modules imports torch. A value you set wins.
-os.environ.setdefault('GOMP_SPINCOUNT', '1000')
+# OpenMP's spin is left as libgomp has it (or as you set it, GOMP_SPINCOUNT): torch's thread
+# count is fitted to the machine instead (core/algorithm/cpu_threads.py). Until 2026-12-04 this
+# package set 1,000 spins here; docs/performance.md, "Fitting torch's threads to the machine".

@@ -38,6 +38,7 @@ algorithm/  EQ-HRL itself
   advice_counts.py   what advice cost and brought, per episode and over the run
   advice_outcomes.py what came of each request and each step the person drove, counted
   learner_state.py   a saved learner state, checked
+  cpu_threads.py  torch's CPU threads fitted to the machine: all while the cores are free, one while crowded
   learner.py      EQSACLearner: SAC, QASAC and EQSAC (Algorithm 1), wired from the parts above
 experts/    whoever answers a request
   controllers.py  the built-in controllers of the shipped envs

@@ -21,13 +21,13 @@ import time
 from typing import Optional
 
 import numpy as np
-import torch
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float32MultiArray, String
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 
+from ..core.algorithm import cpu_threads
 from ..core.algorithm.config import advice_protocol, asks_for_advice
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, LearnerConfig
 from ..core.data.advice import Advice
@@ -70,8 +70,8 @@ class ActingNode(Node):
         self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))
         self.add_post_set_parameters_callback(self._after_set_parameters)
         p = self.params
-        if p['torch_threads'] > 0:
-            torch.set_num_threads(p['torch_threads'])
+        if p['torch_threads'] > 0:  # else fitted to the machine as it runs (core/algorithm/cpu_threads.py)
+            cpu_threads.fix(p['torch_threads'])
 
         self.config = LearnerConfig.from_params(values)
         self._before_start()

@@ -22,12 +22,12 @@ from collections import deque
 from typing import Optional
 
 import numpy as np
-import torch
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionAck, TransitionBatch
 
+from ..core.algorithm import cpu_threads
 from ..core.algorithm.learner import EQSACLearner, LearnerConfig
 from ..core.data.errors import CheckpointError
 from ..core.data.signing import signer_from
@@ -73,8 +73,8 @@ class TrainerNode(RunFiles, Node):
         values = declare(self, LEARNER_CONFIG_PARAMS)
         self.params = p = declare(self, TRAINER_PARAMS)
         self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))
-        if p['torch_threads'] > 0:
-            torch.set_num_threads(p['torch_threads'])
+        if p['torch_threads'] > 0:  # else fitted to the machine as it runs (core/algorithm/cpu_threads.py)
+            cpu_threads.fix(p['torch_threads'])
         self.config = LearnerConfig.from_params(values)
         self.signer = signer_from(p['key_file'])  # KeyFileError (a ValueError): refused at start-up
         if not (p['actors'] or self.signer or p['accept_any_actor']):

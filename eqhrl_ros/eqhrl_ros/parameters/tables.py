@@ -125,7 +125,13 @@ ACTING_PARAMS = (
         'While another node publishes person_command too, no command is taken (a stranger could drive)',
     ),
 )
-TORCH_THREADS = Param('torch_threads', 0, 'torch intra-op threads (0: torch default)', (0, 256))
+TORCH_THREADS = Param(
+    'torch_threads',
+    0,
+    "torch intra-op threads; 0: torch's default count while the machine's cores are free, 1 while another "
+    'process keeps them busy (core/algorithm/cpu_threads.py)',
+    (0, 256),
+)
 KEY_FILE = Param(
     'key_file',
     '',

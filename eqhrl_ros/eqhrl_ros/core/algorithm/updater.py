@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Callable, Optional
 import torch
 
 from ..data.replay import Minibatch
+from . import cpu_threads
 from .config import LearnerConfig
 from .critics import Critics
 from .policy import Policy
@@ -217,6 +218,7 @@ class Updater:
         self.count(info)
         if self.config.compile_update and compiled is None and not self.compile_refused:
             self.start_compiling()
+        cpu_threads.adapt()  # torch's threads fitted to the machine, from this (the updates') thread
         return info
 
     def count(self, losses: dict) -> None:

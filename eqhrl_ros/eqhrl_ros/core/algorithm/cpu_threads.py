@@ -1,0 +1,141 @@
+"""torch's CPU threads fitted to the machine as the learner runs: every thread torch was given while
+the cores are free, one thread while another process is busy beside the learner.
+
+Why (docs/performance.md, "A busy machine" and "Fitting torch's threads to the machine"): torch's
+OpenMP threads spin a while between parallel regions before they sleep. On a quiet machine that
+is what makes 2 threads fast: a worker that slept costs the next region 65-100 us to wake on a
+VM, and a compiled SAC step has a dozen and more such regions. Beside a CPU-bound process the
+spinning threads fight it for the cores, and the learner kept 27-31 % of its quiet speed at
+2 threads, where at 1 thread it kept 94-102 %. No spin count buys both.
+
+So the updates' own thread looks, every ``window_s`` (updater.py calls ``adapt`` after each
+update; OpenMP's thread count belongs to the thread that sets it):
+
+- with every thread: if that thread waited for a CPU (runnable, not running: /proc's schedstat)
+  more than ``crowded`` of the window, another process holds the cores: it drops to one thread;
+- with one thread: once the machine left ``free_cores`` idle over a window (/proc/stat), it
+  goes back to every thread. A return that finds the cores taken again within two windows
+  doubles the wait before the next (up to 64 windows), so that a container whose /proc/stat
+  sees a bigger host does not flip every second.
+
+It stands down for good where someone else sets torch's thread count (``fix``, for a node's
+torch_threads > 0; a script's torch.set_num_threads between updates), where torch has one thread
+to begin with, and where /proc cannot be read (not Linux). The numbers do not depend on it: an
+update computes the same weights at 1 and 2 threads (checked to the bit on the project's
+machine, eager and compiled; tests/core/algorithm/test_cpu_threads.py).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Callable, Optional
+
+import torch
+
+WINDOW_S = 0.5  # how often the updates' thread looks
+CROWDED = 0.15  # with every thread: waited for a CPU over this share of the window -> one thread
+FREE_CORES = 0.7  # with one thread: the machine left this many cores idle over the window -> every thread
+MAX_BACKOFF = 64  # windows: the longest wait before trying every thread again
+
+
+def thread_waited_s() -> float:
+    """Seconds the calling thread has spent runnable but not running (its schedstat's second field)."""
+    with open('/proc/thread-self/schedstat') as f:
+        return int(f.read().split()[1]) / 1e9
+
+
+def idle_core_s() -> float:
+    """Seconds of idle (and I/O wait) summed over the machine's CPUs since boot, from /proc/stat."""
+    with open('/proc/stat') as f:
+        fields = f.readline().split()
+    return (int(fields[4]) + int(fields[5])) / os.sysconf('SC_CLK_TCK')
+
+
+class ThreadGovernor:
+    """One process's torch thread count: ``most`` while the cores are free, 1 while crowded. The
+    readers, the clock and torch's setters are arguments so that tests can drive it."""
+
+    def __init__(
+        self,
+        most: int,
+        clock: Callable[[], float] = time.monotonic,
+        waited: Callable[[], float] = thread_waited_s,
+        idle: Callable[[], float] = idle_core_s,
+        get_threads: Callable[[], int] = torch.get_num_threads,
+        set_threads: Callable[[int], None] = torch.set_num_threads,
+    ):
+        self.most, self.threads = most, most
+        self._clock, self._waited, self._idle = clock, waited, idle
+        self._get, self._set = get_threads, set_threads
+        self.standing_down = '' if most > 1 else 'torch has one thread'
+        self.switches = 0
+        self._backoff = 1  # windows to wait at one thread before trying every thread again
+        self._windows_here = 0  # windows since the last switch
+        self._since: Optional[tuple] = None
+        if not self.standing_down:
+            self._since = self._read()
+
+    def _read(self) -> Optional[tuple]:
+        try:
+            return self._clock(), self._waited(), self._idle()
+        except (OSError, ValueError, IndexError):  # no /proc (not Linux), or one we cannot parse
+            self.standing_down = 'no /proc to read'
+            return None
+
+    def tick(self) -> None:
+        """After an update, in the updates' thread: look once the window is over, and switch."""
+        if self.standing_down or self._since is None:
+            return
+        if self._get() != self.threads:  # someone else set torch's threads: theirs to keep
+            self.standing_down = f'torch set to {self._get()} threads by its caller'
+            return
+        start, waited_before, idle_before = self._since
+        if self._clock() - start < WINDOW_S:
+            return
+        now = self._read()
+        if now is None:
+            return
+        seconds = now[0] - start
+        crowded = (now[1] - waited_before) / seconds > CROWDED
+        free = (now[2] - idle_before) / seconds >= FREE_CORES
+        self._since = now
+        self._windows_here += 1
+        if self.threads > 1 and crowded:
+            # Found crowded right after a return: wait longer before the next one.
+            self._backoff = min(2 * self._backoff, MAX_BACKOFF) if self._windows_here <= 2 and self.switches else 1
+            self._switch(1)
+        elif self.threads == 1 and free and self._windows_here >= self._backoff:
+            self._switch(self.most)
+
+    def _switch(self, threads: int) -> None:
+        self._set(threads)
+        self.threads, self._windows_here = threads, 0
+        self.switches += 1
+
+
+_governor: Optional[ThreadGovernor] = None
+_fixed = False
+
+
+def fix(threads: int) -> None:
+    """torch's thread count set to ``threads`` for good (a node's torch_threads > 0): no governor."""
+    global _fixed
+    _fixed = True
+    torch.set_num_threads(threads)
+
+
+def adapt() -> None:
+    """After each update (updater.py): the process's governor looks, made on the first call from
+    torch's thread count then. A no-op once fixed or standing down."""
+    global _governor
+    if _fixed:
+        return
+    if _governor is None:
+        _governor = ThreadGovernor(torch.get_num_threads())
+    _governor.tick()
+
+
+def governor() -> Optional[ThreadGovernor]:
+    """The process's governor (None before the first update, or when fixed)."""
+    return None if _fixed else _governor
