@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env
+from eqhrl_ros.core.algorithm import cpu_threads
 
 ENVS = ('Pendulum-v1', 'LunarLanderContinuous-v3')
 MODES = ('sac', 'eqsac')
@@ -145,7 +146,7 @@ def main(argv=None) -> int:
     parser.add_argument('--curve', nargs='*', type=int, default=[1, 2, 5, 10, 20], help='N seeds together')
     parser.add_argument('--seed-steps', type=int, default=100, help='timed env steps per seed of the curve')
     args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
+    cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     if args.device != 'cpu' and args.device.startswith('cuda') and not torch.cuda.is_available():
         parser.error(f'--device {args.device}: torch sees no GPU here')
     devices = ['cpu'] if args.device == 'cpu' else ['cpu', args.device]

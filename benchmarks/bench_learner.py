@@ -2,7 +2,9 @@
 
     make bench-learner    # or: .venv/bin/python benchmarks/bench_learner.py [--rounds 8 --round-steps 150]
 
-Same process, same sizes (Table 1: 256x256, batch 256), same thread count. Each
+Same process, same sizes (Table 1: 256x256, batch 256), same thread count, fixed
+(cpu_threads.fix: the other contenders' thread pools in this process must not count as a
+crowd; a node with torch_threads 0 keeps the same count on a quiet machine). Each
 contender first fills its replay memory for --warmup steps without updates (not
 timed). Then the contenders take turns, --round-steps env steps each per round,
 each step followed by one gradient update, for --rounds rounds: a machine that
@@ -41,13 +43,14 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import eqhrl_ros  # noqa: F401 - first, as in a user's nodes: OpenMP's spin (eqhrl_ros/__init__.py) before torch loads it
+import eqhrl_ros  # noqa: F401 - first, as in a user's nodes (eqhrl_ros/__init__.py runs before torch loads)
 
 # isort: split
 import numpy as np
 import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env
+from eqhrl_ros.core.algorithm import cpu_threads
 
 ENVS = ('Pendulum-v1', 'LunarLanderContinuous-v3')
 TARGETS = {'sac': 1.5, 'eqsac': 1.0}  # ours compiled / SBX SAC (issue 48)
@@ -78,8 +81,8 @@ def cpu_model() -> str:
 
 
 def openmp_spin() -> str:
-    """GOMP_SPINCOUNT as this process's OpenMP read it: eqhrl_ros's 1,000 (what a user's nodes
-    get), or a value set in the environment before the run."""
+    """GOMP_SPINCOUNT as this process's OpenMP read it: libgomp's default (what a user's nodes get
+    since 2026-12-04; before, eqhrl_ros set 1,000), or a value set in the environment."""
     return os.environ.get('GOMP_SPINCOUNT', "libgomp's default")
 
 
@@ -290,7 +293,7 @@ def main() -> int:
     parser.add_argument('--threads', type=int, default=2)
     parser.add_argument('--envs', nargs='+', default=list(ENVS))
     args = parser.parse_args()
-    torch.set_num_threads(args.threads)
+    cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     global CACHE
     CACHE = inductor_cache_state()
     print(

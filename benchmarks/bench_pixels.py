@@ -32,6 +32,7 @@ import torch
 from torch import nn
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig
+from eqhrl_ros.core.algorithm import cpu_threads
 from eqhrl_ros.core.algorithm.image_encoder import FEATURES, FILTERS, LAYERS, conv_output_size, random_shift
 from eqhrl_ros.core.algorithm.memories import SHIFT_PAD
 from eqhrl_ros.core.data.frame_replay import frame_bytes
@@ -185,7 +186,7 @@ def main() -> int:
     parser.add_argument('--acts', type=int, default=50)
     parser.add_argument('--threads', type=int, default=2)
     args = parser.parse_args()
-    torch.set_num_threads(args.threads)
+    cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     print(
         f'torch {torch.__version__}, {args.threads} threads, {os.cpu_count()} CPUs; camera {CAMERA.height}x'
         f'{CAMERA.width}x{CAMERA.channels} stacked by {CAMERA.stack}; {args.rounds} interleaved rounds of '

@@ -35,9 +35,9 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
 
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
-import torch  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
+from eqhrl_ros.core.algorithm import cpu_threads
 from eqhrl_ros.nodes.expert_node import ExpertNode  # noqa: E402
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode  # noqa: E402
 from eqhrl_ros.nodes.learner_node import LearnerNode  # noqa: E402
@@ -225,7 +225,7 @@ def main() -> int:
     args = parser.parse_args()
     global EXECUTOR
     EXECUTOR = args.executor
-    torch.set_num_threads(args.threads)
+    cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     results = []  # (what, figure, target text, met)
 
     def report(what: str, figure: str, target: str, met: bool) -> None:

@@ -40,7 +40,7 @@ import random
 import statistics
 from collections import defaultdict
 
-import eqhrl_ros  # noqa: F401 - first, as in a user's nodes: OpenMP's spin (eqhrl_ros/__init__.py) before torch loads it
+import eqhrl_ros  # noqa: F401 - first, as in a user's nodes (eqhrl_ros/__init__.py runs before torch loads)
 
 # isort: split
 import torch
@@ -49,7 +49,7 @@ from bench_learner import cpu_model
 from profile_update import compiled_update, timed
 
 from eqhrl_ros.core.algorithm import compiled_update as compiled_module
-from eqhrl_ros.core.algorithm import networks
+from eqhrl_ros.core.algorithm import cpu_threads, networks
 
 OPTION_SETS = {
     'default': {},
@@ -136,7 +136,7 @@ def main() -> None:
     parser.add_argument('--rounds', type=int, default=15)
     parser.add_argument('--threads', type=int, default=2)
     args = parser.parse_args()
-    torch.set_num_threads(args.threads)
+    cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     modes = ('sac', 'eqsac')
     programs = {
         (name, mode): compiled_with(args.env, mode, args.warmup, options, forms)

@@ -14,10 +14,10 @@ import argparse
 import time
 
 import numpy as np
-import torch
 from torch.profiler import ProfilerActivity, profile
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
+from eqhrl_ros.core.algorithm import cpu_threads
 from eqhrl_ros.core.algorithm.config import MODES
 
 
@@ -30,7 +30,7 @@ def main() -> None:
     parser.add_argument('--threads', type=int, default=2)
     parser.add_argument('--rows', type=int, default=15)
     args = parser.parse_args()
-    torch.set_num_threads(args.threads)
+    cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
 
     env = make_env(args.env, max_episode_steps=args.steps + 1)
     learner = EQSACLearner(

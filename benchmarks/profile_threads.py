@@ -38,12 +38,14 @@ import threading
 import time
 from collections import Counter, defaultdict
 
-import eqhrl_ros  # noqa: F401 - first, as in a user's nodes: OpenMP's spin (eqhrl_ros/__init__.py) before torch loads it
+import eqhrl_ros  # noqa: F401 - first, as in a user's nodes (eqhrl_ros/__init__.py runs before torch loads)
 
 # isort: split
 import torch
 from bench_learner import cpu_model, openmp_spin
 from split_step import make, timed_round
+
+from eqhrl_ros.core.algorithm import cpu_threads
 
 # (name, test on (symbol, library path)), first match wins; the last catches everything else.
 CATEGORIES = (
@@ -185,7 +187,7 @@ def main() -> None:
     parser.add_argument('--threads', type=int, default=2)
     args = parser.parse_args()
     args.compile = True  # split_step.make's flag: the update compiled before anything is timed
-    torch.set_num_threads(args.threads)
+    cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     perf = shutil.which('perf')
     contenders = {}
     for mode in args.modes:

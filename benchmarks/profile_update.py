@@ -30,7 +30,7 @@ import statistics
 import time
 from collections import defaultdict
 
-import eqhrl_ros  # noqa: F401 - first, as in a user's nodes: OpenMP's spin (eqhrl_ros/__init__.py) before torch loads it
+import eqhrl_ros  # noqa: F401 - first, as in a user's nodes (eqhrl_ros/__init__.py runs before torch loads)
 
 # isort: split
 import numpy as np
@@ -40,6 +40,7 @@ from bench_learner import PRODUCTS, cpu_model  # the products an update does, an
 from torch.profiler import ProfilerActivity, profile
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
+from eqhrl_ros.core.algorithm import cpu_threads
 
 PRODUCT_OPS = ('aten::mm', 'aten::addmm', 'aten::bmm', 'aten::baddbmm')
 
@@ -142,7 +143,7 @@ def main() -> None:
         inductor_config.max_autotune = True
         inductor_config.max_autotune_gemm_backends = 'CPP,ATEN'
 
-    torch.set_num_threads(args.threads)
+    cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     inductor_config.cpp.enable_kernel_profile = True  # each generated kernel names itself in the profile
     modes = ('sac', 'eqsac')
     programs = {mode: compiled_update(args.env, mode, args.warmup) for mode in modes}

@@ -32,7 +32,7 @@ import statistics
 import time
 from collections import defaultdict
 
-import eqhrl_ros  # noqa: F401 - first, as in a user's nodes: OpenMP's spin (eqhrl_ros/__init__.py) before torch loads it
+import eqhrl_ros  # noqa: F401 - first, as in a user's nodes (eqhrl_ros/__init__.py runs before torch loads)
 
 # isort: split
 import numpy as np
@@ -40,6 +40,7 @@ import torch
 from bench_learner import openmp_spin
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
+from eqhrl_ros.core.algorithm import cpu_threads
 from eqhrl_ros.core.algorithm.update import algorithm1_update
 
 PARTS = ('propose', 'expert', 'env', 'store', 'sample', 'noise', 'update')
@@ -148,7 +149,7 @@ def main() -> None:
     parser.add_argument('--steps', type=int, default=150)
     parser.add_argument('--threads', type=int, default=2)
     args = parser.parse_args()
-    torch.set_num_threads(args.threads)
+    cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     contenders = {mode: make(args.env, mode, args) for mode in args.modes}
     observations = {mode: env.reset(seed=1)[0] for mode, (env, _, _) in contenders.items()}
     rounds: dict = {mode: [] for mode in args.modes}
