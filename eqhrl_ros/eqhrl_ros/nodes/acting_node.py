@@ -70,8 +70,10 @@ class ActingNode(Node):
         self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))
         self.add_post_set_parameters_callback(self._after_set_parameters)
         p = self.params
-        if p['torch_threads'] > 0:  # else fitted to the machine as it runs (core/algorithm/cpu_threads.py)
+        if p['torch_threads'] > 0:
             cpu_threads.fix(p['torch_threads'])
+        else:  # fitted to the machine as it runs; each switch logged in one line
+            cpu_threads.report_to(self.get_logger().info)
 
         self.config = LearnerConfig.from_params(values)
         self._before_start()

@@ -73,8 +73,10 @@ class TrainerNode(RunFiles, Node):
         values = declare(self, LEARNER_CONFIG_PARAMS)
         self.params = p = declare(self, TRAINER_PARAMS)
         self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))
-        if p['torch_threads'] > 0:  # else fitted to the machine as it runs (core/algorithm/cpu_threads.py)
+        if p['torch_threads'] > 0:
             cpu_threads.fix(p['torch_threads'])
+        else:  # fitted to the machine as it runs; each switch logged in one line
+            cpu_threads.report_to(self.get_logger().info)
         self.config = LearnerConfig.from_params(values)
         self.signer = signer_from(p['key_file'])  # KeyFileError (a ValueError): refused at start-up
         if not (p['actors'] or self.signer or p['accept_any_actor']):

@@ -64,10 +64,12 @@ class ThreadGovernor:
         idle: Callable[[], float] = idle_core_s,
         get_threads: Callable[[], int] = torch.get_num_threads,
         set_threads: Callable[[int], None] = torch.set_num_threads,
+        report: Callable[[str], None] | None = None,
     ):
         self.most, self.threads = most, most
         self._clock, self._waited, self._idle = clock, waited, idle
         self._get, self._set = get_threads, set_threads
+        self.report = report  # told of each switch, in one line (a node's logger)
         self.standing_down = '' if most > 1 else 'torch has one thread'
         self.switches = 0
         self._backoff = 1  # windows to wait at one thread before trying every thread again
@@ -97,25 +99,35 @@ class ThreadGovernor:
         if now is None:
             return
         seconds = now[0] - start
-        crowded = (now[1] - waited_before) / seconds > CROWDED
-        free = (now[2] - idle_before) / seconds >= FREE_CORES
+        waited, idle = (now[1] - waited_before) / seconds, (now[2] - idle_before) / seconds
         self._since = now
         self._windows_here += 1
-        if self.threads > 1 and crowded:
+        if self.threads > 1 and waited > CROWDED:
             # Found crowded right after a return: wait longer before the next one.
             self._backoff = min(2 * self._backoff, MAX_BACKOFF) if self._windows_here <= 2 and self.switches else 1
-            self._switch(1)
-        elif self.threads == 1 and free and self._windows_here >= self._backoff:
-            self._switch(self.most)
+            self._switch(1, f'the updates waited for a CPU {waited:.0%} of the last {seconds:.1f} s')
+        elif self.threads == 1 and idle >= FREE_CORES and self._windows_here >= self._backoff:
+            self._switch(self.most, f'the machine left {idle:.1f} cores idle over the last {seconds:.1f} s')
 
-    def _switch(self, threads: int) -> None:
+    def _switch(self, threads: int, why: str) -> None:
         self._set(threads)
         self.threads, self._windows_here = threads, 0
         self.switches += 1
+        if self.report is not None:
+            self.report(f'torch threads {threads} (of {self.most}): {why}')
 
 
 _governor: Optional[ThreadGovernor] = None
 _fixed = False
+_report: Optional[Callable[[str], None]] = None
+
+
+def report_to(report: Callable[[str], None]) -> None:
+    """Tell ``report`` (a node's logger) of each switch of the process's governor, in one line."""
+    global _report
+    _report = report
+    if _governor is not None:
+        _governor.report = report
 
 
 def fix(threads: int) -> None:
@@ -132,7 +144,7 @@ def adapt() -> None:
     if _fixed:
         return
     if _governor is None:
-        _governor = ThreadGovernor(torch.get_num_threads())
+        _governor = ThreadGovernor(torch.get_num_threads(), report=_report)
     _governor.tick()
 
 

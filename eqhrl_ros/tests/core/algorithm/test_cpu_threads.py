@@ -23,7 +23,7 @@ class Machine:
         self.waited += waiting * WINDOW_S
         self.idle += idle_cores * WINDOW_S
 
-    def governor(self) -> ThreadGovernor:
+    def governor(self, report=None) -> ThreadGovernor:
         return ThreadGovernor(
             self.threads,
             clock=lambda: self.now,
@@ -31,6 +31,7 @@ class Machine:
             idle=lambda: self.idle,
             get_threads=lambda: self.threads,
             set_threads=self.set,
+            report=report,
         )
 
     def set(self, threads: int) -> None:
@@ -63,6 +64,20 @@ def test_a_crowded_machine_gets_one_thread_and_every_thread_back_once_cores_are_
     machine.window(QUIET, FREE)  # the other process ended
     governor.tick()
     assert machine.threads == 2 and governor.switches == 2
+
+
+def test_each_switch_is_told_in_one_line_with_its_reason():
+    lines: list = []
+    machine = Machine(2)
+    governor = machine.governor(report=lines.append)
+    machine.window(0.35, TAKEN)
+    governor.tick()
+    machine.window(QUIET, 0.9)
+    governor.tick()
+    assert lines == [
+        'torch threads 1 (of 2): the updates waited for a CPU 35% of the last 0.5 s',
+        'torch threads 2 (of 2): the machine left 0.9 cores idle over the last 0.5 s',
+    ]
 
 
 def test_nothing_changes_before_a_window_is_over():
