@@ -70,10 +70,7 @@ class ActingNode(Node):
         self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))
         self.add_post_set_parameters_callback(self._after_set_parameters)
         p = self.params
-        if p['torch_threads'] > 0:
-            cpu_threads.fix(p['torch_threads'])
-        else:  # fitted to the machine as it runs; each switch logged in one line
-            cpu_threads.report_to(self.get_logger().info)
+        cpu_threads.for_node(p['torch_threads'], self.get_logger().info)  # 0: fitted to the machine
 
         self.config = LearnerConfig.from_params(values)
         self._before_start()

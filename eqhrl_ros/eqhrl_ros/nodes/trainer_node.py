@@ -73,10 +73,7 @@ class TrainerNode(RunFiles, Node):
         values = declare(self, LEARNER_CONFIG_PARAMS)
         self.params = p = declare(self, TRAINER_PARAMS)
         self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))
-        if p['torch_threads'] > 0:
-            cpu_threads.fix(p['torch_threads'])
-        else:  # fitted to the machine as it runs; each switch logged in one line
-            cpu_threads.report_to(self.get_logger().info)
+        cpu_threads.for_node(p['torch_threads'], self.get_logger().info)  # 0: fitted to the machine
         self.config = LearnerConfig.from_params(values)
         self.signer = signer_from(p['key_file'])  # KeyFileError (a ValueError): refused at start-up
         if not (p['actors'] or self.signer or p['accept_any_actor']):

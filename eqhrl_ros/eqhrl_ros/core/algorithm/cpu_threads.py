@@ -122,6 +122,15 @@ _fixed = False
 _report: Optional[Callable[[str], None]] = None
 
 
+def for_node(torch_threads: int, report: Callable[[str], None]) -> None:
+    """A node's torch_threads: above 0, that many threads for good (``fix``); 0, fitted to the
+    machine as the updates run, each switch told to ``report`` (the node's logger)."""
+    if torch_threads > 0:
+        fix(torch_threads)
+    else:
+        report_to(report)
+
+
 def report_to(report: Callable[[str], None]) -> None:
     """Tell ``report`` (a node's logger) of each switch of the process's governor, in one line."""
     global _report

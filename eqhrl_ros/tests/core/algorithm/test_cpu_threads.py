@@ -177,6 +177,7 @@ def process_state(monkeypatch):
     threads = torch.get_num_threads()
     monkeypatch.setattr(cpu_threads, '_governor', None)
     monkeypatch.setattr(cpu_threads, '_fixed', False)
+    monkeypatch.setattr(cpu_threads, '_report', None)
     yield
     torch.set_num_threads(threads)
 
@@ -193,7 +194,10 @@ def test_a_learners_updates_run_the_processs_governor_unless_the_count_is_fixed(
     torch.set_num_threads(2)
     learner.update()
     assert cpu_threads.governor() is not None and cpu_threads.governor().most == 2
-    cpu_threads.fix(1)  # a node's torch_threads: 1
+    lines: list = []
+    cpu_threads.for_node(0, lines.append)  # a node's torch_threads: 0, its logger told of switches
+    assert cpu_threads.governor().report == lines.append
+    cpu_threads.for_node(1, lines.append)  # a node's torch_threads: 1
     learner.update()
     assert cpu_threads.governor() is None and torch.get_num_threads() == 1
 
