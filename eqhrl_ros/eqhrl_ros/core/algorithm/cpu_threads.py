@@ -5,24 +5,24 @@ Why (docs/performance.md, "A busy machine" and "Fitting torch's threads to the m
 OpenMP threads spin a while between parallel regions before they sleep. On a quiet machine that
 is what makes 2 threads fast: a worker that slept costs the next region 65-100 us to wake on a
 VM, and a compiled SAC step has a dozen and more such regions. Beside a CPU-bound process the
-spinning threads fight it for the cores, and the learner kept 27-31 % of its quiet speed at
-2 threads, where at 1 thread it kept 94-102 %. No spin count buys both.
+spinning threads fight it for the cores, and the learner kept 24-31 % of its quiet speed at
+2 threads, where at 1 thread it kept 89-102 %. No spin count buys both.
 
-So the updates' own thread looks, every ``window_s`` (updater.py calls ``adapt`` after each
+So the updates' own thread looks, every WINDOW_S (updater.py calls ``adapt`` after each
 update; OpenMP's thread count belongs to the thread that sets it):
 
 - with every thread: if that thread waited for a CPU (runnable, not running: /proc's schedstat)
-  more than ``crowded`` of the window, another process holds the cores: it drops to one thread;
-- with one thread: once the machine left ``free_cores`` idle over a window (/proc/stat), it
+  more than CROWDED of the window, another process holds the cores: it drops to one thread;
+- with one thread: once the machine left FREE_CORES idle over a window (/proc/stat), it
   goes back to every thread. A return that finds the cores taken again within two windows
-  doubles the wait before the next (up to 64 windows), so that a container whose /proc/stat
+  doubles the wait before the next (up to MAX_BACKOFF windows), so that a container whose /proc/stat
   sees a bigger host does not flip every second.
 
 It stands down for good where someone else sets torch's thread count (``fix``, for a node's
-torch_threads > 0; a script's torch.set_num_threads between updates), where torch has one thread
+torch_threads > 0, via ``for_node``; a script's torch.set_num_threads between updates), where torch has one thread
 to begin with, and where /proc cannot be read (not Linux). The numbers do not depend on it: an
-update computes the same weights at 1 and 2 threads (checked to the bit on the project's
-machine, eager and compiled; tests/core/algorithm/test_cpu_threads.py).
+update computes the same weights at 1 and 2 threads (to the bit on the project's machine, eager
+and compiled; tests/core/algorithm/test_cpu_threads.py checks it to float rounding).
 """
 
 from __future__ import annotations
