@@ -44,6 +44,9 @@ def small_learner_params(tmp_path, **extra):
         output_dir=str(tmp_path),
         publish_gate_debug=True,
         checkpoint_every_episodes=1,
+        # Each test starts its expert (or none) on purpose, before or after the env; the learner's
+        # wait for one at the start has tests of its own (test_start_wait.py).
+        expert_wait_s=0.0,
     )
     values.update(extra)
     return params(**values)

@@ -28,7 +28,7 @@ from std_msgs.msg import Bool, Float32MultiArray, String
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
 
 from ..core.algorithm import cpu_threads
-from ..core.algorithm.config import advice_protocol, asks_for_advice
+from ..core.algorithm.config import advice_protocol
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, LearnerConfig
 from ..core.data.advice import Advice
 from ..core.envs.spec import EnvSpec
@@ -42,11 +42,11 @@ from .episode_tracking import EpisodeTracking, episode_line
 from .graph_trust import OnePublisher
 from .health import WARN, Check, Health
 from .messages import printable_name
-from .pace_wait import PaceWait
 from .params import choices_validator, declare, reject_unknown_overrides
 from .person_wheel import PersonWheel
 from .recording import NodeRecord
 from .spinning import steady_clock
+from .start_wait import StartWait
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 # Observations wait here while the learner computes: a real-time env at 15 Hz sends 20 during
@@ -119,10 +119,12 @@ class ActingNode(Node):
         self.create_timer(0.25, self._check_stall, clock=self._steady)
         self.done = False
         self.summaries: list[EpisodeSummary] = []
-        # advice_protocol auto, configured by env_id: the first observation waits for the env's pace.
-        self.pace_wait = PaceWait(
+        # The first observation waits for the env's pace (auto, by env_id) and an expert (start_wait.py).
+        self.start_wait = StartWait(
             self,
-            lambda: not self.protocol and self.params['advice_enabled'] and asks_for_advice(self.config.mode),
+            lambda: self.protocol if p['advice_enabled'] and self.learner.advice_window().open else None,
+            self.advice.ready,
+            lambda: p['expert_wait_s'],
             lambda data: self._on_observation(data, held=True),
             self._steady,
             self._lock,
@@ -133,7 +135,7 @@ class ActingNode(Node):
             None if p.get('camera') else configured_spec(p),  # a camera's size comes from env_info
             self._configure,
             working=lambda: bool(self.learner and self.learner.total_steps),
-            on_announced=lambda: self.pace_wait.release(),
+            on_announced=lambda: self.start_wait.release(),
         )
         self.health = Health(self, self.health_checks)
 
@@ -208,7 +210,7 @@ class ActingNode(Node):
     def protocol(self) -> str:
         """How a request asks now: 'answer' or 'wheel' (advice_protocol for the env's pace); ''
         while that is not known: 'auto' configured by env_id waits for the env's own env_info
-        (pace_wait.py says why). Configured by the spaces as parameters, for an env that may
+        (start_wait.py says why). Configured by the spaces as parameters, for an env that may
         publish no env_info, 'auto' is the answer until an env_info says otherwise."""
         pace = self.pace
         if pace is None:
@@ -233,16 +235,12 @@ class ActingNode(Node):
     def _after_set_parameters(self, changes) -> None:
         with self._lock:
             for change in changes:
-                if change.name == 'advising_budget':
+                if change.name in ('advising_budget', 'advising_budget_s'):  # the learner's, once it exists
+                    value = int(change.value) if change.name == 'advising_budget' else float(change.value)
                     if self.learner is not None:
-                        self.learner.set_advising_budget(int(change.value))
+                        getattr(self.learner, f'set_{change.name}')(value)
                     else:
-                        self.config.advising_budget = int(change.value)
-                elif change.name == 'advising_budget_s':
-                    if self.learner is not None:
-                        self.learner.set_advising_budget_s(float(change.value))
-                    else:
-                        self.config.advising_budget_s = float(change.value)
+                        setattr(self.config, change.name, value)
                 elif hasattr(self.config, change.name) and change.name.startswith('wheel_'):
                     setattr(self.config, change.name, change.value)  # read when the next request opens
                 elif change.name in self.params:
@@ -251,7 +249,7 @@ class ActingNode(Node):
     # ------------------------------------------------------------------ observations
 
     def _on_observation(self, data: bytes, held: bool = False) -> None:
-        """``held``: the observation pace_wait held, acted on now (seen and recorded then)."""
+        """``held``: the observation start_wait held, acted on now (seen and recorded then)."""
         with self._lock:
             if self.done:
                 return
@@ -269,7 +267,7 @@ class ActingNode(Node):
                 self.dropped_messages += 1
                 self.get_logger().error(f'dropped observation: {error}', throttle_duration_sec=5.0)
                 return
-            if not held and self.pace_wait.hold(data):
+            if not held and self.start_wait.hold(data):
                 return
             key = (env_step.episode, env_step.step)
             if key == self.tracking.key:
@@ -397,7 +395,7 @@ class ActingNode(Node):
             return
         protocol = self.protocol
         if not protocol:  # 'auto' before the env said whether it runs in real time: nothing is asked yet
-            self.pace_wait.say_unasked(self.env_info.topic)
+            self.start_wait.say_unasked(self.env_info.topic)
             self._finish_step(
                 *self.learner.resolve_advice(proposal, failure='unavailable').action_and_advised(), 'learner'
             )

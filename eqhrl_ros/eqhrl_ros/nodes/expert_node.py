@@ -2,7 +2,8 @@
 simulated person imitating either.
 
 The heuristic backend picks its controller by the env's name: ``env_id`` if set, else the
-name in the env's ``env_info``. Requests that come before it knows are declined. The
+name in the env's ``env_info``. It serves 'advise' once it knows (a server that is there can
+answer: a learner waits for one, start_wait.py, and would not for a node bound to decline). The
 simulated person's reaction time is waited out on the steady clock in a coroutine, so the
 node stays responsive meanwhile (its service has its own callback group).
 """
@@ -50,17 +51,22 @@ class ExpertNode(Node):
         # A simulated person answers from a coroutine (it waits out a reaction time); the
         # others answer at once. Coroutine callbacks need an executor that runs them.
         self.coroutine_callbacks = p['backend'] == 'simulated_human'
-        service = self.create_service(
+        self.service = None
+        if self.backend is not None:
+            self._serve()
+        # The spaces given as parameters are checked against the backend; env_id only names it.
+        self.env_info = EnvInfoWatcher(
+            self, configured_spec(dict(p, env_id='')), self._on_env, working=lambda: self.requests > 0
+        )
+
+    def _serve(self) -> None:
+        self.service = self.create_service(
             Advise,
             'advise',
             self._on_request_as_person if self.coroutine_callbacks else self._on_request,
             callback_group=ReentrantCallbackGroup(),
         )
-        introspect(service, self)  # every call on advise/_service_event (ros2 bag record, the learner's record)
-        # The spaces given as parameters are checked against the backend; env_id only names it.
-        self.env_info = EnvInfoWatcher(
-            self, configured_spec(dict(p, env_id='')), self._on_env, working=lambda: self.requests > 0
-        )
+        introspect(self.service, self)  # every call on advise/_service_event (ros2 bag record, the learner's record)
 
     def _make_backend(self, env_name: str):
         p = self.params
@@ -78,6 +84,8 @@ class ExpertNode(Node):
                 f'the expert {getattr(self.backend, "name", "")!r} does not fit env {spec.name!r}: '
                 + '; '.join(differences)
             )
+        if self.service is None:
+            self._serve()
 
     def _refusal(self, request: Advise.Request) -> Optional[Advice]:
         """Why this request gets no answer from the backend, if it does not."""
@@ -87,8 +95,6 @@ class ExpertNode(Node):
             time.sleep(delay)
         if not self.get_parameter('enabled').value:
             return Advice.decline('expert disabled (parameter enabled is false)')
-        if self.backend is None:
-            return Advice.decline(f'waiting for {self.env_info.topic}')
         # The sizes the env announced, else those the backend was written for (a controller by name).
         spec, backend = self.env_info.spec, self.backend
         obs_size = spec.observation_size if spec else getattr(backend, 'observation_size', None)

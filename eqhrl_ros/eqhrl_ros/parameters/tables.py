@@ -110,6 +110,14 @@ ACTING_PARAMS = (
     Param('advice_timeout_s', 0.5, 'Seconds to wait for the expert before acting alone', (0.001, 600.0), dynamic=True),
     Param('accept_expert', '', 'Accept advice only from this expert name (empty: any)', dynamic=True),
     Param(
+        'expert_wait_s',
+        10.0,
+        "While advice is open and asks for one answer, the env's first observation waits up to this long "
+        "for a node to serve 'advise' (nodes started together find each other over seconds); 0: act at once",
+        (0.0, 600.0),
+        dynamic=True,
+    ),
+    Param(
         'stall_timeout_s',
         5.0,
         'Warn when no observation came for this long mid-episode (the env paused, '

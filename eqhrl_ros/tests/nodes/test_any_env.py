@@ -21,7 +21,7 @@ from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.keyboard_teleop_node import KeyboardTeleop
 from eqhrl_ros.nodes.learner_node import LearnerNode
-from eqhrl_ros.nodes.pace_wait import AUTO_PACE_WAIT_S
+from eqhrl_ros.nodes.start_wait import AUTO_PACE_WAIT_S
 from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
 from eqhrl_ros.parameters import file_section
 
