@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import signal
 import statistics
 import subprocess
 import sys
@@ -59,9 +60,8 @@ while time.perf_counter() - start < seconds:
 print(n / (time.perf_counter() - start))
 """
 
-# name -> the environment OpenMP reads at start-up
-# 'default' names libgomp's own default spin count, since eqhrl_ros sets a shorter one when
-# it is imported before torch (eqhrl_ros/__init__.py).
+# name -> the environment OpenMP reads at start-up ('default': libgomp's own spin count, set
+# explicitly so that a GOMP_SPINCOUNT in the caller's environment does not leak in).
 WAITING = {
     'default': {'GOMP_SPINCOUNT': '300000'},
     'PASSIVE': {'OMP_WAIT_POLICY': 'PASSIVE'},
@@ -93,25 +93,59 @@ learner:
 EPISODE_LINE = re.compile(r'\[(\d+\.\d+)\] \[learner\]: episode\s+(\d+) .*? steps (\d+)')
 
 
-def measure_ros(threads: int, policy: str, fitted: bool, episodes: int) -> float:
+def measure_ros(threads: int, policy: str, fitted: bool, episodes: int, processes: bool = False) -> float:
     env = {k: v for k, v in os.environ.items() if k not in ('OMP_WAIT_POLICY', 'GOMP_SPINCOUNT')}
     env.update(WAITING[policy])
+    bin_dir = Path(sys.prefix) / 'bin'
     with tempfile.TemporaryDirectory() as tmp:
         params = Path(tmp) / 'busy.yaml'
         params.write_text(ROS_PARAMS.format(threads=0 if fitted else threads))
-        command = [str(Path(sys.prefix) / 'bin' / 'eqhrl-train'), '--params', str(params), '--output', tmp + '/run']
-        command += ['--episodes', str(episodes)]
-        done = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
+        if processes:  # as `ros2 run` starts them: the env and the expert in processes of their own
+            env.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(1 + os.getpid() % 100))
+            ros_args = ['--ros-args', '--params-file', str(params)]
+            others = [
+                subprocess.Popen(
+                    [str(bin_dir / name), *ros_args], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+                )
+                for name in ('gym_env', 'expert')
+            ]
+            command = [
+                str(bin_dir / 'learner'),
+                *ros_args,
+                '-p',
+                f'output_dir:={tmp}/run',
+                '-p',
+                f'max_episodes:={episodes}',
+                '-p',
+                'shutdown_when_done:=true',
+            ]
+        else:
+            others = []
+            command = [str(bin_dir / 'eqhrl-train'), '--params', str(params), '--output', tmp + '/run']
+            command += ['--episodes', str(episodes)]
+        try:
+            done = subprocess.run(command, env=env, check=True, capture_output=True, text=True, timeout=600)
+        finally:
+            for other in others:
+                other.send_signal(signal.SIGINT)
+                other.wait(timeout=30)
     rows = [(float(t), int(e), int(s)) for t, e, s in EPISODE_LINE.findall(done.stdout + done.stderr)]
     rows = [r for r in rows if r[1] >= 2]
     return (rows[-1][2] - rows[0][2]) / (rows[-1][0] - rows[0][0])
 
 
 def measure(
-    threads: int, policy: str, fitted: bool, seconds: float, hidden: int, batch: int, ros_episodes: int = 0
+    threads: int,
+    policy: str,
+    fitted: bool,
+    seconds: float,
+    hidden: int,
+    batch: int,
+    ros_episodes: int = 0,
+    processes: bool = False,
 ) -> float:
     if ros_episodes:
-        return measure_ros(threads, policy, fitted, ros_episodes)
+        return measure_ros(threads, policy, fitted, ros_episodes, processes)
     env = {k: v for k, v in os.environ.items() if k not in ('OMP_WAIT_POLICY', 'GOMP_SPINCOUNT')}
     env.update(WAITING[policy])
     command = [sys.executable, '-c', MEASURE, str(threads), str(seconds), str(hidden), str(batch)]
@@ -145,6 +179,12 @@ def main() -> int:
         default=0,
         help='measure the ROS path instead: env steps/s of eqhrl-train over this many 100-step episodes',
     )
+    parser.add_argument(
+        '--processes',
+        action='store_true',
+        help='with --ros-episodes: the env, the expert and the learner as processes of their own (ros2 run), '
+        'not eqhrl-train',
+    )
     args = parser.parse_args()
     settings = SETTINGS
     if args.settings:
@@ -157,17 +197,22 @@ def main() -> int:
     for round_index in range(args.rounds):
         order = settings if round_index % 2 == 0 else settings[::-1]
         for setting in order:
-            quiet[setting].append(measure(*setting, args.seconds, args.hidden, args.batch, args.ros_episodes))
+            quiet[setting].append(
+                measure(*setting, args.seconds, args.hidden, args.batch, args.ros_episodes, args.processes)
+            )
         hog = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
         try:
             time.sleep(0.5)
             for setting in order:
-                busy[setting].append(measure(*setting, args.seconds, args.hidden, args.batch, args.ros_episodes))
+                busy[setting].append(
+                    measure(*setting, args.seconds, args.hidden, args.batch, args.ros_episodes, args.processes)
+                )
         finally:
             hog.kill()
             hog.wait()
     what = (
-        f'env steps per second through eqhrl-train (Pendulum, Table 1 sizes, updates on), {args.ros_episodes} episodes'
+        f'env steps per second through {"gym_env, expert and learner processes" if args.processes else "eqhrl-train"} '
+        f'(Pendulum, Table 1 sizes, updates on), {args.ros_episodes} episodes'
         if args.ros_episodes
         else f'EQSAC updates per second, {args.hidden}x{args.hidden}, batch {args.batch}'
     )
