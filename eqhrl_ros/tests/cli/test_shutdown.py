@@ -150,7 +150,9 @@ def test_a_save_that_fails_at_exit_says_so_and_exits_non_zero(tmp_path):
     # goes on; the save at exit fails and the exit code says so.
     out = tmp_path / 'run'
     env = start('gym_env', '--ros-args', '-p', 'max_episode_steps:=10', log_dir=tmp_path)
-    learner = start('learner', *learner_args(out), log_dir=tmp_path, preexec_fn=limit_file_size(6_000))
+    # No expert here: the learner acts at once rather than wait expert_wait_s for one.
+    args = learner_args(out, ['-p', 'expert_wait_s:=0.0'])
+    learner = start('learner', *args, log_dir=tmp_path, preexec_fn=limit_file_size(6_000))
     try:
         assert wait_for(lambda: (out / 'episodes.csv').exists() and len(read_rows(out / 'episodes.csv')) >= 4, 90), (
             stop(learner)
