@@ -1,6 +1,6 @@
 """The compiled update under inductor's CPU kernel options, side by side (issue 48, item 2).
 
-    .venv/bin/python benchmarks/kernel_options.py [--env Pendulum-v1] [--calls 100] [--rounds 15]
+    .venv/bin/python benchmarks/kernel_options.py [--env Pendulum-v1] [--calls 100] [--rounds 15] [--sets NAME ...]
 
 The update that compile_update: true runs (SAC and EQSAC, Table 1 sizes, batch 256) is compiled
 once per option set below, each with a code object of its own (so no set reuses another's
@@ -13,7 +13,9 @@ fixed pair of batches:
   kernels then skips an OpenMP fork and join over data of at most 256x256 floats;
 - big chunks: a kernel goes parallel only with at least 16,384 elements a thread
   (cpp.min_chunk_size; inductor's default is 512);
-- cpp wrapper: the program's calls made from C++ instead of Python (cpp_wrapper).
+- cpp wrapper: the program's calls made from C++ instead of Python (cpp_wrapper);
+- dynamic threads: the fused kernels read torch's thread count when called, not the one at
+  compile time (cpp.dynamic_threads), so that one program serves every count.
 
 Then two other ways of writing the networks' code, which inductor turns into other kernels (code
 forms, defined here and swapped into networks.py while their program compiles), each alone and
@@ -56,6 +58,8 @@ OPTION_SETS = {
     'fused serial': {'cpp.threads': 1},
     'big chunks': {'cpp.min_chunk_size': 16384},
     'cpp wrapper': {'cpp_wrapper': True},
+    # The fused kernels read the thread count when called, instead of the one at compile time.
+    'dynamic threads': {'cpp.dynamic_threads': True},
 }
 
 
@@ -135,12 +139,14 @@ def main() -> None:
     parser.add_argument('--calls', type=int, default=100)
     parser.add_argument('--rounds', type=int, default=15)
     parser.add_argument('--threads', type=int, default=2)
+    parser.add_argument('--sets', nargs='+', choices=list(VARIANTS), help='only these (default: every set)')
     args = parser.parse_args()
+    variants = {name: VARIANTS[name] for name in ['default', *(args.sets or VARIANTS)] if name in VARIANTS}
     cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     modes = ('sac', 'eqsac')
     programs = {
         (name, mode): compiled_with(args.env, mode, args.warmup, options, forms)
-        for name, (options, forms) in VARIANTS.items()
+        for name, (options, forms) in variants.items()
         for mode in modes
     }
     same = {}
@@ -161,7 +167,7 @@ def main() -> None:
     )
     print('| options | ' + ' | '.join(f'{m} ms | {m} vs default' for m in modes) + ' | losses as default |')
     print('|---|' + '---|---|' * len(modes) + '---|')
-    for name in VARIANTS:
+    for name in variants:
         cells = []
         for mode in modes:
             ms = statistics.median(figures[(name, mode)])

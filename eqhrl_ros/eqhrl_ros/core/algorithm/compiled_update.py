@@ -44,12 +44,23 @@ LOG = logging.getLogger('eqhrl_ros.compile')
 # and torch's global state (grad mode and the like). 140 checks, 0.2 ms a call
 # (docs/performance.md).
 GUARDED_ARGUMENTS = ('weights', 'state', 'batch', 'advice', 'noise', 'constants', 'advised', 'step')
+# Dropped too: the guard on torch's "global state" as a whole, which includes the thread count.
+# cpu_threads.py changes that count as the machine gets busy or free, and each change failed the
+# guard and compiled the update again, on the learner's own thread (1.5 s with a warm cache, the
+# whole compile's tens of seconds without: a stall a real-time robot would feel). Grad mode, the
+# deterministic-algorithms flag, torch-function modes and the default device keep guards of their
+# own. The products then run at the count of the moment; the fused kernels keep the count they were
+# compiled at (OpenMP teams of that size: the same numbers, docs/performance.md). Inductor's
+# cpp.dynamic_threads, which would have them follow too, gave half the critic loss at 2 threads
+# with torch 2.13 (tests/core/algorithm/test_compiled_update.py would catch it).
+DROPPED_GUARD_TYPES = ('GLOBAL_STATE',)
 
 
-def keep_guard(name: str, is_global: bool) -> bool:
+def keep_guard(name: str, is_global: bool, guard_type: str = '') -> bool:
     """Whether a guard on ``name`` (its source, as dynamo writes it: "batch[0]",
-    "constants['gamma']", "nets[0].action_dim", "G['torch']"; '' for torch's global state) stays."""
-    if is_global:
+    "constants['gamma']", "nets[0].action_dim", "G['torch']"; '' for torch's global state) of
+    ``guard_type`` stays."""
+    if is_global or guard_type in DROPPED_GUARD_TYPES:
         return False
     root = name.split('[', 1)[0].split('.', 1)[0]
     return root == '' or root in GUARDED_ARGUMENTS
@@ -57,7 +68,7 @@ def keep_guard(name: str, is_global: bool) -> bool:
 
 def _guards_to_keep(entries) -> list:
     """torch.compile's guard_filter_fn."""
-    return [keep_guard(entry.name, entry.is_global) for entry in entries]
+    return [keep_guard(entry.name, entry.is_global, entry.guard_type) for entry in entries]
 
 
 # --------------------------------------------------------------------------- one program per setting

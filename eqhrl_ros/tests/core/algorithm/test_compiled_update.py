@@ -127,6 +127,28 @@ def test_a_checkpoint_loaded_into_a_compiled_learner_is_what_it_updates():
     assert largest_difference(eager, fast) < 1e-5 and fast.updates == eager.updates
 
 
+@pytest.mark.slow  # the compiler
+def test_a_change_of_torchs_thread_count_runs_the_same_program_without_compiling_again():
+    """cpu_threads.py switches torch between one thread and every thread as the machine gets busy
+    or free. Each switch failed the program's guard on torch's global state and compiled the
+    update again, on the learner's own thread (seconds to a minute). Now one program serves every
+    count, and computes what the eager update computes at each."""
+    eager, fast = filled(mode='sac'), filled(mode='sac', compile_update=True)
+    fast.log = Lines()
+    eager.update(), fast.update()
+    assert fast.compiled_update.wait(timeout=900), fast.compiled_update.failed
+    threads = torch.get_num_threads()
+    try:
+        with torch.compiler.set_stance('fail_on_recompile'):  # a recompile raises
+            for count in (threads, 1 if threads > 1 else 2, threads):
+                torch.set_num_threads(count)
+                expected, got = eager.update(), fast.update()
+                assert got['critic_loss'] == pytest.approx(expected['critic_loss'], rel=1e-4), count
+    finally:
+        torch.set_num_threads(threads)
+    assert largest_difference(eager, fast) < 1e-5
+
+
 @pytest.mark.slow  # the compiler, twice
 def test_learners_that_differ_only_in_a_constant_get_a_program_each():
     """The programs are shared by every learner in a process, and most of their guards are
@@ -152,6 +174,11 @@ def test_the_guards_kept_are_those_on_the_data_and_torchs_state():
     for name in ('nets[0].action_dim', "nets[1]._modules['biases']", "__import__('torch').utils._pytree"):
         assert not compiled.keep_guard(name, is_global=False), name
     assert not compiled.keep_guard("G['torch']", is_global=True)
+    # torch's global state as a whole holds the thread count, which cpu_threads.py changes: dropped;
+    # grad mode and the others keep guards of their own.
+    assert not compiled.keep_guard('', is_global=False, guard_type='GLOBAL_STATE')
+    for kind in ('GRAD_MODE', 'DETERMINISTIC_ALGORITHMS', 'TORCH_FUNCTION_STATE', 'DEFAULT_DEVICE'):
+        assert compiled.keep_guard('', is_global=False, guard_type=kind), kind
     # Every argument of the update but the modules is guarded: a new argument must be added.
     arguments = compiled.algorithm1_update.__code__.co_varnames[: compiled.algorithm1_update.__code__.co_argcount]
     assert set(arguments) - set(compiled.GUARDED_ARGUMENTS) == {'nets'}
