@@ -59,7 +59,7 @@ def test_the_first_observation_waits_for_an_expert_and_the_first_request_goes_to
 @pytest.mark.parametrize(
     'extra,waits',
     [
-        (dict(expert_wait_s=1.0), True),  # no expert comes: acts alone once the wait runs out
+        (dict(expert_wait_s=2.0), True),  # no expert comes: acts alone once the wait runs out
         (dict(expert_wait_s=0.0), False),  # 0: at once
         (dict(expert_wait_s=10.0, advising_budget=0), False),  # advice closed: nothing to wait for
         (dict(expert_wait_s=10.0, advice_enabled=False), False),
@@ -70,9 +70,9 @@ def test_with_no_expert_the_wait_ends_at_expert_wait_s_or_is_not_made(harness, r
         LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, **{**ASKING, **extra}))
     )
     actions, sent = first_observation(harness)
-    assert harness.spin_until(lambda: bool(actions), timeout=5.0)
+    assert harness.spin_until(lambda: bool(actions), timeout=8.0)
     waited = time.monotonic() - sent
-    assert (waited >= 0.9) == waits, waited
+    assert (waited >= 1.9) == waits, waited  # the first action's own work takes well under that
     harness.spin_until(lambda: len(actions) > 1, timeout=0.3)
     assert len(actions) == 1  # step 0 acted on once (a lock-step env would now step)
     asked = extra.get('advising_budget', 1) and extra.get('advice_enabled', True)
