@@ -26,6 +26,7 @@ from typing import Callable, Optional
 import torch
 
 from ..data.replay import Minibatch
+from . import cpu_threads
 from .config import asks_for_advice
 from .update import algorithm1_update, update_noise
 
@@ -49,8 +50,10 @@ GUARDED_ARGUMENTS = ('weights', 'state', 'batch', 'advice', 'noise', 'constants'
 # guard and compiled the update again, on the learner's own thread (1.5 s with a warm cache, the
 # whole compile's tens of seconds without: a stall a real-time robot would feel). Grad mode, the
 # deterministic-algorithms flag, torch-function modes and the default device keep guards of their
-# own. The products then run at the count of the moment; the fused kernels keep the count they were
-# compiled at (OpenMP teams of that size: the same numbers, docs/performance.md). Inductor's
+# own. The products then run at the count of the moment; the fused kernels at the count they were
+# compiled for (OpenMP teams of that size: the same numbers, docs/performance.md), the most the
+# governor gives (cpp.threads below), so that a compile while it had one thread does not leave
+# them serial for good (fused serial: 0.78-0.85x the speed, kernel_options.py). Inductor's
 # cpp.dynamic_threads, which would have them follow too, gave half the critic loss at 2 threads
 # with torch 2.13 (tests/core/algorithm/test_compiled_update.py would catch it).
 DROPPED_GUARD_TYPES = ('GLOBAL_STATE',)
@@ -127,7 +130,11 @@ class CompiledUpdate:
             update_function_for(self._setting(constants)),
             fullgraph=True,
             dynamic=False,
-            options={'loop_ordering_after_fusion': False, 'guard_filter_fn': _guards_to_keep},
+            options={
+                'loop_ordering_after_fusion': False,
+                'cpp.threads': cpu_threads.most(),
+                'guard_filter_fn': _guards_to_keep,
+            },
         )
         # Copies: tracing in the background must not touch the weights the learner acts and learns with.
         copies = (copy.deepcopy(updater.nets), _clone(weights), _clone(state), constants)

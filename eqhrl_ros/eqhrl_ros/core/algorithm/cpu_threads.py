@@ -157,6 +157,13 @@ def adapt() -> None:
     _governor.tick()
 
 
+def most() -> int:
+    """The most threads torch gets here: the governor's full count (whatever it has now), else
+    torch's count. What a compiled program's fused kernels are built for (compiled_update.py)."""
+    active = governor()
+    return active.most if active is not None and not active.standing_down else torch.get_num_threads()
+
+
 def governor() -> Optional[ThreadGovernor]:
     """The process's governor (None before the first update, or when fixed)."""
     return None if _fixed else _governor

@@ -202,6 +202,39 @@ def test_a_learners_updates_run_the_processs_governor_unless_the_count_is_fixed(
     assert cpu_threads.governor() is None and torch.get_num_threads() == 1
 
 
+def test_a_compile_while_the_governor_has_one_thread_builds_its_kernels_for_every_thread(process_state, monkeypatch):
+    """A compiled program's fused kernels keep the team size they were built for, so a compile
+    that ran while the machine was crowded (one thread) left them serial for good; they are now
+    built for the governor's full count (compiled_update.py passes cpu_threads.most())."""
+    from eqhrl_ros.core.algorithm import compiled_update
+
+    machine = Machine(threads=2)
+    governor = machine.governor()
+    monkeypatch.setattr(cpu_threads, '_governor', governor)
+    machine.window(waiting=CROWD)
+    governor.tick()
+    assert machine.threads == 1
+    torch.set_num_threads(1)  # what the real governor's setter would have done
+    assert cpu_threads.most() == 2  # crowded now: the most is still 2
+    options = []
+    monkeypatch.setattr(compiled_update.torch, 'compile', lambda function, **kw: options.append(kw['options']))
+    monkeypatch.setattr(compiled_update.threading, 'Thread', lambda **kw: type('T', (), {'start': lambda self: None})())
+    learner_updater = _small_learner().updater
+    learner_updater.make_optimizers()
+    compiled_update.CompiledUpdate(learner_updater)
+    assert options[0]['cpp.threads'] == 2
+    cpu_threads.fix(1)  # a node's torch_threads: 1: the count is the caller's
+    assert cpu_threads.most() == torch.get_num_threads() == 1
+
+
+def _small_learner():
+    from eqhrl_ros.core.algorithm.learner import EQSACLearner, LearnerConfig
+
+    return EQSACLearner(
+        3, np.array([-2.0], np.float32), np.array([2.0], np.float32), LearnerConfig(hidden=(16, 16), batch_size=8)
+    )
+
+
 def test_an_update_computes_the_same_weights_whatever_the_thread_count(process_state):
     """Switching between 1 and 2 threads changes the numbers by float rounding at most (to the
     bit on the project's machine), so a fitted run learns what a fixed one would."""
