@@ -67,7 +67,7 @@ def make(env_id: str, mode: str, args) -> tuple:
 def update_function(updater):
     """The update the learner runs now: its compiled program once ready, else the eager one."""
     compiled = updater.compiled
-    return compiled.function if compiled is not None and compiled.ready else algorithm1_update
+    return compiled.program() if compiled is not None and compiled.ready else algorithm1_update
 
 
 def timed_round(env, learner, expert, steps: int, obs) -> tuple:

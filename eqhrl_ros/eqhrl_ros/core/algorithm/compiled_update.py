@@ -50,12 +50,12 @@ GUARDED_ARGUMENTS = ('weights', 'state', 'batch', 'advice', 'noise', 'constants'
 # guard and compiled the update again, on the learner's own thread (1.5 s with a warm cache, the
 # whole compile's tens of seconds without: a stall a real-time robot would feel). Grad mode, the
 # deterministic-algorithms flag, torch-function modes and the default device keep guards of their
-# own. The products then run at the count of the moment; the fused kernels at the count they were
-# compiled for (OpenMP teams of that size: the same numbers, docs/performance.md), the most the
-# governor gives (cpp.threads below), so that a compile while it had one thread does not leave
-# them serial for good (fused serial: 0.78-0.85x the speed, kernel_options.py). Inductor's
-# cpp.dynamic_threads, which would have them follow too, gave half the critic loss at 2 threads
-# with torch 2.13 (tests/core/algorithm/test_compiled_update.py would catch it).
+# own. The products then run at the count of the moment; the fused kernels in OpenMP teams of the
+# size they were built for (cpp.threads: the same numbers at any count, docs/performance.md). So a
+# learner has a program built for the most threads it gets, and, once the governor first drops to
+# one, a second built for one, compiled in the background (CompiledUpdate.program). Inductor's
+# cpp.dynamic_threads, which would let one program's kernels follow the count, gave half the critic
+# loss at 2 threads with torch 2.13 (tests/core/algorithm/test_compiled_update.py would catch it).
 DROPPED_GUARD_TYPES = ('GLOBAL_STATE',)
 
 
@@ -108,20 +108,28 @@ def update_function_for(setting) -> Callable:
 
 class CompiledUpdate:
     """A learner's update compiled in the background; ``function`` is the program, to be
-    called as algorithm1_update once ``ready``.
+    called as algorithm1_update once ``ready`` (``program()`` picks it for torch's thread count).
 
     ``log``: where the one line about the compiler goes: info() with its cost, or warning() with
     why the learner stays eager. Python's logger 'eqhrl_ros.compile' by default; a node passes
     its ROS logger (rclpy's loggers have the same two methods).
+    ``threads``: the OpenMP team size of the program's fused kernels (default: the most torch
+    gets here, cpu_threads.most()).
     """
 
-    def __init__(self, updater, log=None, background: bool = True):
+    def __init__(self, updater, log=None, background: bool = True, threads: Optional[int] = None, crowd: bool = False):
         self.updater = updater
         self.log = log or LOG
         self.ready = False
         self.failed = ''
         self.error: Optional[BaseException] = None
         self.seconds: Optional[float] = None
+        self.threads = threads or cpu_threads.most()
+        self.crowd = crowd  # the program for one thread, beside the learner's first (program())
+        # The program for one thread, compiled in the background the first time the governor
+        # drops to one (kernels built for more keep their OpenMP team, whose waiting worker then
+        # fights the crowd for the cores: 37-44 updates/s against 119-124 beside a busy process).
+        self.one_thread: Optional[CompiledUpdate] = None
         self._variants = self._advice_variants()
         weights, state, constants = updater.inputs()
         # loop_ordering_after_fusion off: with it, torch 2.11's inductor failed an assertion on
@@ -132,7 +140,7 @@ class CompiledUpdate:
             dynamic=False,
             options={
                 'loop_ordering_after_fusion': False,
-                'cpp.threads': cpu_threads.most(),
+                'cpp.threads': self.threads,
                 'guard_filter_fn': _guards_to_keep,
             },
         )
@@ -150,7 +158,19 @@ class CompiledUpdate:
         constants. (Its guards check all of it again; this only keeps the settings apart.)"""
         updater, cfg = self.updater, self.updater.config
         shapes = (updater.obs_dim, updater.action_dim, tuple(cfg.hidden), cfg.batch_size)
-        return (*shapes, str(updater.device), cfg.actor_on_advice, tuple(self._variants), repr(constants))
+        variants = (cfg.actor_on_advice, tuple(self._variants), self.threads)
+        return (*shapes, str(updater.device), *variants, repr(constants))
+
+    def program(self) -> Callable:
+        """The program for torch's thread count now (once ``ready``): at one thread, the one built
+        for one thread once its background compile is done (started here the first time); else
+        this one, which computes the same numbers at any count."""
+        if self.threads > 1 and torch.get_num_threads() == 1:
+            if self.one_thread is None:
+                self.one_thread = CompiledUpdate(self.updater, self.log, background=True, threads=1, crowd=True)
+            elif self.one_thread.ready:
+                return self.one_thread.function
+        return self.function
 
     def _advice_variants(self) -> list:
         """Whether an update has an advice batch, for every kind of update this learner makes."""
@@ -167,14 +187,14 @@ class CompiledUpdate:
         except Exception as error:  # noqa: BLE001 - any compiler failure leaves the eager update
             self.error = error  # the whole exception, for whoever wants more than the line
             self.failed = f'{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ""}'
-            self.log.warning(
-                f'compile_update: the compiler failed ({self.failed}); the learner stays with the eager update'
-            )
+            stays = 'its program for every thread' if self.crowd else 'the eager update'
+            self.log.warning(f'compile_update: the compiler failed ({self.failed}); the learner stays with {stays}')
             return
         self.seconds = time.perf_counter() - start
         self.ready = True
+        for_one = ' for one thread (the machine is crowded)' if self.crowd else ''
         self.log.info(
-            f'compile_update: the whole update is compiled ({self.seconds:.1f} s in the background; '
+            f'compile_update: the whole update is compiled{for_one} ({self.seconds:.1f} s in the background; '
             f'{len(self._variants)} variant(s)); updates from now on run compiled'
         )
 

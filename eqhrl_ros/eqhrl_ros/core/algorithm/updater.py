@@ -211,7 +211,7 @@ class Updater:
         noise = self.noise_for(batch, advice)
         weights, state, constants = self.inputs()
         compiled = self.compiled
-        function = compiled.function if compiled is not None and compiled.ready else algorithm1_update
+        function = compiled.program() if compiled is not None and compiled.ready else algorithm1_update
         losses = function(self.nets, weights, state, batch.columns(), advice and advice.columns(), noise, constants)
         info = {name: float(value) for name, value in losses.items()}
         info['alpha'] = self.alpha

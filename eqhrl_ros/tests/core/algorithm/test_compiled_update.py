@@ -127,26 +127,58 @@ def test_a_checkpoint_loaded_into_a_compiled_learner_is_what_it_updates():
     assert largest_difference(eager, fast) < 1e-5 and fast.updates == eager.updates
 
 
-@pytest.mark.slow  # the compiler
-def test_a_change_of_torchs_thread_count_runs_the_same_program_without_compiling_again():
+@pytest.mark.slow  # the compiler, twice
+def test_a_change_of_torchs_thread_count_never_compiles_on_the_learners_thread(monkeypatch):
     """cpu_threads.py switches torch between one thread and every thread as the machine gets busy
     or free. Each switch failed the program's guard on torch's global state and compiled the
-    update again, on the learner's own thread (seconds to a minute). Now one program serves every
-    count, and computes what the eager update computes at each."""
-    eager, fast = filled(mode='sac'), filled(mode='sac', compile_update=True)
-    fast.log = Lines()
-    eager.update(), fast.update()
-    assert fast.compiled_update.wait(timeout=900), fast.compiled_update.failed
+    update again, on the learner's own thread (seconds to a minute). Now the program built for
+    every thread serves any count at once, and the first switch to one thread starts, in the
+    background, a program built for one (whose kernels leave the crowded cores alone); every
+    program computes what the eager update computes."""
+    from eqhrl_ros.core.algorithm import cpu_threads
+
+    monkeypatch.setattr(cpu_threads, '_fixed', True)  # the counts are set by hand here
     threads = torch.get_num_threads()
     try:
-        with torch.compiler.set_stance('fail_on_recompile'):  # a recompile raises
-            for count in (threads, 1 if threads > 1 else 2, threads):
-                torch.set_num_threads(count)
-                expected, got = eager.update(), fast.update()
-                assert got['critic_loss'] == pytest.approx(expected['critic_loss'], rel=1e-4), count
+        torch.set_num_threads(2)
+        eager, fast = filled(mode='sac'), filled(mode='sac', compile_update=True)
+        fast.log = Lines()
+        eager.update(), fast.update()
+        compiled_update = fast.compiled_update
+        assert compiled_update.wait(timeout=900), compiled_update.failed
+        assert compiled_update.threads == 2 and compiled_update.one_thread is None
+
+        def both_update(count):
+            torch.set_num_threads(count)
+            expected, got = eager.update(), fast.update()
+            assert got['critic_loss'] == pytest.approx(expected['critic_loss'], rel=1e-4), count
+
+        with torch.compiler.set_stance('fail_on_recompile'):  # a compile again of a program raises
+            both_update(2)
+        # The first update at one thread runs the program for every thread, as it is (one entry in
+        # its code's cache: a compile again would add one), and starts the one for one thread in
+        # the background (a first compile, which the stance above would refuse too).
+        both_update(1)
+        assert len(cache_entries(compiled_update.function)) == 1
+        one = compiled_update.one_thread
+        assert one is not None and one.threads == 1
+        assert one.wait(timeout=900), one.failed
+        assert 'for one thread' in fast.log.info_lines[-1]
+        with torch.compiler.set_stance('fail_on_recompile'):
+            for count in (2, 1, 2, 1):
+                both_update(count)
+                assert compiled_update.program() is (one.function if count == 1 else compiled_update.function)
+        assert len(cache_entries(compiled_update.function)) == len(cache_entries(one.function)) == 1
     finally:
         torch.set_num_threads(threads)
     assert largest_difference(eager, fast) < 1e-5
+
+
+def cache_entries(program) -> list:
+    """The programs dynamo keeps for a torch.compile'd function (one per guard set it compiled)."""
+    from torch._dynamo.eval_frame import _debug_get_cache_entry_list
+
+    return _debug_get_cache_entry_list(program._torchdynamo_orig_callable.__code__)
 
 
 @pytest.mark.slow  # the compiler, twice
