@@ -192,7 +192,7 @@ class CompiledUpdate:
             return
         self.seconds = time.perf_counter() - start
         self.ready = True
-        for_one = ' for one thread, as the machine is crowded,' if self.crowd else ''
+        for_one = ' for one thread, as the machine is crowded' if self.crowd else ''
         self.log.info(
             f'compile_update: the whole update is compiled{for_one} ({self.seconds:.1f} s in the background; '
             f'{len(self._variants)} variant(s)); updates from now on run compiled'
