@@ -15,7 +15,10 @@ fixed pair of batches:
   (cpp.min_chunk_size; inductor's default is 512);
 - cpp wrapper: the program's calls made from C++ instead of Python (cpp_wrapper);
 - dynamic threads: the fused kernels read torch's thread count when called, not the one at
-  compile time (cpp.dynamic_threads), so that one program serves every count.
+  compile time (cpp.dynamic_threads), so that one program serves every count;
+- no input asserts: the program's Python wrapper without its checks of each input's size,
+  stride and alignment (size_asserts, scalar_asserts, alignment_asserts);
+- memory planning: the program's buffers planned into one pool (memory_planning).
 
 Then two other ways of writing the networks' code, which inductor turns into other kernels (code
 forms, defined here and swapped into networks.py while their program compiles), each alone and
@@ -26,7 +29,12 @@ both together:
   on a 256x256 batch;
 - bias apart: each layer's product and its bias as a product and a sum, so that the sum is
   fused into the activation's kernel: the library's addmm / baddbmm first copies the bias into
-  every row of its output.
+  every row of its output;
+- thin layers: bias apart, and a layer of at most THIN inputs (the first: the observation and
+  the action) as a sum of products that inductor fuses, instead of a product with a few columns;
+- torch's adam traced: the Adam step as the update compiled it before 2026-12-04, torch's own
+  capturable Adam traced as it is (update.adam_ now writes its steps out so that each network's
+  bias corrections are computed once).
 
 Prints each set's median ms per call and its speed against the default's (the median of the
 rounds' ratios, each round's sets side by side), per mode, and whether the set's losses equal
@@ -49,9 +57,10 @@ import torch
 import torch._inductor.config as inductor_config
 from bench_learner import cpu_model
 from profile_update import compiled_update, timed
+from torch.optim.adam import adam as torchs_adam
 
 from eqhrl_ros.core.algorithm import compiled_update as compiled_module
-from eqhrl_ros.core.algorithm import cpu_threads, networks
+from eqhrl_ros.core.algorithm import cpu_threads, networks, update
 
 OPTION_SETS = {
     'default': {},
@@ -60,6 +69,10 @@ OPTION_SETS = {
     'cpp wrapper': {'cpp_wrapper': True},
     # The fused kernels read the thread count when called, instead of the one at compile time.
     'dynamic threads': {'cpp.dynamic_threads': True},
+    # The program's Python wrapper without its checks of each input's size, stride and alignment.
+    'no input asserts': {'size_asserts': False, 'scalar_asserts': False, 'alignment_asserts': False},
+    # The program's buffers planned into one pool, instead of one allocation each per call.
+    'memory planning': {'memory_planning': True},
 }
 
 
@@ -99,9 +112,49 @@ def product_bias_apart(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor
     return torch.bmm(x, weight) + bias
 
 
+THIN = 16  # a layer with at most this many inputs
+
+
+def linear_thin(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """networks.linear, a thin layer as a sum of products when compiling."""
+    if not torch.compiler.is_dynamo_compiling() or weight.shape[-1] > THIN:
+        return BIAS_APART['linear'](x, weight, bias)
+    return (x.unsqueeze(-2) * weight).sum(-1) + bias
+
+
+def product_thin(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """networks.biased_product, a thin layer as a sum of products when compiling."""
+    if not torch.compiler.is_dynamo_compiling() or weight.shape[-2] > THIN:
+        return BIAS_APART['biased_product'](x, weight, bias)
+    return (x.unsqueeze(-1) * weight.unsqueeze(-3)).sum(-2) + bias
+
+
+@torch.no_grad()
+def adam_traced(params: list, grads: list, state: tuple, settings: dict) -> None:
+    """update.adam_ as it was before 2026-12-04: torch's capturable Adam traced as it is, which
+    recomputes each weight's bias corrections in every chunk of its loop."""
+    if not torch.compiler.is_dynamo_compiling():
+        return SHIPPED['adam_'](params, grads, state, settings)
+    exp_avgs, exp_avg_sqs, steps = state
+    beta1, beta2 = settings['betas']
+    torchs_adam(
+        params, grads, exp_avgs, exp_avg_sqs, [], steps, foreach=False, capturable=True, amsgrad=False,
+        beta1=beta1, beta2=beta2, lr=settings['lr'], weight_decay=0.0, eps=settings['eps'], maximize=False,
+    )  # fmt: skip
+    return None
+
+
 SHIPPED = {name: getattr(networks, name) for name in ('tanh', 'linear', 'biased_product')}
+SHIPPED['adam_'] = update.adam_
 BIAS_APART = {'linear': linear_bias_apart, 'biased_product': product_bias_apart}
-CODE_FORMS = {'exp tanh': {'tanh': exp_tanh}, 'bias apart': BIAS_APART, 'both forms': {'tanh': exp_tanh, **BIAS_APART}}
+THIN_LAYERS = {'linear': linear_thin, 'biased_product': product_thin}
+CODE_FORMS = {
+    'exp tanh': {'tanh': exp_tanh},
+    'bias apart': BIAS_APART,
+    'both forms': {'tanh': exp_tanh, **BIAS_APART},
+    'thin layers': THIN_LAYERS,
+    "torch's adam traced": {'adam_': adam_traced},
+}
 VARIANTS = {
     **{name: (options, {}) for name, options in OPTION_SETS.items()},
     **{name: ({}, forms) for name, forms in CODE_FORMS.items()},
@@ -114,12 +167,12 @@ def compiled_with(env_id: str, mode: str, warmup: int, options: dict, forms: dic
     compiled_module._COPIES.clear()  # a setting's copy of the update would hand back the last program
     try:
         for name, function in forms.items():
-            setattr(networks, name, function)
+            setattr(update if name == 'adam_' else networks, name, function)
         with inductor_config.patch(options):
             return compiled_update(env_id, mode, warmup)
     finally:  # the program keeps what it traced; the module gets the shipped code back
         for name, function in SHIPPED.items():
-            setattr(networks, name, function)
+            setattr(update if name == 'adam_' else networks, name, function)
 
 
 def losses_of(function, arguments) -> dict:

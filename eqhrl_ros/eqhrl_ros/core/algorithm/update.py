@@ -109,28 +109,46 @@ def gradient_and_value(loss_of: Callable, weights, has_aux: bool = False):
 def adam_(params: list, grads: list, state: tuple, settings: dict) -> None:
     """torch's Adam, in place on ``params`` and on ``state`` (exp_avgs, exp_avg_sqs, steps: the
     moments and step counts a torch.optim.Adam holds); ``settings``: its lr, betas and eps.
-    Fused (one kernel over every tensor) eagerly, as the learner's Adam is; the plain loop
-    with tensor step counts when compiling, so that the update is one graph."""
+
+    Eagerly, torch's fused Adam (one kernel over every tensor), as the learner's optimiser is.
+    Compiled, the steps of torch's capturable Adam (step counts as tensors, so that the update is
+    one graph), written out here for one reason: traced from torch's function, each weight's
+    bias corrections (beta ** step, a tensor the compiler cannot hoist out of a loop) were
+    recomputed in every 16-float chunk of its loop, which made the Adam step 2-2.7x slower
+    (docs/performance.md). A network's weights step together, so their counts are equal: taken
+    as a reduction over them, the corrections are computed once, in a kernel of their own, and
+    the loops read them. The same numbers as torch's capturable Adam, to the bit."""
     exp_avgs, exp_avg_sqs, steps = state
-    compiling = tracing()
-    functional_adam(
-        params,
-        grads,
-        exp_avgs,
-        exp_avg_sqs,
-        [],
-        steps,
-        foreach=False,
-        capturable=compiling,
-        fused=None if compiling else True,
-        amsgrad=False,
-        beta1=settings['betas'][0],
-        beta2=settings['betas'][1],
-        lr=settings['lr'],
-        weight_decay=0.0,
-        eps=settings['eps'],
-        maximize=False,
-    )
+    beta1, beta2 = settings['betas']
+    lr, eps = settings['lr'], settings['eps']
+    if not tracing():
+        functional_adam(
+            params,
+            grads,
+            exp_avgs,
+            exp_avg_sqs,
+            [],
+            steps,
+            foreach=False,
+            capturable=False,
+            fused=True,
+            amsgrad=False,
+            beta1=beta1,
+            beta2=beta2,
+            lr=lr,
+            weight_decay=0.0,
+            eps=eps,
+            maximize=False,
+        )
+        return
+    torch._foreach_add_(steps, 1)
+    step = torch.stack(steps)
+    step_size_neg = (lr / (1 - beta1**step)).neg().amax()
+    bias_correction2_sqrt = (1 - beta2**step).sqrt().amax()
+    for param, grad, exp_avg, exp_avg_sq in zip(params, grads, exp_avgs, exp_avg_sqs):
+        exp_avg.lerp_(grad, 1 - beta1)
+        exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+        param.addcdiv_(exp_avg, (exp_avg_sq.sqrt() / (bias_correction2_sqrt * step_size_neg)).add_(eps / step_size_neg))
 
 
 @torch.no_grad()

@@ -165,10 +165,17 @@ class Updater:
         checkpoint does) or the tensors behind them (stacked_seeds.py stacks and releases them);
         an optimiser without moments yet gets torch's initial ones."""
         owners = self._owners()
-        modules = (*owners[:3], *([] if self.encoder is None else [self.encoder]))
-        storage = tuple(p.data_ptr() for module in modules for p in module.parameters()) + (self.log_alpha.data_ptr(),)
         held, inputs = self._inputs
-        if held is None or any(a is not b for a, b in zip(owners, held[0])) or storage != held[1]:
+        replaced = held is None or any(a is not b for a, b in zip(owners, held[0]))
+        # The parameters of the modules held, listed once per set of owners: module.parameters()
+        # walks the module tree, about 0.1 ms an update for the three networks.
+        if replaced:
+            modules = (*owners[:3], *([] if self.encoder is None else [self.encoder]))
+            parameters = [p for module in modules for p in module.parameters()] + [self.log_alpha]
+        else:
+            parameters = held[2]
+        storage = tuple(p.data_ptr() for p in parameters)
+        if replaced or storage != held[1]:
             weights = named_weights(*owners[:4])
             if self.encoder is not None:
                 weights[ENCODER] = {k: v.detach() for k, v in self.encoder.named_parameters()}
@@ -187,7 +194,7 @@ class Updater:
                 group = optimizer.param_groups[0]  # Adam's settings from the optimiser itself
                 constants[f'{name}_adam'] = {'lr': group['lr'], 'betas': tuple(group['betas']), 'eps': group['eps']}
             inputs = (weights, state, constants)
-            self._inputs = ((owners, storage), inputs)
+            self._inputs = ((owners, storage, parameters), inputs)
         return inputs
 
     def optimizer_state(self, network: str) -> tuple:

@@ -352,3 +352,60 @@ def test_an_eager_update_while_a_compile_runs_elsewhere_stays_eager(monkeypatch)
     for _ in range(3):
         expected = eager.update()
     assert got == expected and largest_difference(eager, during) == 0.0
+
+
+def test_the_compiled_adam_step_is_torchs_with_each_networks_bias_corrections_computed_once():
+    from torch._inductor.utils import run_and_get_code
+    from torch.optim.adam import adam as torchs_adam
+
+    from eqhrl_ros.core.algorithm.update import adam_
+
+    settings = {'lr': 3e-3, 'betas': (0.9, 0.999), 'eps': 1e-8}
+    shapes = [(2, 8, 16), (2, 1, 16), (2, 16, 1)]
+
+    def weights_and_state(seed):
+        generator = torch.Generator().manual_seed(seed)
+        params = [torch.randn(shape, generator=generator) for shape in shapes]
+        state = (
+            [torch.zeros(s) for s in shapes],
+            [torch.zeros(s) for s in shapes],
+            [torch.tensor(7.0) for _ in shapes],
+        )
+        return params, state
+
+    def torchs(params, grads, state):  # torch's own, as the compiled update traced it before
+        torchs_adam(
+            params,
+            grads,
+            *state[:2],
+            [],
+            state[2],
+            foreach=False,
+            capturable=True,
+            amsgrad=False,
+            beta1=0.9,
+            beta2=0.999,
+            lr=3e-3,
+            weight_decay=0.0,
+            eps=1e-8,
+            maximize=False,
+        )
+
+    ours_compiled = torch.compile(lambda p, g, s: adam_(p, g, s, settings), fullgraph=True)
+    torchs_compiled = torch.compile(torch.no_grad()(torchs), fullgraph=True)
+    ours, reference = weights_and_state(0), weights_and_state(0)
+    codes = []
+    for step in range(3):
+        grads = [torch.randn(shape, generator=torch.Generator().manual_seed(10 + step)) for shape in shapes]
+        _, code = run_and_get_code(ours_compiled, ours[0], grads, ours[1])
+        codes += code
+        torchs_compiled(reference[0], grads, reference[1])
+    for a, b in zip(
+        [*ours[0], *ours[1][0], *ours[1][1], *ours[1][2]],
+        [*reference[0], *reference[1][0], *reference[1][1], *reference[1][2]],
+    ):
+        torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-7)
+    assert float(ours[1][2][0]) == 10.0
+    # Each power of a beta once per network (in the kernel of the corrections), not once per
+    # weight (torch's traced form: in every chunk of every weight's loop).
+    assert codes and max(c.count('std::pow') for c in codes) <= 2, [c.count('std::pow') for c in codes]
