@@ -20,13 +20,12 @@ fixed pair of batches:
   stride and alignment (size_asserts, scalar_asserts, alignment_asserts);
 - memory planning: the program's buffers planned into one pool (memory_planning).
 
-Then two other ways of writing the networks' code, which inductor turns into other kernels (code
-forms, defined here and swapped into networks.py while their program compiles), each alone and
-both together:
+Then other ways of writing the update's code, which inductor turns into other kernels (code
+forms, defined here and swapped into networks.py or update.py while their program compiles):
 
-- exp tanh: the actor's hidden tanh as sign(x) (1 - e^{-2|x|}) / (1 + e^{-2|x|}) with torch's
-  tanh gradient: inductor's own tanh is Sleef's vector tanh, 2.4x slower than one exponential
-  on a 256x256 batch;
+- sleef tanh: the actor's hidden tanh as torch.tanh, which inductor makes Sleef's vector tanh
+  (the update's form before 2026-12-04; networks.tanh now compiles the one-exponential form of
+  networks._ExpTanh, about twice as fast);
 - bias apart: each layer's product and its bias as a product and a sum, so that the sum is
   fused into the activation's kernel: the library's addmm / baddbmm first copies the bias into
   every row of its output;
@@ -39,7 +38,7 @@ both together:
 Prints each set's median ms per call and its speed against the default's (the median of the
 rounds' ratios, each round's sets side by side), per mode, and whether the set's losses equal
 the default's on the same inputs (to float rounding: a kernel option may only reorder sums; the
-exp tanh is within 1e-7 of tanh). Evidence, no target, no exit code; docs/performance.md keeps
+two tanh forms are within 1e-7 of each other). Evidence, no target, no exit code; docs/performance.md keeps
 the figures with the machine they were measured on.
 """
 
@@ -76,26 +75,9 @@ OPTION_SETS = {
 }
 
 
-class ExpTanh(torch.autograd.Function):
-    """tanh(x) = sign(x) (1 - e^{-2|x|}) / (1 + e^{-2|x|}) (within 1e-7 of tanh), with torch's
-    gradient 1 - tanh(x)^2."""
-
-    @staticmethod
-    def forward(x: torch.Tensor) -> torch.Tensor:
-        t = torch.exp(-2.0 * x.abs())
-        return torch.copysign((1.0 - t) / (1.0 + t), x)
-
-    @staticmethod
-    def setup_context(ctx, inputs, output) -> None:
-        ctx.save_for_backward(output)
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
-        return torch.ops.aten.tanh_backward(grad, ctx.saved_tensors[0])
-
-
-def exp_tanh(x: torch.Tensor) -> torch.Tensor:
-    return ExpTanh.apply(x) if torch.compiler.is_dynamo_compiling() else SHIPPED['tanh'](x)
+def sleef_tanh(x: torch.Tensor) -> torch.Tensor:
+    """networks.tanh as it was before 2026-12-04: torch.tanh when compiling (Sleef's vector tanh)."""
+    return torch.tanh(x) if torch.compiler.is_dynamo_compiling() else SHIPPED['tanh'](x)
 
 
 def linear_bias_apart(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
@@ -149,11 +131,10 @@ SHIPPED['adam_'] = update.adam_
 BIAS_APART = {'linear': linear_bias_apart, 'biased_product': product_bias_apart}
 THIN_LAYERS = {'linear': linear_thin, 'biased_product': product_thin}
 CODE_FORMS = {
-    'exp tanh': {'tanh': exp_tanh},
     'bias apart': BIAS_APART,
-    'both forms': {'tanh': exp_tanh, **BIAS_APART},
     'thin layers': THIN_LAYERS,
     "torch's adam traced": {'adam_': adam_traced},
+    'sleef tanh': {'tanh': sleef_tanh},
 }
 VARIANTS = {
     **{name: (options, {}) for name, options in OPTION_SETS.items()},

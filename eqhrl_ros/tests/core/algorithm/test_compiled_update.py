@@ -409,3 +409,21 @@ def test_the_compiled_adam_step_is_torchs_with_each_networks_bias_corrections_co
     # Each power of a beta once per network (in the kernel of the corrections), not once per
     # weight (torch's traced form: in every chunk of every weight's loop).
     assert codes and max(c.count('std::pow') for c in codes) <= 2, [c.count('std::pow') for c in codes]
+
+
+def test_the_compiled_tanh_is_tanh_to_float_rounding_with_tanhs_gradient_and_no_vector_tanh():
+    from torch._inductor.utils import run_and_get_code
+
+    from eqhrl_ros.core.algorithm import networks
+
+    x = torch.cat([torch.linspace(-12.0, 12.0, 20001), torch.logspace(-30, 0, 301), -torch.logspace(-30, 0, 301)])
+    x.requires_grad_(True)
+    y = networks._ExpTanh.apply(x)
+    assert float((y.double() - torch.tanh(x.detach().double())).abs().max()) < 2e-7
+    y.sum().backward()
+    torch.testing.assert_close(x.grad, 1.0 - torch.tanh(x.detach()) ** 2, rtol=1e-6, atol=1e-6)
+
+    batch = torch.randn(64, networks.NUMPY_TANH_FROM // 64) * 3  # a batch: the compiled form applies
+    compiled, code = run_and_get_code(torch.compile(networks.tanh, fullgraph=True), batch)
+    assert float((compiled.double() - torch.tanh(batch.double())).abs().max()) < 2e-7
+    assert code and not any('.tanh()' in c or 'std::tanh' in c for c in code)  # Sleef's tanh: twice the time
