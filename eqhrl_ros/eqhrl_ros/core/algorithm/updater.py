@@ -100,7 +100,7 @@ class Updater:
         # compile_refused says why a configuration that cannot be compiled stays eager.
         self.compiled: Optional[CompiledUpdate] = None
         self.compile_refused = ''
-        self._inputs: tuple[Any, Any] = (None, None)  # inputs(): (the objects they came from, the inputs)
+        self._inputs: tuple[Any, Any] = (None, None)  # inputs(): ((owners, storage, parameters), the inputs)
         self._nets: Optional[tuple] = None
         self.log = log  # the compiler's logger (info, warning); None: Python's; a node sets its own
 
@@ -166,9 +166,9 @@ class Updater:
         an optimiser without moments yet gets torch's initial ones."""
         owners = self._owners()
         held, inputs = self._inputs
-        replaced = held is None or any(a is not b for a, b in zip(owners, held[0]))
+        replaced = held is None or len(owners) != len(held[0]) or any(a is not b for a, b in zip(owners, held[0]))
         # The parameters of the modules held, listed once per set of owners: module.parameters()
-        # walks the module tree, about 0.1 ms an update for the three networks.
+        # walks the module tree: 20 us an update for the three networks, against 3.5 for all of inputs().
         if replaced:
             modules = (*owners[:3], *([] if self.encoder is None else [self.encoder]))
             parameters = [p for module in modules for p in module.parameters()] + [self.log_alpha]

@@ -59,3 +59,22 @@ def test_stacked_seeds_return_their_losses_and_count_each_seeds_update_as_a_lone
         assert [s.updater.non_finite_updates for s in seeds] == [1, 1]  # the stacked loss is the seeds' mean
     finally:
         stacked.release()
+
+
+def test_the_updates_inputs_are_gathered_again_only_when_what_holds_them_changes():
+    one = learner()
+    updater = one.updater
+    first = updater.inputs()
+    assert updater.inputs() is first  # nothing changed: the same views, not gathered again
+    actor_weight = next(one.actor.parameters())
+    actor_weight.data = actor_weight.data.clone()  # new storage behind the same parameter (as stacked seeds do)
+    second = updater.inputs()
+    assert second is not first
+    assert second[0]['actor'][next(iter(second[0]['actor']))].data_ptr() == actor_weight.data_ptr()
+    one.load_state_dict(learner(seed=1).state_dict())  # a checkpoint: new networks and optimisers
+    third = updater.inputs()
+    assert third is not second
+    assert all(
+        view.data_ptr() == live.data_ptr()
+        for view, live in zip(third[0]['critic'].values(), one.critic.parameters(), strict=True)
+    )
