@@ -57,6 +57,8 @@ def check_state(state) -> None:
     for key in (*NETWORK_STATE, *CAMERA_STATE):
         if any(t.is_floating_point() and not torch.isfinite(t).all() for t in _tensors(state.get(key))):
             raise ValueError(f"'{key}' holds non-finite values (NaN or inf)")
+    for key in ('actor_optimizer', 'critic_optimizer', 'alpha_optimizer', 'encoder_optimizer'):
+        _check_steps(key, state.get(key))
     for key in ('d_queue', 'e_queue'):
         values = state['gates'].get(key)
         if not isinstance(values, list) or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
@@ -65,6 +67,21 @@ def check_state(state) -> None:
     if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0.0 <= threshold <= 1.0:
         raise ValueError(f'gates.joint_threshold must be a number in [0, 1], found {threshold!r}')
     _check_shifted(state['gates'].get('shifted', [-1, -1, []]))
+
+
+def _check_steps(key: str, optimizer) -> None:
+    """An optimiser's step counts: one per weight, all equal and >= 0, since an update steps a
+    network's weights together (the compiled Adam step reads one count per network, update.adam_)."""
+    if not isinstance(optimizer, dict):
+        return  # absent (no camera), or refused by the loader's own structure check
+    per_weight = optimizer.get('state', {})
+    steps = {
+        float(weight['step'])
+        for weight in (per_weight.values() if isinstance(per_weight, dict) else [])
+        if isinstance(weight, dict) and isinstance(weight.get('step'), (torch.Tensor, int, float))
+    }
+    if len(steps) > 1 or any(step < 0 for step in steps):
+        raise ValueError(f"'{key}' holds step counts {sorted(steps)}: one count >= 0, the same for every weight")
 
 
 def _check_shifted(shifted) -> None:

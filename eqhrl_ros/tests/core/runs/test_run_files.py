@@ -190,10 +190,15 @@ def inf_optimizer_moment(state):
     next(iter(state['critic_optimizer']['state'].values()))['exp_avg'].fill_(float('inf'))
 
 
+def uneven_optimizer_steps(state):
+    next(iter(state['actor_optimizer']['state'].values()))['step'].add_(3)
+
+
 @pytest.mark.parametrize(
     'change,message',
     [
         (nan_actor, "'actor' holds non-finite"),
+        (uneven_optimizer_steps, "'actor_optimizer' holds step counts"),
         (list_config, "'config' must be a dict"),
         (negative_episode, 'counters.episode must be an integer >= 0'),
         (episode_beyond_steps, 'exceeds counters.total_steps'),
