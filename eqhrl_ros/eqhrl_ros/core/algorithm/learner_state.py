@@ -75,11 +75,14 @@ def _check_steps(key: str, optimizer) -> None:
     if not isinstance(optimizer, dict):
         return  # absent (no camera), or refused by the loader's own structure check
     per_weight = optimizer.get('state', {})
-    steps = {
-        float(weight['step'])
+    counts = [
+        weight['step']
         for weight in (per_weight.values() if isinstance(per_weight, dict) else [])
         if isinstance(weight, dict) and isinstance(weight.get('step'), (torch.Tensor, int, float))
-    }
+    ]
+    if any(isinstance(count, torch.Tensor) and count.numel() != 1 for count in counts):
+        raise ValueError(f"'{key}' holds a step count that is not one number")
+    steps = {float(count) for count in counts}
     if len(steps) > 1 or any(step < 0 for step in steps):
         raise ValueError(f"'{key}' holds step counts {sorted(steps)}: one count >= 0, the same for every weight")
 

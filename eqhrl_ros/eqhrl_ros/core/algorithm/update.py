@@ -117,7 +117,8 @@ def adam_(params: list, grads: list, state: tuple, settings: dict) -> None:
     recomputed in every 16-float chunk of its loop, which made the Adam step 2-2.7x slower
     (docs/performance.md). A network's weights step together, so their counts are equal: taken
     as a reduction over them, the corrections are computed once, in a kernel of their own, and
-    the loops read them. The same numbers as torch's capturable Adam, to the bit."""
+    the loops read them. The same numbers as torch's capturable Adam (to the bit on the machine
+    it was measured on; tests/core/algorithm/test_compiled_update.py checks float rounding)."""
     exp_avgs, exp_avg_sqs, steps = state
     beta1, beta2 = settings['betas']
     lr, eps = settings['lr'], settings['eps']

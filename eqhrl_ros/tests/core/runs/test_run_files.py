@@ -194,11 +194,16 @@ def uneven_optimizer_steps(state):
     next(iter(state['actor_optimizer']['state'].values()))['step'].add_(3)
 
 
+def optimizer_step_of_two_numbers(state):
+    next(iter(state['critic_optimizer']['state'].values()))['step'] = torch.tensor([1.0, 2.0])
+
+
 @pytest.mark.parametrize(
     'change,message',
     [
         (nan_actor, "'actor' holds non-finite"),
         (uneven_optimizer_steps, "'actor_optimizer' holds step counts"),
+        (optimizer_step_of_two_numbers, "'critic_optimizer' holds a step count that is not one number"),
         (list_config, "'config' must be a dict"),
         (negative_episode, 'counters.episode must be an integer >= 0'),
         (episode_beyond_steps, 'exceeds counters.total_steps'),
