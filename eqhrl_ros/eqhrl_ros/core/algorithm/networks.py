@@ -15,18 +15,10 @@ LOG_STD_MIN = -5.0
 LOG_STD_MAX = 2.0
 
 
-class _NumpyTanh(torch.autograd.Function):
-    """tanh on numpy's SIMD kernel, with torch's tanh gradient 1 - tanh(x)^2.
-
-    Why: this torch CPU build runs tanh element by element, several times slower than
-    numpy's kernel on a batch, for the same values to 1 ulp (docs/performance.md). Written
-    with setup_context so that torch.func's transforms (the update's gradients) can use it:
-    they call forward with plain tensors.
-    """
-
-    @staticmethod
-    def forward(x: torch.Tensor) -> torch.Tensor:
-        return torch.from_numpy(np.tanh(x.detach().contiguous().numpy()))
+class _TanhGradient(torch.autograd.Function):
+    """A tanh computed by a subclass's forward, with torch's tanh gradient 1 - tanh(x)^2 from its
+    output. Written with setup_context so that torch.func's transforms (the update's gradients)
+    can use it: they call forward with plain tensors."""
 
     @staticmethod
     def setup_context(ctx, inputs, output) -> None:
@@ -38,9 +30,20 @@ class _NumpyTanh(torch.autograd.Function):
         return torch.ops.aten.tanh_backward(grad, y)
 
 
-class _ExpTanh(torch.autograd.Function):
-    """tanh(x) = sign(x) (1 - e^{-2|x|}) / (1 + e^{-2|x|}), within 1e-7 of tanh, with torch's tanh
-    gradient 1 - tanh(x)^2.
+class _NumpyTanh(_TanhGradient):
+    """tanh on numpy's SIMD kernel.
+
+    Why: this torch CPU build runs tanh element by element, several times slower than
+    numpy's kernel on a batch, for the same values to 1 ulp (docs/performance.md).
+    """
+
+    @staticmethod
+    def forward(x: torch.Tensor) -> torch.Tensor:
+        return torch.from_numpy(np.tanh(x.detach().contiguous().numpy()))
+
+
+class _ExpTanh(_TanhGradient):
+    """tanh(x) = sign(x) (1 - e^{-2|x|}) / (1 + e^{-2|x|}), within 1e-7 of tanh.
 
     Why: compiled for the CPU, torch.tanh becomes Sleef's vector tanh, about twice the time of this
     form's one exponential (153 against 81 us on a 512x256 batch), and the actor's hidden tanh were
@@ -51,15 +54,6 @@ class _ExpTanh(torch.autograd.Function):
     def forward(x: torch.Tensor) -> torch.Tensor:
         t = torch.exp(-2.0 * x.abs())
         return torch.copysign((1.0 - t) / (1.0 + t), x)
-
-    @staticmethod
-    def setup_context(ctx, inputs, output) -> None:
-        ctx.save_for_backward(output)
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
-        (y,) = ctx.saved_tensors
-        return torch.ops.aten.tanh_backward(grad, y)
 
 
 NUMPY_TANH_FROM = 4096  # elements
