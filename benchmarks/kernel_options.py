@@ -31,6 +31,8 @@ forms, defined here and swapped into networks.py or update.py while their progra
   every row of its output;
 - thin layers: bias apart, and a layer of at most THIN inputs (the first: the observation and
   the action) as a sum of products that inductor fuses, instead of a product with a few columns;
+- thin bias apart: bias apart for the thin layers only (their bias copy costs more than their
+  product), the others as shipped;
 - torch's adam traced: the Adam step as the update compiled it before 2026-12-04, torch's own
   capturable Adam traced as it is (update.adam_ now writes its steps out so that each network's
   bias corrections are computed once).
@@ -126,6 +128,20 @@ def adam_traced(params: list, grads: list, state: tuple, settings: dict) -> None
     return None
 
 
+def linear_thin_bias_apart(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """networks.linear with the bias apart for a thin layer only, when compiling."""
+    if weight.shape[-1] > THIN:
+        return SHIPPED['linear'](x, weight, bias)
+    return BIAS_APART['linear'](x, weight, bias)
+
+
+def product_thin_bias_apart(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """networks.biased_product with the bias apart for a thin layer only, when compiling."""
+    if weight.shape[-2] > THIN:
+        return SHIPPED['biased_product'](x, weight, bias)
+    return BIAS_APART['biased_product'](x, weight, bias)
+
+
 SHIPPED = {name: getattr(networks, name) for name in ('tanh', 'linear', 'biased_product')}
 SHIPPED['adam_'] = update.adam_
 BIAS_APART = {'linear': linear_bias_apart, 'biased_product': product_bias_apart}
@@ -133,6 +149,7 @@ THIN_LAYERS = {'linear': linear_thin, 'biased_product': product_thin}
 CODE_FORMS = {
     'bias apart': BIAS_APART,
     'thin layers': THIN_LAYERS,
+    'thin bias apart': {'linear': linear_thin_bias_apart, 'biased_product': product_thin_bias_apart},
     "torch's adam traced": {'adam_': adam_traced},
     'sleef tanh': {'tanh': sleef_tanh},
 }
