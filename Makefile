@@ -154,6 +154,7 @@ profile: $(VENV)/.stamp-eqhrl_ros
 	$(VPY) benchmarks/profile_update.py
 	$(VPY) benchmarks/kernel_options.py
 	$(VPY) benchmarks/profile_threads.py
+	$(VPY) benchmarks/acting_ahead.py
 
 # Refresh constraints.txt from the current .venv (after changing requirements.txt).
 lock: $(VENV)/.stamp-deps

@@ -180,7 +180,8 @@ def losses_of(function, arguments) -> dict:
         k: {n: t.clone() for n, t in v.items()} if isinstance(v, dict) else v.clone() for k, v in weights.items()
     }
     state = {k: tuple([t.clone() for t in part] for part in v) for k, v in state.items()}
-    return {k: float(v) for k, v in function(nets, weights, state, *rest).items()}
+    losses, _ = function(nets, weights, state, *rest)  # (and the acting ahead)
+    return {k: float(v) for k, v in losses.items()}
 
 
 def main() -> None:

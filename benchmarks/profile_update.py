@@ -62,7 +62,8 @@ def compiled_update(env_id: str, mode: str, warmup: int):
     batch, advice = learner.memories.sample()
     noise = updater.noise_for(batch, advice)
     weights, state, constants = updater.inputs()
-    arguments = (updater.nets, weights, state, batch.columns(), advice and advice.columns(), noise, constants)
+    ahead = updater.ahead.inputs(learner.observation.tensor(env.reset(seed=1)[0]), updater.obs_dim)  # acting ahead
+    arguments = (updater.nets, weights, state, batch.columns(), advice and advice.columns(), noise, constants, ahead)
     return compiled.function, arguments
 
 

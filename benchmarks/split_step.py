@@ -15,7 +15,8 @@ time.perf_counter around:
 - store: learner.count_step (D, and D_advising when advised);
 - sample: memories.sample (the batch from D and, for EQSAC, the one from D_advising);
 - noise: the update's noise (updater.noise_for);
-- update: algorithm1_update, compiled or eager, to its losses as floats.
+- update: algorithm1_update, compiled or eager, to its losses as floats (Updater.run: compiled, the
+  program then acts ahead on the next observation, which propose takes: acting_ahead.py).
 
 Then, in each round, the same learner's propose, sampling and update called back to back on one
 input ("alone"): what each part costs without the loop's other parts between its calls.
@@ -41,7 +42,6 @@ from bench_learner import openmp_spin
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
 from eqhrl_ros.core.algorithm import cpu_threads
-from eqhrl_ros.core.algorithm.update import algorithm1_update
 
 PARTS = ('propose', 'expert', 'env', 'store', 'sample', 'noise', 'update')
 
@@ -62,12 +62,6 @@ def make(env_id: str, mode: str, args) -> tuple:
         compiled = learner.start_compiling(background=False)
         assert compiled is not None and compiled.ready, 'the update did not compile'
     return env, learner, expert
-
-
-def update_function(updater):
-    """The update the learner runs now: its compiled program once ready, else the eager one."""
-    compiled = updater.compiled
-    return compiled.program() if compiled is not None and compiled.ready else algorithm1_update
 
 
 def timed_round(env, learner, expert, steps: int, obs) -> tuple:
@@ -91,9 +85,7 @@ def timed_round(env, learner, expert, steps: int, obs) -> tuple:
         t5 = clock()
         noise = updater.noise_for(batch, advice)
         t6 = clock()
-        weights, state, constants = updater.inputs()
-        function = update_function(updater)
-        losses = function(updater.nets, weights, state, batch.columns(), advice and advice.columns(), noise, constants)
+        losses = updater.run(batch, advice, noise, learner.observation.tensor(next_obs))
         {name: float(value) for name, value in losses.items()}
         t7 = clock()
         for name, (a, b) in zip(PARTS, ((t0, t1), (t1, t2), (t2, t3), (t3, t4), (t4, t5), (t5, t6), (t6, t7))):
@@ -113,13 +105,11 @@ def alone_round(learner, obs, calls: int = 50) -> dict:
     updater, clock, out = learner.updater, time.perf_counter, {}
     batch, advice = learner.memories.sample()
     noise = updater.noise_for(batch, advice)
-    weights, state, constants = updater.inputs()
-    function = update_function(updater)
-    arguments = (updater.nets, weights, state, batch.columns(), advice and advice.columns(), noise, constants)
+    obs_t = learner.observation.tensor(obs)
     for name, call in (
         ('propose', lambda: learner.propose(obs)),
         ('sample', learner.memories.sample),
-        ('update', lambda: function(*arguments)),
+        ('update', lambda: updater.run(batch, advice, noise, obs_t)),
     ):
         call()
         start = clock()

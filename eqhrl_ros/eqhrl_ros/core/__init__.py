@@ -29,7 +29,8 @@ algorithm/  EQ-HRL itself
   critics.py      Critics: the twin critics, their targets, and D(s)
   memories.py     ReplayMemories: D and D_advising, and an update's batches from both
   update.py       Algorithm 1's update, once: algorithm1_update (eager, compiled and stacked seeds)
-  compiled_update.py algorithm1_update compiled as one program (compile_update)
+  compiled_update.py algorithm1_update compiled as one program (compile_update), acting ahead after it
+  acting_ahead.py what the compiled update computed for the next observation, taken where it still holds
   updater.py      Updater: the temperature, the optimisers, the update's inputs, the compile, the losses
   stacked_seeds.py   StackedSeeds: many seeds' updates as one (one batched product per layer)
   advice_window.py   whether advice is open now: the budgets in episodes (Eq. 7) and in seconds

@@ -416,3 +416,24 @@ class AdvisingGates:
         episode, reached, steps = state.get('shifted', (-1, -1, ()))
         self._shifted_episode, self._shifted_reached = int(episode), int(reached)
         self._shifted_steps = frozenset(int(s) for s in steps)
+
+
+def gates_for(config: LearnerConfig, budget: AdviceBudget) -> AdvisingGates:
+    """The gates that ``config`` asks for, over ``budget``."""
+    cfg = config
+    return AdvisingGates(
+        cfg.mode,
+        budget,
+        cfg.queue_length,
+        cfg.threshold_kind,
+        cfg.fixed_d_threshold,
+        cfg.fixed_e_threshold,
+        cfg.random_ask_rate,
+        cfg.random_ask_schedule,
+        cfg.random_ask_horizon,
+        cfg.gate_target_rate,
+        cfg.gate_threshold_step,
+        cfg.random_ask_steps,
+        cfg.request_refractory_steps,
+        cfg.gate_score_queue,
+    )

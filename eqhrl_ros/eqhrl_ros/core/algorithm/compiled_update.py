@@ -1,4 +1,5 @@
-"""compile_update: Algorithm 1's update (update.algorithm1_update) as one compiled program.
+"""compile_update: Algorithm 1's update (update.algorithm1_update) as one compiled program,
+which then acts ahead on the next observation (update.update_then_act, acting_ahead.py).
 
 The eager update dispatches hundreds of small operations per update. torch.compile
 (fullgraph=True) turns the same function, unchanged, into one program with everything around
@@ -21,14 +22,15 @@ import logging
 import threading
 import time
 import types
-from typing import Callable, Optional
+from typing import Any, Callable, Optional
 
 import torch
 
 from ..data.replay import Minibatch
 from . import cpu_threads
+from . import equations as eq
 from .config import asks_for_advice
-from .update import algorithm1_update, update_noise
+from .update import update_noise, update_then_act
 
 LOG = logging.getLogger('eqhrl_ros.compile')
 
@@ -44,7 +46,7 @@ LOG = logging.getLogger('eqhrl_ros.compile')
 # into the program as constants, so two learners that differ only in gamma get two programs)
 # and torch's global state (grad mode and the like). 140 checks, 0.2 ms a call
 # (docs/performance.md).
-GUARDED_ARGUMENTS = ('weights', 'state', 'batch', 'advice', 'noise', 'constants', 'advised', 'step')
+GUARDED_ARGUMENTS = ('weights', 'state', 'batch', 'advice', 'noise', 'constants', 'advised', 'step', 'ahead')
 # Dropped too: the guard on torch's "global state" as a whole, which includes the thread count.
 # cpu_threads.py changes that count as the machine gets busy or free, and each change failed the
 # guard and compiled the update again, on the learner's own thread (1.5 s with a warm cache, the
@@ -80,7 +82,7 @@ def _guards_to_keep(entries) -> list:
 # (torch._dynamo.config.recompile_limit); past that, a fullgraph compile fails. An updater needs
 # one or two (with and without an advice batch), but a process with learners of several
 # settings (a sweep, a benchmark) would pass 8. So each setting gets a copy of
-# algorithm1_update with a code object of its own, shared by the learners of that setting.
+# update_then_act with a code object of its own, shared by the learners of that setting.
 _COPIES: dict = {}
 _COPIES_LOCK = threading.Lock()
 # One warm-up at a time in a process: learners started together would each miss the program
@@ -89,12 +91,12 @@ _COMPILING = threading.Lock()
 
 
 def update_function_for(setting) -> Callable:
-    """algorithm1_update, the same copy for every learner whose ``setting`` (a hashable
+    """update_then_act, the same copy for every learner whose ``setting`` (a hashable
     summary of what its program is specialised to) is equal."""
     with _COPIES_LOCK:
         function = _COPIES.get(setting)
         if function is None:
-            original = algorithm1_update
+            original = update_then_act
             function = types.FunctionType(
                 original.__code__.replace(), original.__globals__, original.__name__, original.__defaults__
             )
@@ -103,12 +105,25 @@ def update_function_for(setting) -> Callable:
         return function
 
 
+def compile_program(function: Callable, threads: int) -> Callable:
+    """torch.compile of ``function`` as the update's program is compiled: one graph, static
+    shapes, fused kernels in OpenMP teams of ``threads``, the guards above."""
+    # loop_ordering_after_fusion off: with it, torch 2.11's inductor failed an assertion on
+    # this program on CUDA; on the CPU it makes no difference in speed (docs/performance.md).
+    options: dict[str, Any] = {
+        'loop_ordering_after_fusion': False,
+        'cpp.threads': threads,
+        'guard_filter_fn': _guards_to_keep,
+    }
+    return torch.compile(function, fullgraph=True, dynamic=False, options=options)
+
+
 # --------------------------------------------------------------------------- the learner's side
 
 
 class CompiledUpdate:
     """A learner's update compiled in the background; ``function`` is the program, to be
-    called as algorithm1_update once ``ready`` (``program()`` picks it for torch's thread count).
+    called as update_then_act once ``ready`` (``program()`` picks it for torch's thread count).
 
     ``log``: where the one line about the compiler goes: info() with its cost, or warning() with
     why the learner stays eager. Python's logger 'eqhrl_ros.compile' by default; a node passes
@@ -132,18 +147,7 @@ class CompiledUpdate:
         self.one_thread: Optional[CompiledUpdate] = None
         self._variants = self._advice_variants()
         weights, state, constants = updater.inputs()
-        # loop_ordering_after_fusion off: with it, torch 2.11's inductor failed an assertion on
-        # this program on CUDA; on the CPU it makes no difference in speed (docs/performance.md).
-        self.function = torch.compile(
-            update_function_for(self._setting(constants)),
-            fullgraph=True,
-            dynamic=False,
-            options={
-                'loop_ordering_after_fusion': False,
-                'cpp.threads': self.threads,
-                'guard_filter_fn': _guards_to_keep,
-            },
-        )
+        self.function = compile_program(update_function_for(self._setting(constants)), self.threads)
         # Copies: tracing in the background must not touch the weights the learner acts and learns with.
         copies = (copy.deepcopy(updater.nets), _clone(weights), _clone(state), constants)
         if background:
@@ -158,7 +162,7 @@ class CompiledUpdate:
         constants. (Its guards check all of it again; this only keeps the settings apart.)"""
         updater, cfg = self.updater, self.updater.config
         shapes = (updater.obs_dim, updater.action_dim, tuple(cfg.hidden), cfg.batch_size)
-        variants = (cfg.actor_on_advice, tuple(self._variants), self.threads)
+        variants = (cfg.actor_on_advice, tuple(self._variants), self.threads, updater.ahead.flags)
         return (*shapes, str(updater.device), *variants, repr(constants))
 
     def program(self) -> Callable:
@@ -213,6 +217,7 @@ class CompiledUpdate:
                 terminated=torch.zeros(size, device=device),
             ).columns()
 
+        eq.quadrature_nodes(torch.zeros((), device=device))  # E(s)'s nodes, made by numpy: before tracing
         for with_advice in self._variants:
             batch = made_up_batch()
             advice = made_up_batch() if with_advice else None
@@ -223,7 +228,12 @@ class CompiledUpdate:
                 sizes,
                 updater.config.actor_on_advice,
             )
-            self.function(nets, weights, state, batch, advice, noise, constants)
+            obs, act_noise = (
+                torch.randn(1, updater.obs_dim, device=device),
+                torch.randn(1, updater.action_dim, device=device),
+            )
+            ahead = (obs, act_noise, *updater.ahead.flags) if updater.ahead.enabled else None
+            self.function(nets, weights, state, batch, advice, noise, constants, ahead)
 
     def wait(self, timeout: Optional[float] = None) -> bool:
         """Block until the background compile ended (tests, benchmarks); True if it is ready."""

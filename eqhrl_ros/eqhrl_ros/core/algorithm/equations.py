@@ -157,9 +157,10 @@ _FOLD_END = 16.0  # log(1 + e^{-2u}) < 1e-13 past it
 _NODES: dict = {}
 
 
-def _quadrature_nodes(like: torch.Tensor) -> tuple[torch.Tensor, ...]:
+def quadrature_nodes(like: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """(Hermite nodes * sqrt 2, Hermite weights / sqrt pi, fold nodes, fold weights * log(1 + e^-2u)),
-    made once per dtype and device."""
+    made once per dtype and device, by numpy: so before torch.compile traces a function that
+    needs them (a compiled program reads them as constants; numpy cannot be traced)."""
     key = (like.dtype, like.device)
     if key not in _NODES:
         x, w = np.polynomial.hermite.hermgauss(64)
@@ -184,11 +185,12 @@ def expected_log_jacobian(mean: torch.Tensor, log_std: torch.Tensor) -> torch.Te
       so it is integrated over [0, 16] against the folded density N(u; m, s) + N(-u; m, s)
       with Gauss-Legendre nodes.
     """
-    hermite_x, hermite_w, fold_u, fold_w = _quadrature_nodes(mean)
+    hermite_x, hermite_w, fold_u, fold_w = quadrature_nodes(mean)
     std = log_std.exp()
     m, s = mean.unsqueeze(-1), std.unsqueeze(-1)
     narrow = log_one_minus_tanh_squared(torch.addcmul(m, s, hermite_x)) @ hermite_w
-    if not bool((std > _WIDE).any()):  # a trained policy: no dimension this wide
+    # A trained policy has no dimension this wide (compiled, both rules: a program has no branch on data).
+    if not torch.compiler.is_dynamo_compiling() and not bool((std > _WIDE).any()):
         return narrow
     s = torch.clamp(s, min=_WIDE)  # keeps the unused branch finite for narrow dimensions
     z = m / s

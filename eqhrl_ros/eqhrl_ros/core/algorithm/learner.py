@@ -17,7 +17,8 @@ The parts, each with one job (this class only wires them and counts the episode)
 - ``critics`` (critics.py): Q_theta1, Q_theta2, their targets, and D(s);
 - ``gates`` (advising.py) and ``budget`` (advice_window.py): whether to ask, and whether advice is open;
 - ``memories`` (memories.py): D and D_advising;
-- ``updater`` (updater.py): the temperature, the optimisers, the update (eager or compiled), its losses;
+- ``updater`` (updater.py): the temperature, the optimisers, the update (eager or compiled), its losses,
+  and what the compiled update computed ahead for the next observation (acting_ahead.py);
 - ``streams`` (streams.py): one random stream per purpose;
 - ``tally`` (advice_counts.py): the run's episodes, steps and advice counts.
 
@@ -41,7 +42,7 @@ from . import advice_outcomes as outcomes
 from .advice_counts import AdviceCounts, RunTally
 from .advice_outcomes import Proposal, Resolution
 from .advice_window import AdviceBudget, AdviceWindow
-from .advising import AdvisingGates, GateDecision
+from .advising import GateDecision, gates_for
 from .config import SCORE_MODES, LearnerConfig, check_value
 from .critics import Critics
 from .learner_state import check_camera, check_state, resumed_settings
@@ -77,26 +78,6 @@ def initial_networks(obs_dim: int, action_dim: int, config: LearnerConfig, devic
     return actor, critic
 
 
-def gates_for(config: LearnerConfig, budget: AdviceBudget) -> AdvisingGates:
-    cfg = config
-    return AdvisingGates(
-        cfg.mode,
-        budget,
-        cfg.queue_length,
-        cfg.threshold_kind,
-        cfg.fixed_d_threshold,
-        cfg.fixed_e_threshold,
-        cfg.random_ask_rate,
-        cfg.random_ask_schedule,
-        cfg.random_ask_horizon,
-        cfg.gate_target_rate,
-        cfg.gate_threshold_step,
-        cfg.random_ask_steps,
-        cfg.request_refractory_steps,
-        cfg.gate_score_queue,
-    )
-
-
 class EQSACLearner:
     """Soft Actor-Critic with EQ-HRL advising gates and dual replay (SAC / QASAC / EQSAC)."""
 
@@ -126,10 +107,12 @@ class EQSACLearner:
         actor, critic = initial_networks(self.observation.features_dim, scaler.dim, cfg, self.device, self.observation)
         self.policy = Policy(actor, scaler, self.observation, self.streams, cfg)
         self.critics = Critics(critic)
-        self.updater = Updater(cfg, self.policy, self.critics, self.device)
-        self.memories = ReplayMemories(cfg, self.observation, scaler.dim, self.streams, self.device)
         self.budget = AdviceBudget(cfg)
         self.gates = gates_for(cfg, self.budget)
+        # The compiled update acts ahead (acting_ahead.py): D(s) and the exact E(s) where the gates read them.
+        acts = (self.gates.uses_discrepancy, self.gates.uses_entropy and cfg.entropy_estimator == 'exact')
+        self.updater = Updater(cfg, self.policy, self.critics, self.device, acts=acts)
+        self.memories = ReplayMemories(cfg, self.observation, scaler.dim, self.streams, self.device)
         # Modes novelty and advice_gain (extensions) score the state itself (state_scores.py).
         self.scores = (
             StateScores(obs_dim, cfg.gate_neighbours, cfg.gate_memory, self.device) if self.gates.uses_score else None
@@ -187,14 +170,26 @@ class EQSACLearner:
         obs_t = self.observation.tensor(obs)
         features = self.observation.features(obs_t)  # what the networks read (a camera's: encoded)
         warming_up = self.total_steps < self.config.random_warmup_steps
-        mean, log_std, action = self.policy.sample(features, warming_up)
+        # What the last compiled update computed for this very observation, where it could (acting_ahead.py).
+        acted = {} if warming_up else (self.updater.acted_ahead(obs_t) or {})
+        if acted:
+            mean, log_std, action = acted['mean'], acted['log_std'], acted['action']
+        else:
+            mean, log_std, action = self.policy.sample(features, warming_up)
 
         if self.person_budget_left_s <= 0.0:  # the person's seconds are spent: as outside Eq. 7's budget
             decision = GateDecision(False, within_budget=False)
         elif self.gates.needs_evaluation(self.episode):
             gates = self.gates
-            discrepancy = self.critics.discrepancy(features, action) if gates.uses_discrepancy else None
-            entropy = self.policy.entropy(mean, log_std) if gates.uses_entropy else None
+            discrepancy = entropy = None
+            if gates.uses_discrepancy:
+                discrepancy = (
+                    float(acted['discrepancy'])
+                    if 'discrepancy' in acted
+                    else self.critics.discrepancy(features, action)
+                )
+            if gates.uses_entropy:
+                entropy = float(acted['entropy']) if 'entropy' in acted else self.policy.entropy(mean, log_std)
             draw = self.streams.uniform('request') if gates.uses_draw else None
             score = None
             if self.scores is not None:  # scored against the states before it, then remembered
@@ -356,15 +351,17 @@ class EQSACLearner:
         """
         self.count_step(obs, action, reward, next_obs, terminated, advised, success, store=learn)
         if learn:
-            updates_after_a_step(self.config, self.ready_to_learn, self.update)
+            updates_after_a_step(self.config, self.ready_to_learn, lambda: self.update(next_obs))
         if terminated or truncated:
             return self.end_episode()
         return None
 
-    def update(self) -> dict:
-        """One gradient update (updater.py): batches from D and D_advising, then algorithm1_update."""
+    def update(self, next_obs=None) -> dict:
+        """One gradient update (updater.py): batches from D and D_advising, then algorithm1_update;
+        compiled, it then acts ahead on ``next_obs``, the observation expected next (acting_ahead.py)."""
         batch, advice = self.memories.sample()
-        return self.updater.update(batch, advice)
+        vector = next_obs is not None and self.observation.camera is None  # (a camera's update is never compiled)
+        return self.updater.update(batch, advice, self.observation.tensor(next_obs) if vector else None)
 
     def start_compiling(self, background: bool = True):
         """compile_update now (updater.py); returns the CompiledUpdate, or None where refused."""
@@ -490,7 +487,7 @@ class EQSACLearner:
             self.observation.encoder = encoder
         self.updater.adopt(log_alpha, optimizers, int(counters['updates']))
         self.gates = gates
-        self.streams.generators = streams.generators  # the parts hold this RandomStreams
+        self.streams.adopt(streams)  # the parts hold this RandomStreams
         self.tally = RunTally(int(counters['episode']), int(counters['total_steps']), advice_total)
         # The settings a person may change while the run goes on (the budgets) come back as they
         # were at the save: a resumed run keeps the budget set on the page or with ros2 param set.

@@ -272,3 +272,25 @@ def algorithm1_update(
     # Target critics: theta^- <- tau * theta + (1 - tau) * theta^-.
     eq.soft_update(list(target_w.values()), list(critic_w.values()), constants['tau'])
     return losses
+
+
+def update_then_act(nets, weights, state, batch, advice, noise, constants, ahead) -> tuple:
+    """algorithm1_update, then the next step's acting from the weights it leaves: the function
+    compile_update compiles (acting_ahead.py says why). ``ahead``: (s_{t+1} as the networks read
+    it, [1, obs_dim]; the 'act' noise of a_{t+1}, [1, action_dim]; whether to compute D(s);
+    whether to compute the exact E(s); None: no acting). Returns (the losses, {'mean', 'log_std',
+    'action', and 'discrepancy', 'entropy' where asked} or None), as Learner.propose computes them
+    eagerly."""
+    losses = algorithm1_update(nets, weights, state, batch, advice, noise, constants)
+    if ahead is None:
+        return losses, None
+    obs, act_noise, with_discrepancy, with_entropy = ahead
+    mean, log_std = with_weights(nets[0], weights['actor'])(obs)
+    action = eq.squashed_gaussian_action(mean, log_std, act_noise)  # a_{t+1} ~ pi(.|s_{t+1})
+    acted = {'mean': mean, 'log_std': log_std, 'action': action}
+    if with_discrepancy:
+        q1, q2 = with_weights(nets[1], weights['critic'])(obs, action)
+        acted['discrepancy'] = eq.q_discrepancy(q1, q2)  # Eq. 8
+    if with_entropy:
+        acted['entropy'] = eq.policy_entropy(mean, log_std)  # Eq. 9, exactly
+    return losses, acted

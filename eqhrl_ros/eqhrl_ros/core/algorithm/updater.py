@@ -1,5 +1,6 @@
 """The Updater: what learning owns. The temperature, the three optimisers, the update's inputs,
-the compile, and the losses with their non-finite check.
+the compile, the losses with their non-finite check, and the compiled program's acting ahead
+(acting_ahead.py).
 
 Every update, lone or of stacked seeds, runs update.algorithm1_update; this part gathers what
 that function reads (views of the live weights and of the optimisers' own moments, which it
@@ -18,6 +19,7 @@ import torch
 
 from ..data.replay import Minibatch
 from . import cpu_threads
+from .acting_ahead import ActingAhead, weights_token
 from .config import LearnerConfig
 from .critics import Critics
 from .policy import Policy
@@ -83,7 +85,17 @@ def named_weights(actor, critic, critic_target, log_alpha) -> dict:
 class Updater:
     """Learns the policy's actor, the critics and the temperature alpha (Algorithm 1's update)."""
 
-    def __init__(self, config: LearnerConfig, policy: Policy, critics: Critics, device: torch.device, log=None):
+    def __init__(
+        self,
+        config: LearnerConfig,
+        policy: Policy,
+        critics: Critics,
+        device: torch.device,
+        log=None,
+        acts=(False, False),
+    ):
+        """``acts``: whether the gates read D(s) and the exact E(s), which the compiled update then
+        computes ahead for the next observation (acting_ahead.py)."""
         self.config = config
         self.policy = policy
         self.critics = critics
@@ -103,6 +115,7 @@ class Updater:
         self._inputs: tuple[Any, Any] = (None, None)  # inputs(): ((owners, storage, parameters), the inputs)
         self._nets: Optional[tuple] = None
         self.log = log  # the compiler's logger (info, warning); None: Python's; a node sets its own
+        self.ahead = ActingAhead(policy.streams, policy.action_dim, *acts)
 
     @property
     def obs_dim(self) -> int:
@@ -197,6 +210,15 @@ class Updater:
             self._inputs = ((owners, storage, parameters), inputs)
         return inputs
 
+    def weights_token(self) -> tuple:
+        """acting_ahead.weights_token of the weights the update reads (after inputs() gathered them)."""
+        return weights_token((self.policy.actor, self.critics.critic), self._inputs[0][2])
+
+    def acted_ahead(self, obs_t: torch.Tensor) -> Optional[dict]:
+        """What the last compiled update computed for acting on ``obs_t``, if it still holds
+        (acting_ahead.py); None otherwise."""
+        return self.ahead.take(obs_t, self.weights_token)
+
     def optimizer_state(self, network: str) -> tuple:
         """adam_state of ``network``'s optimiser ('actor', 'critic' or 'alpha')."""
         return adam_state(self.make_optimizers()[network])
@@ -211,22 +233,35 @@ class Updater:
                 self._nets += (copy.deepcopy(self.encoder),)
         return self._nets
 
-    def update(self, batch: Minibatch, advice: Optional[Minibatch]) -> dict:
+    def update(self, batch: Minibatch, advice: Optional[Minibatch], next_obs: Optional[torch.Tensor] = None) -> dict:
         """One gradient update on these batches: Algorithm 1's inner loop, algorithm1_update,
-        compiled once compile_update has its program ready. The noise is drawn here, after the
-        batches, in every path's order. Returns the losses and alpha, as floats."""
-        noise = self.noise_for(batch, advice)
-        weights, state, constants = self.inputs()
-        compiled = self.compiled
-        function = compiled.program() if compiled is not None and compiled.ready else algorithm1_update
-        losses = function(self.nets, weights, state, batch.columns(), advice and advice.columns(), noise, constants)
+        compiled once compile_update has its program ready; the compiled program then acts ahead
+        on ``next_obs`` (the observation the learner expects to act on next, [1, obs_dim]; None:
+        none). The noise is drawn here, after the batches, in every path's order. Returns the
+        losses and alpha, as floats."""
+        losses = self.run(batch, advice, self.noise_for(batch, advice), next_obs)
         info = {name: float(value) for name, value in losses.items()}
         info['alpha'] = self.alpha
         self.count(info)
-        if self.config.compile_update and compiled is None and not self.compile_refused:
+        if self.config.compile_update and self.compiled is None and not self.compile_refused:
             self.start_compiling()
         cpu_threads.adapt()  # torch's threads fitted to the machine, from this (the updates') thread
         return info
+
+    def run(self, batch: Minibatch, advice: Optional[Minibatch], noise: tuple, next_obs=None) -> dict:
+        """update()'s work without its counting: algorithm1_update on these batches and this
+        ``noise``, or its compiled program where ready, which then acts ahead on ``next_obs``.
+        Returns the losses as tensors."""
+        weights, state, constants = self.inputs()
+        compiled = self.compiled
+        columns = (batch.columns(), advice and advice.columns())
+        self.ahead.forget()
+        if compiled is None or not compiled.ready:
+            return algorithm1_update(self.nets, weights, state, *columns, noise, constants)
+        ahead = self.ahead.inputs(next_obs, self.obs_dim)
+        losses, acted = compiled.program()(self.nets, weights, state, *columns, noise, constants, ahead)
+        self.ahead.keep(ahead, acted, self.weights_token())
+        return losses
 
     def count(self, losses: dict) -> None:
         """One more update done (with these losses): stacked seeds count each seed's here too."""
@@ -274,3 +309,4 @@ class Updater:
     def adopt(self, log_alpha: torch.Tensor, optimizers: dict, updates: int) -> None:
         """Take over what loaded_parts() made (the policy and critics hold the new networks)."""
         self.log_alpha, self.optimizers, self.updates = log_alpha, optimizers, updates
+        self.ahead.forget()

@@ -15,6 +15,9 @@ import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig
 from eqhrl_ros.core.algorithm import compiled_update as compiled
+from eqhrl_ros.core.algorithm import equations as eq
+from eqhrl_ros.core.algorithm import update
+from eqhrl_ros.core.data.weights import apply_weights, encode_weights
 
 # Small networks: the program's size (and so the compile time) does not depend on the widths.
 SMALL = {'hidden': (32, 32), 'batch_size': 32, 'learning_starts': 1, 'seed': 3}
@@ -211,9 +214,11 @@ def test_the_guards_kept_are_those_on_the_data_and_torchs_state():
     assert not compiled.keep_guard('', is_global=False, guard_type='GLOBAL_STATE')
     for kind in ('GRAD_MODE', 'DETERMINISTIC_ALGORITHMS', 'TORCH_FUNCTION_STATE', 'DEFAULT_DEVICE'):
         assert compiled.keep_guard('', is_global=False, guard_type=kind), kind
-    # Every argument of the update but the modules is guarded: a new argument must be added.
-    arguments = compiled.algorithm1_update.__code__.co_varnames[: compiled.algorithm1_update.__code__.co_argcount]
-    assert set(arguments) - set(compiled.GUARDED_ARGUMENTS) == {'nets'}
+    # Every argument of the program's function (and of the update it calls) but the modules is
+    # guarded: a new argument must be added.
+    for function in (update.update_then_act, update.algorithm1_update):
+        arguments = function.__code__.co_varnames[: function.__code__.co_argcount]
+        assert set(arguments) - set(compiled.GUARDED_ARGUMENTS) == {'nets'}, function.__name__
 
 
 @pytest.mark.slow  # the compiler (once: the other learners find its program)
@@ -256,7 +261,7 @@ def test_each_setting_gets_a_function_of_its_own_and_learners_of_one_setting_sha
     same, again, other = compiled_functions
     assert same is again and other is not same
     # (dynamo keeps its programs on the code object itself: equal code, distinct objects)
-    codes = [compiled.algorithm1_update.__code__, same.__code__, other.__code__]
+    codes = [update.update_then_act.__code__, same.__code__, other.__code__]
     assert len({id(code) for code in codes}) == 3
 
 
@@ -427,3 +432,47 @@ def test_the_compiled_tanh_is_tanh_to_float_rounding_with_tanhs_gradient_and_no_
     compiled, code = run_and_get_code(torch.compile(networks.tanh, fullgraph=True), batch)
     assert float((compiled.double() - torch.tanh(batch.double())).abs().max()) < 2e-7
     assert code and not any('.tanh()' in c or 'std::tanh' in c for c in code)  # Sleef's tanh: twice the time
+
+
+def eager_proposal(learner: EQSACLearner, obs) -> tuple:
+    """What the eager propose computes for ``obs`` with the learner's weights now and the 'act'
+    stream's next draw: (action in env units, D(s), E(s), the stream's state after that draw)."""
+    generator = torch.Generator()
+    generator.set_state(learner.streams.state_dict()['act'])  # as before any draw made ahead
+    with torch.no_grad():
+        obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32))[None]
+        mean, log_std = learner.actor(obs_t)
+        action = eq.squashed_gaussian_action(mean, log_std, torch.randn(mean.shape, generator=generator))
+        q1, q2 = learner.critic(obs_t, action)
+        discrepancy, entropy = float(eq.q_discrepancy(q1, q2)), float(eq.policy_entropy(mean, log_std))
+    return learner.scaler.to_env(action[0].numpy()), discrepancy, entropy, generator.get_state()
+
+
+@pytest.mark.slow  # the compiler
+def test_the_compiled_update_acts_ahead_and_propose_takes_it_only_where_it_holds(monkeypatch):
+    """After a compiled update, propose() on the observation the step gave takes the action, D(s)
+    and E(s) that the program computed from the weights it left: what the eager propose computes
+    from the same weights and the 'act' stream's same draw, to float rounding, with the stream
+    left where the eager one leaves it. For another observation, or after the weights changed, it
+    computes them itself, from that same draw."""
+    learner = filled(compile_update=True, mode='eqsac', advising_budget=10**6)
+    learner.update()
+    assert learner.compiled_update.wait(timeout=900), learner.compiled_update.failed
+    taken = []
+    original = learner.updater.acted_ahead
+    monkeypatch.setattr(learner.updater, 'acted_ahead', lambda obs_t: taken.append(original(obs_t)) or taken[-1])
+    other = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(**{**SMALL, 'seed': 8}))
+    rng = np.random.default_rng(1)
+    for case in ('the observation expected', 'another observation', 'weights changed since'):
+        obs, next_obs = rng.normal(size=3), rng.normal(size=3)
+        learner.step(obs, np.array([0.5]), 0.1, next_obs, False, False)
+        if case == 'weights changed since':
+            apply_weights(learner, encode_weights(other))
+        proposed = next_obs if case != 'another observation' else next_obs + 1e-3
+        expected_action, expected_d, expected_e, expected_stream = eager_proposal(learner, proposed)
+        proposal = learner.propose(proposed)
+        assert (taken[-1] is not None) == (case == 'the observation expected'), case
+        np.testing.assert_allclose(proposal.action, expected_action, rtol=1e-5, atol=1e-6, err_msg=case)
+        assert proposal.decision.discrepancy == pytest.approx(expected_d, rel=1e-4, abs=1e-6), case
+        assert proposal.decision.entropy == pytest.approx(expected_e, rel=1e-5, abs=1e-6), case
+        assert torch.equal(learner.streams.state_dict()['act'], expected_stream), case

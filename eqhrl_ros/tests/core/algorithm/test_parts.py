@@ -16,9 +16,8 @@ LOSSES = {'critic_loss', 'actor_loss', 'alpha_loss'}
 
 
 def learner(seed=0, **extra):
-    config = LearnerConfig(
-        mode='eqsac', hidden=(8, 8), batch_size=8, learning_starts=10, seed=seed, compile_update=False, **extra
-    )
+    settings = {'mode': 'eqsac', 'hidden': (8, 8), 'batch_size': 8, 'learning_starts': 10, 'compile_update': False}
+    config = LearnerConfig(**{**settings, **extra}, seed=seed)
     made = EQSACLearner(3, [-2.0], [2.0], config)
     rng = np.random.default_rng(seed)
     for i in range(12):  # fills D (a few advised: D_advising too), no update yet
@@ -78,3 +77,24 @@ def test_the_updates_inputs_are_gathered_again_only_when_what_holds_them_changes
         view.data_ptr() == live.data_ptr()
         for view, live in zip(third[0]['critic'].values(), one.critic.parameters(), strict=True)
     )
+
+
+def test_the_compiled_update_acts_ahead_only_where_the_gates_read_d_or_e():
+    """SAC's eager acting is only the actor on one observation: its program does not act ahead
+    (acting_ahead.py's measurement). A mode whose gates read D(s) or E(s) does, with the exact
+    E(s) only where the gates use it (a Monte Carlo E(s) draws from its own stream, eagerly)."""
+    obs_t = torch.zeros(1, 3)
+    expected = {
+        ('sac', 'exact'): None,
+        ('random', 'exact'): None,
+        ('qasac', 'exact'): (True, False),
+        ('respond', 'exact'): (False, True),
+        ('eqsac', 'exact'): (True, True),
+        ('eqsac', 'monte_carlo'): (True, False),
+    }
+    for (mode, estimator), flags in expected.items():
+        made = learner(mode=mode, entropy_estimator=estimator)
+        ahead = made.updater.ahead.inputs(obs_t, 3)
+        assert (ahead if ahead is None else tuple(ahead[2:])) == flags, (mode, estimator)
+        if ahead is not None:  # its noise: the 'act' stream's next draw, made early
+            assert made.streams.drawn_ahead('act') is ahead[1] and ahead[0] is obs_t

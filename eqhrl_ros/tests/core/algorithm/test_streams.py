@@ -30,3 +30,49 @@ def test_the_same_seed_gives_the_same_learner_and_another_seed_another():
         return torch.cat([p.detach().flatten() for p in EQSACLearner(3, [-1.0], [1.0], config).actor.parameters()])
 
     assert torch.equal(weights(3), weights(3)) and not torch.equal(weights(3), weights(4))
+
+
+def fresh_act_draws(count: int, seed: int = 5) -> list:
+    streams = RandomStreams(seed, torch.device('cpu'))
+    return [streams.noise((1, 2), 'act') for _ in range(count)]
+
+
+def test_a_draw_made_ahead_is_the_streams_next_draw_and_changes_none_of_its_numbers():
+    streams = RandomStreams(5, torch.device('cpu'))
+    expected = fresh_act_draws(4)
+    ahead = streams.draw_ahead((1, 2), 'act')
+    assert streams.draw_ahead((1, 2), 'act') is ahead  # asked again before it is taken: the same draw
+    assert streams.drawn_ahead('act') is ahead
+    assert torch.equal(ahead, expected[0])
+    assert streams.noise((1, 2), 'act') is ahead and streams.drawn_ahead('act') is None
+    assert torch.equal(streams.noise((1, 2), 'act'), expected[1])
+    # Another draw than the one made ahead (another shape, uniform, the generator itself): as if
+    # none had been made, so the stream's numbers stay those of a stream never drawn ahead.
+    streams.draw_ahead((1, 3), 'act')
+    assert torch.equal(streams.noise((1, 2), 'act'), expected[2])
+    streams.draw_ahead((1, 2), 'act')
+    assert torch.equal(torch.randn((1, 2), generator=streams['act']), expected[3])
+    assert streams.drawn_ahead('act') is None
+    uniform = RandomStreams(5, torch.device('cpu'))
+    uniform.draw_ahead((1, 2), 'act')
+    assert torch.equal(
+        uniform.noise((1, 2), 'act', uniform=True),
+        RandomStreams(5, torch.device('cpu')).noise((1, 2), 'act', uniform=True),
+    )
+
+
+def test_a_stream_drawn_ahead_is_saved_as_before_the_draw_and_resumes_with_it():
+    learner = EQSACLearner(3, [-1.0], [1.0], LearnerConfig(hidden=(8, 8), seed=5))
+    reference = RandomStreams(5, torch.device('cpu'))
+    expected = [reference.noise((1, 1), 'act'), reference.noise((1, 2), 'act')]
+    ahead = learner.streams.draw_ahead((1, 1), 'act')
+    saved = learner.state_dict()
+    assert torch.equal(saved['rng']['act'], RandomStreams(5, torch.device('cpu'))['act'].get_state())
+    resumed = EQSACLearner(3, [-1.0], [1.0], LearnerConfig(hidden=(8, 8), seed=9))
+    resumed.streams.draw_ahead((1, 1), 'act')  # its own draw ahead is forgotten by the load
+    resumed.load_state_dict(saved)
+    assert resumed.streams.drawn_ahead('act') is None
+    assert torch.equal(resumed.streams.noise((1, 1), 'act'), ahead)
+    assert torch.equal(ahead, expected[0]) and learner.streams.noise((1, 1), 'act') is ahead
+    assert torch.equal(learner.streams.noise((1, 2), 'act'), expected[1])
+    assert torch.equal(resumed.streams.noise((1, 2), 'act'), expected[1])
