@@ -82,7 +82,7 @@ lint: $(VENV)/.stamp-deps
 	$(VENV)/bin/mypy
 
 test: system-deps setup ros2-tools lint
-	$(VENV)/bin/pytest eqhrl_ros/tests
+	$(VENV)/bin/pytest eqhrl_ros/tests --durations=25
 
 # Feedback for a developer in under a minute: everything but the tests marked slow.
 test-fast: setup

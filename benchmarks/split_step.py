@@ -58,6 +58,13 @@ def make(env_id: str, mode: str, args) -> tuple:
     while learner.total_steps < args.warmup:
         run_episode(env, learner, expert, seed=0)
     run_episode(env, learner, expert)  # updates begin
+    # The gates seldom fire before learning (no request in the first 1,200 steps of Pendulum):
+    # episodes go on, up to 20, until D_advising holds an answer, so that EQSAC's updates are
+    # timed with their second critic step from the first round.
+    for _ in range(20):
+        if mode == 'sac' or len(learner.advice_replay) > 0:
+            break
+        run_episode(env, learner, expert)
     if args.compile:  # compiled here, in this thread: nothing compiles while the rounds are timed
         compiled = learner.start_compiling(background=False)
         assert compiled is not None and compiled.ready, 'the update did not compile'

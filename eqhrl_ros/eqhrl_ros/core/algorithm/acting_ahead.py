@@ -59,7 +59,8 @@ class ActingAhead:
     def keep(self, ahead: Optional[tuple], acted: Optional[dict], token: tuple) -> None:
         """What the program computed for ``ahead`` (inputs()), with the weights' ``token`` after it."""
         if ahead is not None and acted is not None and self.streams.drawn_ahead('act') is ahead[1]:
-            self._kept = (ahead[0], ahead[1], token, acted)
+            # A copy: the observation may share memory with the caller's array, changed in place later.
+            self._kept = (ahead[0].clone(), ahead[1], token, acted)
 
     def forget(self) -> None:
         self._kept = None

@@ -455,7 +455,8 @@ def test_the_compiled_update_acts_ahead_and_propose_takes_it_only_where_it_holds
     from the same weights and the 'act' stream's same draw, to float rounding, with the stream
     left where the eager one leaves it. For another observation, or after the weights changed, it
     computes them itself, from that same draw."""
-    learner = filled(compile_update=True, mode='eqsac', advising_budget=10**6)
+    # The setting of the first test's compiled learner (actor_on_advice too): its program, compiled once.
+    learner = filled(compile_update=True, mode='eqsac', actor_on_advice=True, advising_budget=10**6)
     learner.update()
     assert learner.compiled_update.wait(timeout=900), learner.compiled_update.failed
     taken = []
@@ -463,11 +464,14 @@ def test_the_compiled_update_acts_ahead_and_propose_takes_it_only_where_it_holds
     monkeypatch.setattr(learner.updater, 'acted_ahead', lambda obs_t: taken.append(original(obs_t)) or taken[-1])
     other = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(**{**SMALL, 'seed': 8}))
     rng = np.random.default_rng(1)
-    for case in ('the observation expected', 'another observation', 'weights changed since'):
-        obs, next_obs = rng.normal(size=3), rng.normal(size=3)
+    cases = ('the observation expected', 'another observation', 'weights changed since', 'the array changed in place')
+    for case in cases:
+        obs, next_obs = rng.normal(size=3), rng.normal(size=3).astype(np.float32)  # float32: the learner's own
         learner.step(obs, np.array([0.5]), 0.1, next_obs, False, False)
         if case == 'weights changed since':
             apply_weights(learner, encode_weights(other))
+        if case == 'the array changed in place':
+            next_obs += 0.5
         proposed = next_obs if case != 'another observation' else next_obs + 1e-3
         expected_action, expected_d, expected_e, expected_stream = eager_proposal(learner, proposed)
         proposal = learner.propose(proposed)
