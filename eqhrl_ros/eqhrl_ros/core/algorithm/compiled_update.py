@@ -162,7 +162,13 @@ class CompiledUpdate:
         constants. (Its guards check all of it again; this only keeps the settings apart.)"""
         updater, cfg = self.updater, self.updater.config
         shapes = (updater.obs_dim, updater.action_dim, tuple(cfg.hidden), cfg.batch_size)
-        variants = (cfg.actor_on_advice, tuple(self._variants), self.threads, updater.ahead.flags)
+        variants = (
+            cfg.actor_on_advice,
+            tuple(self._variants),
+            self.threads,
+            updater.ahead.enabled,
+            updater.ahead.flags,
+        )
         return (*shapes, str(updater.device), *variants, repr(constants))
 
     def program(self) -> Callable:
