@@ -69,6 +69,8 @@ class Trainer:
         if weights_every < 1:
             raise ValueError(f'weights_every must be >= 1, got {weights_every}')
         self.learner = learner
+        # A trainer's learner never proposes (its actors act): its compiled update does not act ahead.
+        learner.updater.ahead.enabled = False
         self.limits = limits
         self.updates_per_transition = float(updates_per_transition)
         self.weights_every = int(weights_every)

@@ -65,6 +65,8 @@ def test_acting_apart_with_fresh_weights_is_algorithm_1_exactly():
     lock = pendulum_learner()
     actor, trainer_learner = pendulum_learner(), pendulum_learner()
     trainer = Trainer(trainer_learner, updates_per_transition=1.0, weights_every=1)
+    # A trainer's learner never proposes: its compiled update would act ahead for nothing.
+    assert lock.updater.ahead.enabled and not trainer_learner.updater.ahead.enabled
     outbox = Outbox('a0', 3, 1, batch_transitions=1, limit=100)
     for episode in range(4):
         seed = 7 if episode == 0 else None
