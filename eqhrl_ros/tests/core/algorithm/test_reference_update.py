@@ -120,7 +120,7 @@ def filled_learner(seed=5, advised_every=10, **options) -> EQSACLearner:
         3,
         [-2.0],
         [2.0],
-        LearnerConfig(**{'hidden': (64, 64), 'batch_size': 32, 'learning_starts': 10**9, 'seed': seed, **options}),
+        LearnerConfig(**{'hidden': (32, 32), 'batch_size': 32, 'learning_starts': 10**9, 'seed': seed, **options}),
     )
     rng = np.random.default_rng(seed)
     for i in range(200):
@@ -201,7 +201,7 @@ def test_the_eager_update_matches_the_plain_reference(options):
         learner.update()
     assert_holds_the_reference(learner, ref, option_id(options))
     # The weights moved: a no-op update would not pass for the wrong reason.
-    untrained = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(mode='eqsac', hidden=(64, 64), seed=5))
+    untrained = EQSACLearner(3, [-2.0], [2.0], LearnerConfig(mode='eqsac', hidden=(32, 32), seed=5))
     assert not torch.allclose(ref['critic'][0][1][0], untrained.critic.linear_layers(0)[1][0])
     torch.testing.assert_close(learner.replay.state_dict()['obs'], replay_state['obs'])
 
