@@ -13,7 +13,8 @@ fixed pair of batches:
   kernels then skips an OpenMP fork and join over data of at most 256x256 floats;
 - big chunks: a kernel goes parallel only with at least 16,384 elements a thread
   (cpp.min_chunk_size; inductor's default is 512);
-- cpp wrapper: the program's calls made from C++ instead of Python (cpp_wrapper);
+- python wrapper: the program's calls made from a generated Python function instead of from C++
+  (cpp_wrapper off: the learner's default until 2026-12-04);
 - dynamic threads: the fused kernels read torch's thread count when called, not the one at
   compile time (cpp.dynamic_threads), so that one program serves every count;
 - no input asserts: the program's Python wrapper without its checks of each input's size,
@@ -55,7 +56,6 @@ import eqhrl_ros  # noqa: F401 - first, as in a user's nodes (eqhrl_ros/__init__
 
 # isort: split
 import torch
-import torch._inductor.config as inductor_config
 from bench_learner import cpu_model
 from profile_update import compiled_update, timed
 from torch.optim.adam import adam as torchs_adam
@@ -67,7 +67,7 @@ OPTION_SETS = {
     'default': {},
     'fused serial': {'cpp.threads': 1},
     'big chunks': {'cpp.min_chunk_size': 16384},
-    'cpp wrapper': {'cpp_wrapper': True},
+    'python wrapper': {'cpp_wrapper': False},
     # The fused kernels read the thread count when called, instead of the one at compile time.
     'dynamic threads': {'cpp.dynamic_threads': True},
     # The program's Python wrapper without its checks of each input's size, stride and alignment.
@@ -163,12 +163,16 @@ def compiled_with(env_id: str, mode: str, warmup: int, options: dict, forms: dic
     """compiled_update's (function, arguments), compiled under ``options`` with the code ``forms``
     (networks' functions by name) and a fresh code object."""
     compiled_module._COPIES.clear()  # a setting's copy of the update would hand back the last program
+    # Set over the program's own options: torch.compile's options would override a global patch
+    # of inductor's config for the keys they name (the thread count, the C++ wrapper).
+    shipped_options = compiled_module.PROGRAM_OPTIONS
+    compiled_module.PROGRAM_OPTIONS = {**shipped_options, **options}
     try:
         for name, function in forms.items():
             setattr(update if name == 'adam_' else networks, name, function)
-        with inductor_config.patch(options):
-            return compiled_update(env_id, mode, warmup)
+        return compiled_update(env_id, mode, warmup)
     finally:  # the program keeps what it traced; the module gets the shipped code back
+        compiled_module.PROGRAM_OPTIONS = shipped_options
         for name, function in SHIPPED.items():
             setattr(update if name == 'adam_' else networks, name, function)
 

@@ -17,7 +17,7 @@ generated C++ kernel records its name), and called on one fixed pair of batches 
   bench_learner.py) at that time: the floor of the products;
 - the twin critics' pair of products as one batched bmm against two mm, in the forward layout
   and the backward pass's transposed ones.
---cpp-wrapper and --max-autotune compile with those inductor options instead (item 2).
+--python-wrapper and --max-autotune compile with those inductor options instead (item 2).
 
 Medians of 5 interleaved rounds. Evidence, no target, no exit code; docs/performance.md keeps the
 figures with the machine they were measured on.
@@ -40,6 +40,7 @@ from bench_learner import PRODUCTS, cpu_model  # the products an update does, an
 from torch.profiler import ProfilerActivity, profile
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
+from eqhrl_ros.core.algorithm import compiled_update as compiled_module
 from eqhrl_ros.core.algorithm import cpu_threads
 
 PRODUCT_OPS = ('aten::mm', 'aten::addmm', 'aten::bmm', 'aten::baddbmm')
@@ -134,15 +135,22 @@ def main() -> None:
     parser.add_argument('--calls', type=int, default=300)
     parser.add_argument('--rounds', type=int, default=5)
     parser.add_argument('--threads', type=int, default=2)
-    parser.add_argument('--cpp-wrapper', action='store_true', help="inductor's C++ wrapper instead of its Python one")
+    parser.add_argument(
+        '--python-wrapper', action='store_true', help="inductor's Python wrapper instead of its C++ one (the default)"
+    )
     parser.add_argument(
         '--max-autotune', action='store_true', help="inductor's autotuner over its CPP GEMM templates and ATen"
     )
     args = parser.parse_args()
-    inductor_config.cpp_wrapper = args.cpp_wrapper
+    # Over the program's own options (compiled_update.py): torch.compile's would override a global setting.
+    if args.python_wrapper:
+        compiled_module.CPU_PROGRAM_OPTIONS = {**compiled_module.CPU_PROGRAM_OPTIONS, 'cpp_wrapper': False}
     if args.max_autotune:
-        inductor_config.max_autotune = True
-        inductor_config.max_autotune_gemm_backends = 'CPP,ATEN'
+        compiled_module.PROGRAM_OPTIONS = {
+            **compiled_module.PROGRAM_OPTIONS,
+            'max_autotune': True,
+            'max_autotune_gemm_backends': 'CPP,ATEN',
+        }
 
     cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     inductor_config.cpp.enable_kernel_profile = True  # each generated kernel names itself in the profile

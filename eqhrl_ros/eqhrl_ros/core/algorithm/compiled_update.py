@@ -105,14 +105,26 @@ def update_function_for(setting) -> Callable:
         return function
 
 
-def compile_program(function: Callable, threads: int) -> Callable:
+# Inductor's options for the update's program, beside the thread count and the guard filter
+# (compile_program); benchmarks/kernel_options.py measures others by changing these dicts.
+# - loop_ordering_after_fusion off: with it, torch 2.11's inductor failed an assertion on this
+#   program on CUDA; on the CPU it makes no difference in speed.
+# - cpp_wrapper, on the CPU: the program's calls (its products and fused kernels, their buffers,
+#   the checks of its inputs) made from C++ instead of from a generated Python function. In the
+#   training loop, steps 1.00-1.04x as fast (SAC) and 1.03x (EQSAC), with the same compile time
+#   (docs/performance.md, "The program's calls from C++"). Not measured on a GPU: not used there.
+PROGRAM_OPTIONS: dict[str, Any] = {'loop_ordering_after_fusion': False}
+CPU_PROGRAM_OPTIONS: dict[str, Any] = {'cpp_wrapper': True}
+
+
+def compile_program(function: Callable, threads: int, device_type: str = 'cpu') -> Callable:
     """torch.compile of ``function`` as the update's program is compiled: one graph, static
-    shapes, fused kernels in OpenMP teams of ``threads``, the guards above."""
-    # loop_ordering_after_fusion off: with it, torch 2.11's inductor failed an assertion on
-    # this program on CUDA; on the CPU it makes no difference in speed (docs/performance.md).
+    shapes, fused kernels in OpenMP teams of ``threads``, the options above (after the thread
+    count, so that a benchmark may set it too), the guards above."""
     options: dict[str, Any] = {
-        'loop_ordering_after_fusion': False,
         'cpp.threads': threads,
+        **PROGRAM_OPTIONS,
+        **(CPU_PROGRAM_OPTIONS if device_type == 'cpu' else {}),
         'guard_filter_fn': _guards_to_keep,
     }
     return torch.compile(function, fullgraph=True, dynamic=False, options=options)
@@ -147,7 +159,9 @@ class CompiledUpdate:
         self.one_thread: Optional[CompiledUpdate] = None
         self._variants = self._advice_variants()
         weights, state, constants = updater.inputs()
-        self.function = compile_program(update_function_for(self._setting(constants)), self.threads)
+        self.function = compile_program(
+            update_function_for(self._setting(constants)), self.threads, torch.device(updater.device).type
+        )
         # Copies: tracing in the background must not touch the weights the learner acts and learns with.
         copies = (copy.deepcopy(updater.nets), _clone(weights), _clone(state), constants)
         if background:

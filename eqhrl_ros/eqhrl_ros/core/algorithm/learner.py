@@ -360,8 +360,8 @@ class EQSACLearner:
         """One gradient update (updater.py): batches from D and D_advising, then algorithm1_update;
         compiled, it then acts ahead on ``next_obs``, the observation expected next (acting_ahead.py)."""
         batch, advice = self.memories.sample()
-        vector = next_obs is not None and self.observation.camera is None  # (a camera's update is never compiled)
-        return self.updater.update(batch, advice, self.observation.tensor(next_obs) if vector else None)
+        ahead = next_obs is not None and self.updater.acts_ahead  # (else its tensor would be made for nothing)
+        return self.updater.update(batch, advice, self.observation.tensor(next_obs) if ahead else None)
 
     def start_compiling(self, background: bool = True):
         """compile_update now (updater.py); returns the CompiledUpdate, or None where refused."""

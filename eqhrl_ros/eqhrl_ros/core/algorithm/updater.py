@@ -210,6 +210,12 @@ class Updater:
             self._inputs = ((owners, storage, parameters), inputs)
         return inputs
 
+    @property
+    def acts_ahead(self) -> bool:
+        """Whether the next update's program acts ahead: only then does it read the next observation."""
+        compiled = self.compiled
+        return self.ahead.enabled and compiled is not None and compiled.ready
+
     def weights_token(self) -> tuple:
         """acting_ahead.weights_token of the weights the update reads (after inputs() gathered them)."""
         return weights_token((self.policy.actor, self.critics.critic), self._inputs[0][2])
