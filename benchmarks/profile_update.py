@@ -44,6 +44,8 @@ from eqhrl_ros.core.algorithm import compiled_update as compiled_module
 from eqhrl_ros.core.algorithm import cpu_threads
 
 PRODUCT_OPS = ('aten::mm', 'aten::addmm', 'aten::bmm', 'aten::baddbmm')
+# The same products called from inductor's C++ wrapper (the default): its shims, not the dispatcher.
+PRODUCT_OPS += tuple(f'aoti_torch_cpu_{name.split("::")[1]}_out' for name in PRODUCT_OPS)
 
 
 def compiled_update(env_id: str, mode: str, warmup: int):

@@ -65,8 +65,8 @@ class ReplayBuffer:
         self.capacity = int(capacity)
         self.obs_dim = obs_dim
         self.action_dim = action_dim
-        # One row per transition, [obs | action | reward | next_obs | terminated], so that
-        # a batch is one gather (index_select) instead of five; the fields are column views.
+        # One row per transition, [obs | action | reward | next_obs | terminated]; the fields
+        # are column views of it (and numpy views, below, for writing a transition).
         widths = {'obs': obs_dim, 'action': action_dim, 'reward': 1, 'next_obs': obs_dim, 'terminated': 1}
         self._columns, start = {}, 0
         for name in BATCH_COLUMNS:
@@ -121,8 +121,11 @@ class ReplayBuffer:
         return 4 * self.capacity * self.rows.shape[1]
 
     def gather(self, index: torch.Tensor) -> Minibatch:
-        """The transitions at rows ``index`` (a memory that keeps more per row draws its own)."""
-        return Minibatch(**self._split(self.rows.index_select(0, index)))
+        """The transitions at rows ``index`` (a memory that keeps more per row draws its own),
+        each column gathered from its own view, contiguous as the update reads it. (One gather of
+        the rows left column views that the update then copied one by one: 38 against 19 us for a
+        batch of 256, docs/performance.md.)"""
+        return Minibatch(**{name: getattr(self, name).index_select(0, index) for name in BATCH_COLUMNS})
 
     def state_dict(self) -> dict:
         """Tensors of the stored part only, in insertion order's ring layout, plus the cursor."""
