@@ -111,8 +111,9 @@ def update_function_for(setting) -> Callable:
 #   program on CUDA; on the CPU it makes no difference in speed.
 # - cpp_wrapper, on the CPU: the program's calls (its products and fused kernels, their buffers,
 #   the checks of its inputs) made from C++ instead of from a generated Python function. In the
-#   training loop, steps 1.00-1.04x as fast (SAC) and 1.03x (EQSAC), with the same compile time
-#   (docs/performance.md, "The program's calls from C++"). Not measured on a GPU: not used there.
+#   training loop, steps 1.00-1.04x as fast (SAC) and 1.03x (EQSAC); called alone, the same speed;
+#   the same compile time (docs/performance.md, "The program's calls from C++"). Not measured on a
+#   GPU: not used there.
 PROGRAM_OPTIONS: dict[str, Any] = {'loop_ordering_after_fusion': False}
 CPU_PROGRAM_OPTIONS: dict[str, Any] = {'cpp_wrapper': True}
 
