@@ -267,7 +267,8 @@ class Updater:
             return algorithm1_update(self.nets, weights, state, *columns, noise, constants)
         ahead = self.ahead.inputs(next_obs, self.obs_dim)
         losses, acted = compiled.program()(self.nets, weights, state, *columns, noise, constants, ahead)
-        self.ahead.keep(ahead, acted, self.weights_token())
+        if ahead is not None:  # (the weights' token reads every weight's version: not for nothing)
+            self.ahead.keep(ahead, acted, self.weights_token())
         return losses
 
     def count(self, losses: dict) -> None:
