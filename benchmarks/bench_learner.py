@@ -22,7 +22,8 @@ Prints (issue 48, item 4):
   its per-round ratios to SBX, and the cores it used (CPU seconds of every thread of the
   process over wall seconds, during its turns);
 - the products floor of this machine: one 256x256x256 float32 product by torch (alone, and
-  per product in the twin critics' batched pair) and by JAX; each contender's step beside the
+  per product in the twin critics' batched pair) and by JAX, each as a share of the CPU's FMA
+  peak at the same threads (fma_peak.py: the ceiling of any kernel); each contender's step beside the
   time its update's products alone would take (PRODUCTS, at its library's kernel), and for
   ours compiled the ratio to SBX a step of nothing but products would reach. Where that is
   below a target, the target is impossible with this CPU's kernels and the line says so;
@@ -48,6 +49,7 @@ import eqhrl_ros  # noqa: F401 - first, as in a user's nodes (eqhrl_ros/__init__
 # isort: split
 import numpy as np
 import torch
+from fma_peak import peak_gflops
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env
 from eqhrl_ros.core.algorithm import cpu_threads
@@ -304,6 +306,7 @@ def main() -> int:
     steps = args.round_steps
     results = {env_id: compare(env_id, args) for env_id in args.envs}
     products = product_ms()
+    peak = peak_gflops(args.threads)  # the ceiling of any product kernel on this CPU
     missed = []
 
     # The table: medians of the rounds' steps/s, median of the per-round ratios to SBX, cores.
@@ -322,6 +325,11 @@ def main() -> int:
         'products, one 256x256x256 float32 product: '
         + ', '.join(f'{k} {ms:.3f} ms ({gflops(ms):.0f} GFLOP/s)' for k, ms in products.items())
     )
+    if peak is None:
+        print('FMA peak: not measured (no C compiler)')
+    else:
+        shares = ', '.join(f'{k} {gflops(ms) / peak:.0%}' for k, ms in products.items())
+        print(f'FMA peak at {args.threads} threads (fma_peak.py): {peak:.0f} GFLOP/s; each product at {shares} of it')
     print(f'{"contender":22s} {"env":26s} {"step ms":>8s} {"floor ms":>9s} {"floor/step":>10s}  target')
     for env_id in args.envs:
         timings, compile_s = results[env_id]

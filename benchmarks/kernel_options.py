@@ -36,7 +36,10 @@ forms, defined here and swapped into networks.py or update.py while their progra
   product), the others as shipped;
 - torch's adam traced: the Adam step as the update compiled it before 2026-12-04, torch's own
   capturable Adam traced as it is (update.adam_ now writes its steps out so that each network's
-  bias corrections are computed once).
+  bias corrections are computed once);
+- targets apart: Eq. 4's targets of the batch from D and of the one from D_advising in a pass
+  each (update.soft_targets joins them: EQSAC's 512 rows of activations, 1 MB a layer, fill a
+  core's L2 cache; for SAC the two forms are one).
 
 Prints each set's median ms per call and its speed against the default's (the median of the
 rounds' ratios, each round's sets side by side), per mode, and whether the set's losses equal
@@ -128,6 +131,19 @@ def adam_traced(params: list, grads: list, state: tuple, settings: dict) -> None
     return None
 
 
+@torch.no_grad()
+def targets_apart(nets, weights, batch, advice, target_noise, gamma: float) -> tuple:
+    """update.soft_targets with Eq. 4's y of the batch from D and of the one from D_advising
+    computed in a pass each, when compiling: joined, their 512 rows' activations outgrow a core's
+    L2 cache."""
+    if not torch.compiler.is_dynamo_compiling() or advice is None:
+        return SHIPPED['soft_targets'](nets, weights, batch, advice, target_noise, gamma)
+    noise, advice_noise = target_noise.split([batch[2].shape[-1], advice[2].shape[-1]], dim=-2)
+    y, _ = SHIPPED['soft_targets'](nets, weights, batch, None, noise, gamma)
+    advice_y, _ = SHIPPED['soft_targets'](nets, weights, advice, None, advice_noise, gamma)
+    return y, advice_y
+
+
 def linear_thin_bias_apart(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
     """networks.linear with the bias apart for a thin layer only, when compiling."""
     if weight.shape[-1] > THIN:
@@ -143,7 +159,8 @@ def product_thin_bias_apart(x: torch.Tensor, weight: torch.Tensor, bias: torch.T
 
 
 SHIPPED = {name: getattr(networks, name) for name in ('tanh', 'linear', 'biased_product')}
-SHIPPED['adam_'] = update.adam_
+UPDATE_FUNCTIONS = ('adam_', 'soft_targets')  # code forms of update.py; the others are networks.py's
+SHIPPED.update({name: getattr(update, name) for name in UPDATE_FUNCTIONS})
 BIAS_APART = {'linear': linear_bias_apart, 'biased_product': product_bias_apart}
 THIN_LAYERS = {'linear': linear_thin, 'biased_product': product_thin}
 CODE_FORMS = {
@@ -152,6 +169,7 @@ CODE_FORMS = {
     'thin bias apart': {'linear': linear_thin_bias_apart, 'biased_product': product_thin_bias_apart},
     "torch's adam traced": {'adam_': adam_traced},
     'sleef tanh': {'tanh': sleef_tanh},
+    'targets apart': {'soft_targets': targets_apart},
 }
 VARIANTS = {
     **{name: (options, {}) for name, options in OPTION_SETS.items()},
@@ -169,12 +187,12 @@ def compiled_with(env_id: str, mode: str, warmup: int, options: dict, forms: dic
     compiled_module.PROGRAM_OPTIONS = {**shipped_options, **options}
     try:
         for name, function in forms.items():
-            setattr(update if name == 'adam_' else networks, name, function)
+            setattr(update if name in UPDATE_FUNCTIONS else networks, name, function)
         return compiled_update(env_id, mode, warmup)
     finally:  # the program keeps what it traced; the module gets the shipped code back
         compiled_module.PROGRAM_OPTIONS = shipped_options
         for name, function in SHIPPED.items():
-            setattr(update if name == 'adam_' else networks, name, function)
+            setattr(update if name in UPDATE_FUNCTIONS else networks, name, function)
 
 
 def losses_of(function, arguments) -> dict:
