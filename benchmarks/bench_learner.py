@@ -29,7 +29,11 @@ Prints (issue 48, item 4):
   below a target, the target is impossible with this CPU's kernels and the line says so;
 - EQSAC compiled over SAC compiled, against the products' ratio, 16 / 25 = 0.64x;
 - our eager loops at batch 1, interleaved in the same rounds, whose step time is the part
-  that does not grow with the batch (Python, operator dispatch, autograd, Adam).
+  that does not grow with the batch (Python, operator dispatch, autograd, Adam);
+- the denormal floats our compiled learners' Adam moments hold after the rounds. XLA flushes
+  denormals to zero, so SBX holds none; torch keeps them, and CPUs that handle them in microcode
+  pay for each operation on them. --flush-denormals runs every contender with them flushed
+  (torch.set_flush_denormal, set before any of torch's threads start, so that they inherit it).
 Exits with 1 if a target is missed: ours compiled SAC >= 1.5x SBX and EQSAC >= 1.0x SBX on
 both envs, and EQSAC compiled >= 0.64x SAC compiled.
 """
@@ -192,8 +196,24 @@ class Timing:
         return statistics.median(o / w for o, w in zip(other.wall, self.wall, strict=True))
 
 
-def compare(env_id: str, args) -> tuple[dict[str, Timing], dict]:
-    """Every contender's rounds, interleaved, and the compile seconds of ours compiled."""
+def denormals(learner) -> tuple[int, int]:
+    """(denormal floats, all floats) in the learner's Adam moments. A ReLU unit that no longer
+    fires gets a zero gradient at every step, so its weights' first moments shrink by beta1 a step
+    into the denormal range, and stay at its smallest value; XLA (SBX) flushes such values to
+    zero, torch keeps them unless told to (--flush-denormals)."""
+    tiny, found, total = torch.finfo(torch.float32).tiny, 0, 0
+    for optimizer in (learner.updater.optimizers or {}).values():
+        for state in optimizer.state.values():
+            for name in ('exp_avg', 'exp_avg_sq'):
+                moments = state[name]
+                found += int(((moments != 0) & (moments.abs() < tiny)).sum())
+                total += moments.numel()
+    return found, total
+
+
+def compare(env_id: str, args) -> tuple[dict[str, Timing], dict, dict]:
+    """Every contender's rounds, interleaved; the compile seconds of ours compiled; and the
+    denormals in its Adam moments after the rounds."""
     contenders: dict = {
         'SBX SAC': BaselinesLoop(env_id, args.warmup, 'sbx'),
         'SB3 SAC': BaselinesLoop(env_id, args.warmup),
@@ -217,7 +237,8 @@ def compare(env_id: str, args) -> tuple[dict[str, Timing], dict]:
             loop.run(args.round_steps)
             timings[name].cpu.append(time.process_time() - cpu)
             timings[name].wall.append(time.perf_counter() - wall)
-    return timings, compile_s
+    held = {mode: denormals(contenders[f'ours {mode} compiled'].learner) for mode in MODES}
+    return timings, compile_s, held
 
 
 def best_ms(run, repeats: int = 300) -> float:
@@ -294,7 +315,14 @@ def main() -> int:
     parser.add_argument('--warmup', type=int, default=1000)
     parser.add_argument('--threads', type=int, default=2)
     parser.add_argument('--envs', nargs='+', default=list(ENVS))
+    parser.add_argument(
+        '--flush-denormals',
+        action='store_true',
+        help='every contender with denormal floats flushed to zero (FTZ/DAZ), as XLA runs SBX',
+    )
     args = parser.parse_args()
+    if args.flush_denormals:  # before torch's first parallel region: its OpenMP threads inherit the mode
+        torch.set_flush_denormal(True)
     cpu_threads.fix(args.threads)  # fixed: side by side, no contender's threads count as a crowd
     global CACHE
     CACHE = inductor_cache_state()
@@ -332,7 +360,7 @@ def main() -> int:
         print(f'FMA peak at {args.threads} threads (fma_peak.py): {peak:.0f} GFLOP/s; each product at {shares} of it')
     print(f'{"contender":22s} {"env":26s} {"step ms":>8s} {"floor ms":>9s} {"floor/step":>10s}  target')
     for env_id in args.envs:
-        timings, compile_s = results[env_id]
+        timings, compile_s, held = results[env_id]
         sbx_ms = 1e3 / timings['SBX SAC'].rate(steps)
         for name in ROWS:
             step_ms, floor = 1e3 / timings[name].rate(steps), floor_ms(name, products)
@@ -363,6 +391,11 @@ def main() -> int:
             missed.append(f'{env_id} ours eqsac compiled: {share:.2f}x ours sac compiled < {bound:.2f}x')
         for mode, seconds in compile_s.items():
             print(f'{"":22s} {env_id:26s} compile {mode}: {seconds:.1f} s before timing (inductor cache {CACHE})')
+        for mode, (found, total) in held.items():
+            print(
+                f'{"":22s} {env_id:26s} {mode} compiled, Adam moments after the rounds: {found} of {total} '
+                f'denormal (flushed: {"yes" if args.flush_denormals else "no"})'
+            )
         # Batch 1: a step without the work that grows with the batch.
         for mode in MODES:
             step_ms, fixed_ms = 1e3 / timings[f'ours {mode}'].rate(steps), 1e3 / timings[f'{mode} b=1'].rate(steps)

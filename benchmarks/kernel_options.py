@@ -34,6 +34,8 @@ forms, defined here and swapped into networks.py or update.py while their progra
   the action) as a sum of products that inductor fuses, instead of a product with a few columns;
 - thin bias apart: bias apart for the thin layers only (their bias copy costs more than their
   product), the others as shipped;
+- thin fused: the thin layers only as a fused sum of products, the others as shipped (no bias
+  copy, no product and no separate ReLU kernel for the first layers);
 - torch's adam traced: the Adam step as the update compiled it before 2026-12-04, torch's own
   capturable Adam traced as it is (update.adam_ now writes its steps out so that each network's
   bias corrections are computed once);
@@ -131,6 +133,20 @@ def adam_traced(params: list, grads: list, state: tuple, settings: dict) -> None
     return None
 
 
+def linear_thin_fused(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """networks.linear with a thin layer as a fused sum of products, when compiling; the others as shipped."""
+    if not torch.compiler.is_dynamo_compiling() or weight.shape[-1] > THIN:
+        return SHIPPED['linear'](x, weight, bias)
+    return (x.unsqueeze(-2) * weight).sum(-1) + bias
+
+
+def product_thin_fused(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """networks.biased_product with a thin layer as a fused sum of products, when compiling; the others as shipped."""
+    if not torch.compiler.is_dynamo_compiling() or weight.shape[-2] > THIN:
+        return SHIPPED['biased_product'](x, weight, bias)
+    return (x.unsqueeze(-1) * weight.unsqueeze(-3)).sum(-2) + bias
+
+
 @torch.no_grad()
 def targets_apart(nets, weights, batch, advice, target_noise, gamma: float) -> tuple:
     """update.soft_targets with Eq. 4's y of the batch from D and of the one from D_advising
@@ -167,6 +183,7 @@ CODE_FORMS = {
     'bias apart': BIAS_APART,
     'thin layers': THIN_LAYERS,
     'thin bias apart': {'linear': linear_thin_bias_apart, 'biased_product': product_thin_bias_apart},
+    'thin fused': {'linear': linear_thin_fused, 'biased_product': product_thin_fused},
     "torch's adam traced": {'adam_': adam_traced},
     'sleef tanh': {'tanh': sleef_tanh},
     'targets apart': {'soft_targets': targets_apart},
