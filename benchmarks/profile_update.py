@@ -20,7 +20,9 @@ generated C++ kernel records its name), and called on one fixed pair of batches 
 --python-wrapper and --max-autotune compile with those inductor options instead (item 2).
 
 Medians of 5 interleaved rounds. Evidence, no target, no exit code; docs/performance.md keeps the
-figures with the machine they were measured on.
+figures with the machine they were measured on. The profiler adds its own cost to each operation it
+records, most to memory-bound ones on large tensors (EQSAC's 512-row ReLU: 0.26-0.67 ms a call in
+the profile, about 43 us under perf without it); each kernel's share comes from perf.
 """
 
 from __future__ import annotations
