@@ -65,7 +65,8 @@ def widths() -> list[int]:
 
 
 def peak_gflops(threads: int, runs: int = 3) -> Optional[float]:
-    """The best GFLOP/s of the FMA loop at ``threads`` threads, or None without a C compiler."""
+    """The best GFLOP/s of the FMA loop at ``threads`` threads, or None where it cannot be built
+    or run (no C compiler, no OpenMP)."""
     compiler = os.environ.get('CC', 'cc')
     best = 0.0
     with tempfile.TemporaryDirectory(prefix='fma_peak') as tmp:
@@ -84,10 +85,17 @@ def peak_gflops(threads: int, runs: int = 3) -> Optional[float]:
             except (OSError, subprocess.SubprocessError):
                 return None
             for run in range(runs):
-                out = subprocess.run(
-                    [str(binary), str(threads), str(STEPS), f'1.{run}'], capture_output=True, text=True, timeout=60
-                )
-                best = max(best, float(out.stdout.split()[0]))
+                try:
+                    out = subprocess.run(
+                        [str(binary), str(threads), str(STEPS), f'1.{run}'],
+                        capture_output=True,
+                        text=True,
+                        timeout=60,
+                        check=True,
+                    )
+                    best = max(best, float(out.stdout.split()[0]))
+                except (OSError, subprocess.SubprocessError, ValueError, IndexError):
+                    return None
     return best
 
 
