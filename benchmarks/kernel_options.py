@@ -104,18 +104,28 @@ def product_bias_apart(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor
 THIN = 16  # a layer with at most this many inputs
 
 
-def linear_thin(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-    """networks.linear, a thin layer as a sum of products when compiling."""
+def thin_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, otherwise) -> torch.Tensor:
+    """networks.linear with a thin layer as a sum of products when compiling; ``otherwise`` for the others."""
     if not torch.compiler.is_dynamo_compiling() or weight.shape[-1] > THIN:
-        return BIAS_APART['linear'](x, weight, bias)
+        return otherwise(x, weight, bias)
     return (x.unsqueeze(-2) * weight).sum(-1) + bias
 
 
-def product_thin(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-    """networks.biased_product, a thin layer as a sum of products when compiling."""
+def thin_product(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, otherwise) -> torch.Tensor:
+    """networks.biased_product with a thin layer as a sum of products when compiling; ``otherwise`` for the others."""
     if not torch.compiler.is_dynamo_compiling() or weight.shape[-2] > THIN:
-        return BIAS_APART['biased_product'](x, weight, bias)
+        return otherwise(x, weight, bias)
     return (x.unsqueeze(-1) * weight.unsqueeze(-3)).sum(-2) + bias
+
+
+def linear_thin(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """networks.linear, a thin layer as a sum of products and the others with the bias apart."""
+    return thin_linear(x, weight, bias, BIAS_APART['linear'])
+
+
+def product_thin(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """networks.biased_product, a thin layer as a sum of products and the others with the bias apart."""
+    return thin_product(x, weight, bias, BIAS_APART['biased_product'])
 
 
 @torch.no_grad()
@@ -134,17 +144,13 @@ def adam_traced(params: list, grads: list, state: tuple, settings: dict) -> None
 
 
 def linear_thin_fused(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-    """networks.linear with a thin layer as a fused sum of products, when compiling; the others as shipped."""
-    if not torch.compiler.is_dynamo_compiling() or weight.shape[-1] > THIN:
-        return SHIPPED['linear'](x, weight, bias)
-    return (x.unsqueeze(-2) * weight).sum(-1) + bias
+    """networks.linear, a thin layer as a sum of products and the others as shipped."""
+    return thin_linear(x, weight, bias, SHIPPED['linear'])
 
 
 def product_thin_fused(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-    """networks.biased_product with a thin layer as a fused sum of products, when compiling; the others as shipped."""
-    if not torch.compiler.is_dynamo_compiling() or weight.shape[-2] > THIN:
-        return SHIPPED['biased_product'](x, weight, bias)
-    return (x.unsqueeze(-1) * weight.unsqueeze(-3)).sum(-2) + bias
+    """networks.biased_product, a thin layer as a sum of products and the others as shipped."""
+    return thin_product(x, weight, bias, SHIPPED['biased_product'])
 
 
 @torch.no_grad()
