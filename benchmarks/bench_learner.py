@@ -354,7 +354,7 @@ def main() -> int:
         + ', '.join(f'{k} {ms:.3f} ms ({gflops(ms):.0f} GFLOP/s)' for k, ms in products.items())
     )
     if peak is None:
-        print('FMA peak: not measured (no C compiler)')
+        print('FMA peak: not measured (no C compiler, or its loop would not run)')
     else:
         shares = ', '.join(f'{k} {gflops(ms) / peak:.0%}' for k, ms in products.items())
         print(f'FMA peak at {args.threads} threads (fma_peak.py): {peak:.0f} GFLOP/s; each product at {shares} of it')

@@ -104,7 +104,7 @@ def main() -> None:
     parser.add_argument('--threads', type=int, default=2)
     args = parser.parse_args()
     peak = peak_gflops(args.threads)
-    figure = 'not measured (no C compiler)' if peak is None else f'{peak:.0f} GFLOP/s'
+    figure = 'not measured (no C compiler, or the loop would not run)' if peak is None else f'{peak:.0f} GFLOP/s'
     print(f'FMA peak at {args.threads} threads: {figure}')
 
 
