@@ -105,7 +105,7 @@ def main() -> None:
     args = parser.parse_args()
     peak = peak_gflops(args.threads)
     figure = 'not measured (no C compiler, or the loop would not run)' if peak is None else f'{peak:.0f} GFLOP/s'
-    print(f'FMA peak at {args.threads} threads: {figure}')
+    print(f'FMA peak at {args.threads} thread{"s" if args.threads != 1 else ""}: {figure}')
 
 
 if __name__ == '__main__':
