@@ -27,6 +27,8 @@ forms, defined here and swapped into networks.py or update.py while their progra
 - sleef tanh: the actor's hidden tanh as torch.tanh, which inductor makes Sleef's vector tanh
   (the update's form before 2026-12-04; networks.tanh now compiles the one-exponential form of
   networks._ExpTanh, about twice as fast);
+- tanh sign by where: that form with its sign restored by a select (torch.where) instead of
+  copysign, which inductor calls from Sleef through the PLT, a call per vector (the same floats);
 - bias apart: each layer's product and its bias as a product and a sum, so that the sum is
   fused into the activation's kernel: the library's addmm / baddbmm first copies the bias into
   every row of its output;
@@ -85,6 +87,24 @@ OPTION_SETS = {
 def sleef_tanh(x: torch.Tensor) -> torch.Tensor:
     """networks.tanh as it was before 2026-12-04: torch.tanh when compiling (Sleef's vector tanh)."""
     return torch.tanh(x) if torch.compiler.is_dynamo_compiling() else SHIPPED['tanh'](x)
+
+
+class _SignedByWhere(networks._TanhGradient):
+    """networks._ExpTanh with the sign restored by a select instead of copysign (which inductor
+    calls from Sleef through the PLT, one call per vector)."""
+
+    @staticmethod
+    def forward(x: torch.Tensor) -> torch.Tensor:
+        t = torch.exp(-2.0 * x.abs())
+        r = (1.0 - t) / (1.0 + t)
+        return torch.where(x < 0, -r, r)
+
+
+def tanh_signed_by_where(x: torch.Tensor) -> torch.Tensor:
+    """networks.tanh with _SignedByWhere when compiling."""
+    if torch.compiler.is_dynamo_compiling() and x.numel() >= networks.NUMPY_TANH_FROM:
+        return _SignedByWhere.apply(x)
+    return SHIPPED['tanh'](x)
 
 
 def linear_bias_apart(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
@@ -192,6 +212,7 @@ CODE_FORMS = {
     'thin fused': {'linear': linear_thin_fused, 'biased_product': product_thin_fused},
     "torch's adam traced": {'adam_': adam_traced},
     'sleef tanh': {'tanh': sleef_tanh},
+    'tanh sign by where': {'tanh': tanh_signed_by_where},
     'targets apart': {'soft_targets': targets_apart},
 }
 VARIANTS = {
