@@ -27,6 +27,8 @@ Prints (issue 48, item 4):
   time its update's products alone would take (PRODUCTS, at its library's kernel), and for
   ours compiled the ratio to SBX a step of nothing but products would reach. Where that is
   below a target, the target is impossible with this CPU's kernels and the line says so;
+  otherwise a missed target's line gives the step that would meet it, and the share of
+  products (floor/step) such a step would have, beside SBX's own share;
 - EQSAC compiled over SAC compiled, against the products' ratio, 16 / 25 = 0.64x;
 - our eager loops at batch 1, interleaved in the same rounds, whose step time is the part
   that does not grow with the batch (Python, operator dispatch, autograd, Adam);
@@ -372,8 +374,11 @@ def main() -> int:
                 possible = sbx_ms / floor
                 verdict = f'>= {target:.1f}x SBX: {ratio:.2f}x' + ('' if ratio >= target else ' MISSED')
                 if ratio < target:
+                    # What meeting it takes: a step of SBX's over the target, so that share of products.
                     cause = f'; the products alone allow {possible:.2f}x' + (
-                        ' (impossible with these kernels)' if possible < target else ''
+                        ' (impossible with these kernels)'
+                        if possible < target
+                        else f'; it needs a step of {sbx_ms / target:.2f} ms (floor/step {target * floor / sbx_ms:.2f})'
                     )
                     verdict += cause
                     missed.append(f'{env_id} {name}: {ratio:.2f}x SBX < {target}x{cause}')
