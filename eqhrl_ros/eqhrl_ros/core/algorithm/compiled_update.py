@@ -10,8 +10,9 @@ What a user sees:
 - The first updates run eagerly. The compiler runs in a background thread on copies of the
   weights, off the acting path; once it is done, the next update is the compiled one.
 - Its cost in seconds is reported in one log line, as is any failure, after which the
-  learner stays eager. Nothing else changes: the learner draws the batches and the noise as
-  for the eager update, so both compute the same numbers to float rounding
+  learner stays eager (a Ctrl-C that stopped the C++ compiler is named as such, not a
+  failure). Nothing else changes: the learner draws the batches and the noise as for the
+  eager update, so both compute the same numbers to float rounding
   (tests/core/algorithm/test_compiled_update.py).
 """
 
@@ -19,6 +20,8 @@ from __future__ import annotations
 
 import copy
 import logging
+import signal
+import subprocess
 import threading
 import time
 import types
@@ -213,7 +216,11 @@ class CompiledUpdate:
             self.error = error  # the whole exception, for whoever wants more than the line
             self.failed = f'{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ""}'
             stays = 'its program for every thread' if self.crowd else 'the eager update'
-            self.log.warning(f'compile_update: the compiler failed ({self.failed}); the learner stays with {stays}')
+            stop = stopped_by(error)
+            if stop in STOP_SIGNALS:  # a Ctrl-C or a launch's stop: not the compiler's fault
+                self.log.info(f'compile_update: {stop} stopped the C++ compiler; the learner stays with {stays}')
+            else:
+                self.log.warning(f'compile_update: the compiler failed ({self.failed}); the learner stays with {stays}')
             return
         self.seconds = time.perf_counter() - start
         self.ready = True
@@ -261,6 +268,28 @@ class CompiledUpdate:
         if self._thread is not None:
             self._thread.join(timeout)
         return self.ready
+
+
+# A terminal's Ctrl-C goes to its whole process group, the compiler's g++ included, and `ros2
+# launch` stops a node's group with SIGINT, then SIGTERM. The node ends then anyway; its log
+# should not blame the compiler.
+STOP_SIGNALS = ('SIGINT', 'SIGTERM')
+
+
+def stopped_by(error: BaseException) -> Optional[str]:
+    """The name of the signal that ended a compiler process behind ``error`` (inductor's
+    InductorError holds a CppCompileError raised from g++'s CalledProcessError), if one did."""
+    seen: set = set()
+    cause: Optional[BaseException] = error
+    while cause is not None and id(cause) not in seen:
+        seen.add(id(cause))
+        if isinstance(cause, subprocess.CalledProcessError) and cause.returncode < 0:
+            try:
+                return signal.Signals(-cause.returncode).name
+            except ValueError:
+                return f'signal {-cause.returncode}'
+        cause = getattr(cause, 'inner_exception', None) or cause.__cause__ or cause.__context__
+    return None
 
 
 def _clone(value):

@@ -7,6 +7,8 @@ back to the eager update with one log line when the compiler fails or cannot be 
 
 from __future__ import annotations
 
+import signal
+import subprocess
 import threading
 
 import numpy as np
@@ -319,6 +321,46 @@ def test_a_failing_compiler_leaves_the_eager_update_and_says_so_once(monkeypatch
         assert learner.update() == eager.update()
     assert largest_difference(eager, learner) == 0.0
     assert len(log.warning_lines) == 1 and not log.info_lines
+
+
+@pytest.mark.parametrize(
+    'signal_number, stopped', [(signal.SIGINT, True), (signal.SIGTERM, True), (signal.SIGKILL, False)]
+)
+def test_a_compiler_stopped_by_ctrl_c_is_not_called_failed(monkeypatch, signal_number, stopped):
+    """A terminal's Ctrl-C reaches the compiler's g++ too (the whole process group): inductor
+    then raises what it raises for a C++ error. The node is ending; its log says what stopped
+    the compiler, at INFO, and blames no one. A compiler killed otherwise (the kernel's
+    out-of-memory killer: SIGKILL) is a failure, and a WARNING says so."""
+    from torch._inductor.exc import CppCompileError, InductorError
+
+    def killed(function, **options):
+        def run(*args):
+            try:
+                try:
+                    raise subprocess.CalledProcessError(-signal_number, ['g++', 'header.hpp'], b'')
+                except subprocess.CalledProcessError as g_plus_plus:
+                    raise CppCompileError(['g++', 'header.hpp'], '') from g_plus_plus
+            except CppCompileError as error:
+                raise InductorError(error, None) from None
+
+        return run
+
+    monkeypatch.setattr(compiled.torch, 'compile', killed)
+    log = Lines()
+    program = compiled.CompiledUpdate(filled(mode='eqsac').updater, log=log, background=False)
+    assert not program.ready and program.failed == 'InductorError: CppCompileError: C++ compile error'
+    name = signal.Signals(signal_number).name
+    if stopped:
+        assert log.info_lines == [
+            f'compile_update: {name} stopped the C++ compiler; the learner stays with the eager update'
+        ]
+        assert log.warning_lines == []
+    else:
+        assert log.warning_lines == [
+            'compile_update: the compiler failed (InductorError: CppCompileError: C++ compile error); '
+            'the learner stays with the eager update'
+        ]
+        assert log.info_lines == []
 
 
 def test_a_configuration_that_cannot_be_compiled_stays_eager_with_one_line():
