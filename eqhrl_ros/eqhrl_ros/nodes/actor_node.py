@@ -59,6 +59,7 @@ class ActorNode(ActingNode):
         self._steps_on_weights = 0  # steps acted since the weights in use arrived
         self._deferred: Optional[tuple] = None  # (obs, key) held until newer weights arrive
         self.weights_waits = 0
+        self.run_ended = False  # the trainer followed said its run has ended (its max_episodes)
         # This process's run: a restarted actor numbers its batches from 0 again, under a new run.
         self.actor_run = f'{socket.gethostname()}:{os.getpid()}:{time.time_ns() % 10**12}'
         super().__init__('actor', ACTOR_NODE_PARAMS, **kwargs)
@@ -69,12 +70,13 @@ class ActorNode(ActingNode):
             TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, trainer_msgs.TRANSITIONS_QOS
         )
         # The trainer's acknowledgements: batches are kept until its checkpoint holds them.
-        self.create_subscription(
+        acks = self.create_subscription(
             TransitionAck,
             trainer_msgs.ack_topic(self.transitions_pub.topic_name),
             self._on_ack,
             trainer_msgs.ACK_QOS,
         )
+        self.ack_topic = acks.topic_name
         self.acks = 0
         self.acks_refused = 0
         self._last_ack = time.monotonic()
@@ -157,7 +159,7 @@ class ActorNode(ActingNode):
 
     def _flush_if_due(self) -> None:
         with self._lock:
-            if self.outbox is None:
+            if self.outbox is None or self.run_ended:
                 return
             if self.outbox.age() >= self.params['flush_period_s']:
                 self.outbox.seal()
@@ -236,6 +238,19 @@ class ActorNode(ActingNode):
                     self.get_logger().warn(f'acknowledgement refused: {refusal}', throttle_duration_sec=5.0)
                 return
             self.acks += 1
+            if msg.run_ended:
+                # It stops the acting: unsigned, taken only while one node (the trainer) publishes
+                # acknowledgements, never from a stranger who copied the trainer's id beside it.
+                publishers = self.count_publishers(self.ack_topic)
+                if self.signer is None and publishers > 1:
+                    self.get_logger().warn(
+                        f'an acknowledgement ending the run while {publishers} nodes publish {self.ack_topic}: '
+                        'not taken (only the trainer alone ends it)',
+                        throttle_duration_sec=5.0,
+                    )
+                    return
+                self._end_run(msg)
+                return
             through, now = int(msg.received_through), time.monotonic()
             if now - self._last_ack > ACK_WAIT_S:
                 # The first word after a silence (a cut link back): DDS is still delivering what it
@@ -253,6 +268,20 @@ class ActorNode(ActingNode):
                     throttle_duration_sec=5.0,
                 )
             self._send()
+
+    def _end_run(self, msg: TransitionAck) -> None:
+        """The trainer's run has ended: act no more (as a learner at max_episodes) and send
+        nothing more; what it did not store was made after the run, not lost."""
+        if self.run_ended:
+            return
+        self.run_ended = self.done = True
+        self._deferred = None
+        if msg.received_through >= 0:  # let go of what its last checkpoint holds
+            self.outbox.acknowledge(int(msg.received_through), int(msg.saved_through), resend=False)
+        self.get_logger().info(
+            f"trainer '{msg.trainer_id}' has ended its run (max_episodes): acting stopped; "
+            f'{self.outbox.unsent} transitions made after its end are not sent'
+        )
 
     # ------------------------------------------------------------------ weights in
 
@@ -331,7 +360,11 @@ class ActorNode(ActingNode):
             'transitions the trainer lacks': outbox.unsent if outbox else 0,
             'transitions dropped': outbox.dropped_transitions if outbox else 0,
         }
-        if self.transitions_pub.get_subscription_count() == 0:
+        if self.run_ended:
+            checks.append(
+                Check('trainer', OK, f"trainer '{self.trainer_id}' has ended its run: acting stopped", values)
+            )
+        elif self.transitions_pub.get_subscription_count() == 0:
             checks.append(Check('trainer', WARN, 'no trainer listens: acting with the weights it has', values))
         elif self.weights_version is None:
             checks.append(Check('trainer', WARN, 'a trainer listens, no weights yet', values))
@@ -361,10 +394,13 @@ class ActorNode(ActingNode):
         unsent = outbox.unsent if outbox else 0
         resent = outbox.resent_batches if outbox else 0
         steps = self.learner.total_steps if self.learner else 0
+        if self.run_ended:  # the trainer's run ended first: what it lacks was made after the run
+            left = f"{unsent} made after the trainer's run ended (not sent)"
+        else:
+            left = f'{unsent} not stored by the trainer{" (lost)" if unsent and self.done else ""}'
         return (
             f'{steps} steps; sent {self.sent_batches} batches ({self.sent_transitions} transitions, '
-            f'{resent} batches again), {unsent} not stored by the trainer{" (lost)" if unsent and self.done else ""}, '
-            f'{dropped} dropped; '
+            f'{resent} batches again), {left}, {dropped} dropped; '
             f'weights applied {self.weights_applied}{latency}, '
             f'refused {self.weights_refused}; waited for weights {self.weights_waits} times'
         )
@@ -379,10 +415,10 @@ def _flush_and_report(node: ActorNode) -> None:
     try:
         with node._lock:
             node.done = True  # no more steps: the env's next observations are not acted on
-            if node.outbox is not None:
+            if node.outbox is not None and not node.run_ended:
                 node.outbox.seal()
                 node._send()
-        if node.outbox is not None and node.params['exit_wait_s'] > 0:
+        if node.outbox is not None and not node.run_ended and node.params['exit_wait_s'] > 0:
             executor = SingleThreadedExecutor(context=node.context)
             executor.add_node(node)  # acknowledgements in, batches the trainer lacks out
             deadline = time.monotonic() + node.params['exit_wait_s']
@@ -399,7 +435,7 @@ def _flush_and_report(node: ActorNode) -> None:
                 executor.shutdown(timeout_sec=0)
     except Exception as error:  # the middleware may already be going down (a second Ctrl-C)
         node.get_logger().warn(f'could not send the last transitions: {error}')
-    unsent = node.outbox.unsent if node.outbox is not None else 0
+    unsent = node.outbox.unsent if node.outbox is not None and not node.run_ended else 0
     log = node.get_logger().error if unsent else node.get_logger().info
     log(f'actor {node.actor_name}: {node.report()}')
 

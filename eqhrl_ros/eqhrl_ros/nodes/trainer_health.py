@@ -23,7 +23,9 @@ def trainer_checks(node) -> list:
         'batches refused': node.refused_batches,
         'batches dropped (inbox full)': node.dropped_batches,
     }
-    if not sequences:
+    if node.done:  # the run has ended: silence is what it asked for
+        actors = Check('actors', OK, 'the run has ended (max_episodes): no batch is stored any more', values)
+    elif not sequences:
         actors = Check('actors', WARN, 'no actor has sent transitions yet', values)
     elif silent:
         actors = Check('actors', WARN, f'silent for over {limit:g} s: {", ".join(silent[:5])}', values)
@@ -60,6 +62,8 @@ def report(node) -> None:
         f'{node.dropped_batches} dropped (inbox full)'
     )
     limit = node.params['actor_silence_s']
+    if node.done:  # the run has ended and told its actors to stop: their silence is no news
+        return
     for actor, state in list(sequences.items()):
         if actor not in node.silent_actors and now - state.last_heard > limit:
             node.silent_actors.add(actor)

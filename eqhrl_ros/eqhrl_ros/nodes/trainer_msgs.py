@@ -112,6 +112,7 @@ def ack_parts(msg: TransitionAck) -> list:
         msg.actor_run.encode(),
         struct.pack('<qq', msg.saved_through, msg.highest_received),
         missing,
+        struct.pack('<?', msg.run_ended),
     ]
 
 
@@ -177,9 +178,11 @@ def weights_msg(trainer_id: str, version: int, episodes: int, stamp, tensors: by
     )
 
 
-def ack_msg(trainer_id: str, actor: str, state, highest: int, missing, signer: Optional[Signer]) -> TransitionAck:
+def ack_msg(
+    trainer_id: str, actor: str, state, highest: int, missing, signer: Optional[Signer], run_ended: bool = False
+) -> TransitionAck:
     """The trainer's acknowledgement of an actor's stream (``state``: transitions.ActorSequence;
-    ``highest`` and ``missing``: Trainer.missing)."""
+    ``highest`` and ``missing``: Trainer.missing); ``run_ended``: its max_episodes reached."""
     msg = TransitionAck(
         trainer_id=trainer_id,
         actor=actor,
@@ -188,5 +191,22 @@ def ack_msg(trainer_id: str, actor: str, state, highest: int, missing, signer: O
         saved_through=int(state.saved_through),
         highest_received=int(max(highest, state.received_through)),
         missing=[int(s) for s in missing],
+        run_ended=bool(run_ended),
+    )
+    return sign_ack(msg, signer)
+
+
+def run_ended_msg(trainer_id: str, actor: str, run: str, signer: Optional[Signer]) -> TransitionAck:
+    """The ended run's answer to a batch of an actor's run the trainer never stored (it came
+    after the end): nothing of it is held."""
+    msg = TransitionAck(
+        trainer_id=trainer_id,
+        actor=actor,
+        actor_run=run,
+        received_through=-1,
+        saved_through=-1,
+        highest_received=-1,
+        missing=[],
+        run_ended=True,
     )
     return sign_ack(msg, signer)

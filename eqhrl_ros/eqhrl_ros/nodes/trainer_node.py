@@ -228,8 +228,9 @@ class TrainerNode(RunFiles, Node):
 
     def _store(self, msg: TransitionBatch) -> None:
         """The learning thread's part: a batch into D (and D_advising), its episodes into the record."""
-        if self.done:
-            return  # max_episodes reached: learning stopped, the record is closed to new rows
+        if self.done:  # max_episodes reached: learning stopped, the record is closed to new rows
+            self._acknowledge(msg.actor, msg.actor_run)  # the sender hears that the run has ended
+            return
         try:
             self._check_one_sender(msg.actor)
             batch, low, high = trainer_msgs.batch_from_msg(msg)
@@ -273,11 +274,17 @@ class TrainerNode(RunFiles, Node):
         for row, who in rows:
             self._on_episode(row, who)
 
-    def _acknowledge(self, actor: str) -> None:
-        state = self.trainer.sequences.actors.get(actor)
-        if state is not None:
+    def _acknowledge(self, actor: str, run: Optional[str] = None) -> None:
+        """Where ``actor``'s stream stands, and once the run has ended, that it has (``run``: the
+        run of a batch that came after the end, answered even where nothing of it is stored)."""
+        state = self.trainer.sequences.actors.get(actor) if self.trainer is not None else None
+        if state is not None and (run is None or run == state.run):
             highest, missing = self.trainer.missing(actor)
-            self.ack_pub.publish(trainer_msgs.ack_msg(self.trainer_id, actor, state, highest, missing, self.signer))
+            self.ack_pub.publish(
+                trainer_msgs.ack_msg(self.trainer_id, actor, state, highest, missing, self.signer, self.done)
+            )
+        elif self.done and run is not None:
+            self.ack_pub.publish(trainer_msgs.run_ended_msg(self.trainer_id, actor, run, self.signer))
 
     def _check_one_sender(self, actor: str) -> None:
         """One node only under an actor's name (``_stranger`` has checked the name): two nodes of
@@ -339,6 +346,8 @@ class TrainerNode(RunFiles, Node):
             self.done = True
             self.save_or_log()
             self.get_logger().info(f'reached max_episodes={limit}; learning stopped')
+            for actor in list(self.trainer.sequences.actors):  # each actor stops acting for this run
+                self._acknowledge(actor)
             if p['shutdown_when_done']:
                 self.context.try_shutdown()
         elif every and self.learner.episode % every == 0:

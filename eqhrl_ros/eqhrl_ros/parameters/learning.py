@@ -21,7 +21,12 @@ def run_params(output_dir: str) -> tuple:
             'Replace a run already in output_dir (episodes.csv, checkpoint, replay, policy); '
             'without it (or resume) such a folder is refused',
         ),
-        Param('max_episodes', 0, 'Stop learning after this many episodes (0: never)', (0, INT_MAX)),
+        Param(
+            'max_episodes',
+            0,
+            "Stop learning after this many episodes (0: never); the learner stops acting, a trainer's actors too",
+            (0, INT_MAX),
+        ),
         Param('shutdown_when_done', False, 'Shut the process down once max_episodes is reached'),
         Param(
             'record',

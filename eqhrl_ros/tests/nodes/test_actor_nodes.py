@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import rclpy
 
-from eqhrl_interfaces.msg import PolicyWeights, TransitionBatch
+from eqhrl_interfaces.msg import PolicyWeights, TransitionAck, TransitionBatch
 from eqhrl_ros.core.data.summary import EpisodeSummary
 from eqhrl_ros.files.mcap_record import read_record
 from eqhrl_ros.nodes import messages, trainer_msgs
@@ -124,6 +124,59 @@ def test_two_actors_feed_one_trainer_and_act_with_its_weights(harness, ros_conte
     assert sum(sum(b.advised) for b in batches) == len(trainer.learner.advice_replay)
     stats = [m.message.episode for m in contents.on('/trainer/episode_stats')]
     assert stats == [row.episode for row, _ in trainer.summaries]
+
+
+def test_a_trainer_at_max_episodes_ends_its_actors_run_and_nothing_is_called_lost(harness, ros_context, tmp_path):
+    """The shipped launch with pendulum.yaml: the trainer stops learning at max_episodes. Its
+    actors, as a learner at max_episodes, then stop acting and sending: not free-running on,
+    sending a batch the trainer never stores every 2 s, and saying at Ctrl-C that it was lost.
+    An actor that starts after the end hears it at its first batch."""
+    actors = [add_actor(harness, ros_context, f'/e{i}') for i in range(2)]
+    trainer = add_trainer(harness, ros_context, tmp_path, max_episodes=4, actor_silence_s=0.5, report_period_s=0.2)
+    assert harness.spin_until(lambda: trainer.done and all(a.run_ended for a in actors), timeout=60)
+    stored, steps = trainer.learner.total_steps, [a.learner.total_steps for a in actors]
+    sent = [a.sent_batches for a in actors]
+    harness.spin_until(lambda: False, timeout=1.5)
+    assert [a.learner.total_steps for a in actors] == steps and [a.sent_batches for a in actors] == sent
+    assert all(a.done for a in actors) and trainer.learner.total_steps == stored
+    assert not trainer.silent_actors  # 1.5 s of silence past actor_silence_s: asked for, not news
+    assert [c.message for c in trainer.health_checks() if c.name == 'actors'] == [
+        'the run has ended (max_episodes): no batch is stored any more'
+    ]
+    for actor in actors:
+        line = actor.report()
+        assert "made after the trainer's run ended (not sent)" in line and 'lost' not in line, line
+
+    late = add_actor(harness, ros_context, '/late')
+    assert harness.spin_until(lambda: late.run_ended, timeout=30)
+    assert trainer.learner.total_steps == stored and '/late/actor' not in trainer.trainer.sequences.actors
+
+
+def test_a_strangers_acknowledgement_ending_the_run_beside_the_trainer_stops_no_actor(harness, ros_context, tmp_path):
+    """Unsigned, an acknowledgement that ends the run is taken only while the trainer alone
+    publishes acknowledgements: a stranger who copied the trainer's id beside it stops nothing."""
+    actor = add_actor(harness, ros_context, '/s0')
+    add_trainer(harness, ros_context, tmp_path)
+    assert harness.spin_until(lambda: actor.trainer_id and actor.acks > 0, timeout=30)
+    stranger = harness.add(rclpy.create_node('stranger', context=ros_context))
+    forged = stranger.create_publisher(TransitionAck, '/transitions_ack', trainer_msgs.ACK_QOS)
+    assert harness.spin_until(lambda: actor.count_publishers(actor.ack_topic) == 2, timeout=10)
+    for _ in range(5):
+        forged.publish(
+            TransitionAck(
+                trainer_id=actor.trainer_id,
+                actor=actor.actor_name,
+                actor_run=actor.actor_run,
+                received_through=-1,
+                saved_through=-1,
+                highest_received=-1,
+                run_ended=True,
+            )
+        )
+        harness.spin_until(lambda: False, timeout=0.1)
+    steps = actor.learner.total_steps
+    assert harness.spin_until(lambda: actor.learner.total_steps > steps + 20, timeout=10)
+    assert not actor.run_ended and not actor.done
 
 
 def test_an_actor_keeps_its_transitions_until_a_trainer_listens(harness, ros_context, tmp_path):
