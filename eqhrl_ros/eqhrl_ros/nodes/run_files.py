@@ -33,6 +33,23 @@ class RunFiles:
             # A missing or corrupt checkpoint is refused now, not after waiting for the env.
             check_checkpoint_file(self.checkpoint_path)
 
+    def _finished_when_resumed(self, episode: int) -> None:
+        """A resumed run that has already reached max_episodes learns and stores nothing more,
+        not one episode more (as after the episode that reached it); one line says so."""
+        limit = self.params['max_episodes']
+        if limit and episode >= limit:
+            self.done = True
+            self.get_logger().info(
+                f'the resumed run has already reached max_episodes={limit} ({episode} episodes): learning stopped '
+                '(resume with a larger max_episodes to go on)'
+            )
+            if self.params['shutdown_when_done']:  # once spinning: the node may still be under construction
+                self._shutdown_timer = self.create_timer(0.01, self._shut_down_when_done)
+
+    def _shut_down_when_done(self) -> None:
+        self._shutdown_timer.cancel()
+        self.context.try_shutdown()
+
     def _append_row(self, row: list) -> None:
         error = self.record.append(row)
         if error is not None:

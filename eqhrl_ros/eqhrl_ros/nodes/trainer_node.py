@@ -134,6 +134,7 @@ class TrainerNode(RunFiles, Node):
         if self.params['resume']:
             extra = load_checkpoint(learner, self.checkpoint_path, self.replay_path)
             self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')
+            self._finished_when_resumed(learner.episode)
         p = self.params
         self.record = EpisodeRecord(
             self.csv_path, TRAINER_CSV_FIELDS, keep_before=learner.episode if p['resume'] else None
@@ -235,6 +236,9 @@ class TrainerNode(RunFiles, Node):
             self._check_one_sender(msg.actor)
             batch, low, high = trainer_msgs.batch_from_msg(msg)
             if self.trainer is None and not self._build_from(batch, low, high):
+                return
+            if self.done:  # built from a resumed run that had reached max_episodes
+                self._acknowledge(msg.actor, msg.actor_run)
                 return
             self._check_spaces(batch.observations.shape[1], low, high)
             try:

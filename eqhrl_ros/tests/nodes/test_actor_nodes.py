@@ -152,6 +152,23 @@ def test_a_trainer_at_max_episodes_ends_its_actors_run_and_nothing_is_called_los
     assert trainer.learner.total_steps == stored and '/late/actor' not in trainer.trainer.sequences.actors
 
 
+def test_a_resumed_trainer_whose_run_had_ended_stores_nothing_and_ends_its_actors_run(harness, ros_context, tmp_path):
+    actor = add_actor(harness, ros_context, '/r0')
+    first = add_trainer(harness, ros_context, tmp_path, max_episodes=2)
+    assert harness.spin_until(lambda: first.done and actor.run_ended, timeout=60)
+    stored = first.learner.total_steps
+    first.stop_learning()
+    first.close()
+    harness.executor.remove_node(first)
+    first.destroy_node()
+    resumed = add_trainer(harness, ros_context, tmp_path, max_episodes=2, resume=True)
+    assert resumed.done and resumed.learner.total_steps == stored
+    late = add_actor(harness, ros_context, '/r1')
+    assert harness.spin_until(lambda: late.run_ended, timeout=30)
+    assert resumed.learner.total_steps == stored
+    assert len((tmp_path / 'trainer' / 'episodes.csv').read_text().splitlines()) == 1 + 2
+
+
 def test_a_strangers_acknowledgement_ending_the_run_beside_the_trainer_stops_no_actor(harness, ros_context, tmp_path):
     """Unsigned, an acknowledgement that ends the run is taken only while the trainer alone
     publishes acknowledgements: a stranger who copied the trainer's id beside it stops nothing."""

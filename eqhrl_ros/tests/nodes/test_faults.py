@@ -437,3 +437,25 @@ def test_env_throttles_its_rejection_log(harness, ros_context, capfd):
     assert harness.spin_until(lambda: env.rejected_actions == 40)
     logged = capfd.readouterr().err.count('rejected action')
     assert 1 <= logged <= 2
+
+
+def test_a_resumed_run_that_reached_max_episodes_learns_and_writes_nothing_more(harness, ros_context, tmp_path):
+    """Resuming a run that has reached max_episodes (the same params file again) adds not one
+    episode more: the learner says so in one line and leaves the env alone; with
+    shutdown_when_done (eqhrl-train --resume), it ends once spinning, not mid-construction."""
+    first, _ = run_learner(harness, ros_context, tmp_path, episodes=2)
+    steps = first.learner.total_steps
+    first.close()
+    harness.executor.remove_node(first)
+    overrides = small_learner_params(tmp_path, max_episodes=2, resume=True)
+    resumed = harness.add(LearnerNode(context=ros_context, parameter_overrides=overrides))
+    harness.spin_until(lambda: False, timeout=2.0)  # the env re-sends its observation meanwhile
+    assert resumed.done and resumed.learner.total_steps == steps and resumed.learner.episode == 2
+    assert len(rows_of(tmp_path / 'episodes.csv')) == 2
+    resumed.close()
+    harness.executor.remove_node(resumed)
+    overrides = small_learner_params(tmp_path, max_episodes=2, resume=True, shutdown_when_done=True)
+    ending = harness.add(LearnerNode(context=ros_context, parameter_overrides=overrides))
+    assert ending.done and ros_context.ok()
+    assert harness.spin_until(lambda: not ros_context.ok(), timeout=5.0)
+    assert ending.learner.total_steps == steps and len(rows_of(tmp_path / 'episodes.csv')) == 2
