@@ -207,6 +207,11 @@ class EnvInfoWatcher:
         for held in list(self._held):
             if now - held[0] > (NAMED_HOLD_S if held[1].publisher else HOLD_S):
                 self._held.remove(held)  # never vouched for in time: dropped
+                self.node.get_logger().warn(
+                    f'env_info not obeyed: {self.refusal(held[1]) or "its sender is not vouched for"}; '
+                    f'dropped after {now - held[0]:.1f} s',
+                    throttle_duration_sec=5.0,
+                )
         for held in list(self._held):
             # Taken only if a node that published env_info when it came is vouched for now: a
             # stranger's message, held until the real env appears, is never taken for the env's
@@ -224,7 +229,9 @@ class EnvInfoWatcher:
             self.untrusted += 1
             speakers = publishers(self.node, self.topic)
             self._held.append((time.monotonic(), msg, speakers))  # taken if the graph vouches for it soon
-            self.node.get_logger().warn(f'env_info held, not obeyed: {refusal}', throttle_duration_sec=5.0)
+            # Most often the graph has not caught up with the env yet (a start): a warning only if
+            # it is dropped (_on_recheck).
+            self.node.get_logger().info(f'env_info held, not obeyed yet: {refusal}', throttle_duration_sec=5.0)
             return
         try:
             announced = spec_from_msg(msg, f"env_info from the env '{shown(msg.name)}'")

@@ -5,6 +5,7 @@ import csv
 import io
 import os
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -386,12 +387,26 @@ def test_a_learner_holding_a_strangers_env_info_takes_the_real_envs_though_the_s
     """The stranger's latched env_info stays on the graph when the env starts: before, the learner
     held both and waited for ever (0 episodes in 60 s). The env's own names it as its publisher."""
     waiting = harness.add(LearnerNode(context=ros_context, parameter_overrides=no_env_id(tmp_path)))
+    lines = {'info': [], 'warn': []}
+    logger = waiting.get_logger()
+    waiting.get_logger = lambda: SimpleNamespace(  # what the node says of it, by level
+        info=lambda line, **kw: lines['info'].append(line),
+        warn=lambda line, **kw: lines['warn'].append(line),
+        error=logger.error,
+    )
     rogue = harness.add(rclpy.create_node('rogue', context=ros_context))
     fake = env_info.env_info_msg(EnvSpec('Pendulum-v1', 3, [-100.0], [100.0]), publisher='/gym_env')  # a forged name
     rogue.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(fake)
     assert harness.spin_until(lambda: waiting.env_info.untrusted >= 1)
+    # Held: most often the graph only lags a starting env, so an info line, not yet a warning.
+    assert any(line.startswith('env_info held, not obeyed yet') for line in lines['info']) and not lines['warn']
     harness.spin_until(lambda: False, timeout=env_info.NAMED_HOLD_S + 1.0)  # looked at again, then dropped
     assert waiting.learner is None and not waiting.env_info._held  # no spaces from a stranger
+    assert [line.split(';')[0] for line in lines['warn']] == [
+        'env_info not obeyed: /env_info names its publisher /gym_env, which does not publish it and is not the '
+        'publisher of /observation'
+    ]
+    del waiting.get_logger
     harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=20)))
     assert harness.spin_until(lambda: waiting.learner is not None, timeout=20)
     assert waiting.learner.scaler.high.tolist() == [2.0]
