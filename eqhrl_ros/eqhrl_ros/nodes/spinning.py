@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import faulthandler
 import gc
+import logging
 import os
 import signal
 import sys
@@ -273,8 +274,23 @@ def run_node(
         # torch's object graph (and, after compile_update, the compiler's), which alone made a
         # node's exit 1.0-1.8 s longer (docs/performance.md, "A node's exit").
         gc.freeze()
+        if sys.exc_info()[0] is None:  # (an error on its way up keeps its traceback)
+            end_process(status)
         if status:
             raise SystemExit(status)
+
+
+def end_process(status: int) -> None:
+    """Once all is saved, closed and shut down: end the process with ``status`` at once while a
+    compile_update compile still runs in its background thread. The interpreter's own exit stops
+    a daemon thread inside the compiler's C++ and aborts the process ('terminate called without
+    an active exception', exit code 134: a Ctrl-C in a learner's first half minute)."""
+    compiled = sys.modules.get('eqhrl_ros.core.algorithm.compiled_update')  # none: nothing compiles
+    if compiled is not None and compiled.compiling():
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
 
 
 async def pause(node, seconds: float, clock) -> None:

@@ -275,6 +275,46 @@ def test_ctrl_c_while_the_node_still_imports_ends_it_quietly(executable, tmp_pat
     assert clean(out), out[-2000:]
 
 
+# A node whose process ends while compile_update compiles: a daemon thread inside torch's C++
+# (as inductor is), holding the compile lock, as the learner in its first half minute.
+COMPILING_NODE = """
+import threading
+import torch
+from rclpy.node import Node
+from eqhrl_ros.core.algorithm import compiled_update
+from eqhrl_ros.nodes.spinning import run_node
+
+torch.set_num_threads(1)
+a = torch.randn(1500, 1500)
+
+
+def compiler():
+    with compiled_update._COMPILING:
+        while True:
+            torch.mm(a, a)
+
+
+class Quick(Node):
+    def __init__(self):
+        super().__init__('quick')
+        threading.Thread(target=compiler, daemon=True).start()
+        self.create_timer(0.5, self.context.try_shutdown)
+
+
+run_node(Quick, name='quick')
+"""
+
+
+def test_a_node_that_ends_while_a_compile_runs_exits_with_its_status_not_an_abort(tmp_path):
+    """Ending a learner (Ctrl-C, max_episodes) while compile_update still compiled in its daemon
+    thread: the interpreter's own exit stopped that thread inside C++ and aborted the process (exit
+    134, 'terminate called without an active exception'; `ros2 launch` said the learner died)."""
+    script = tmp_path / 'compiling_node.py'
+    script.write_text(COMPILING_NODE)
+    result = subprocess.run([str(BIN / 'python'), str(script)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0 and 'terminate called' not in result.stderr, result.stderr[-2000:]
+
+
 def test_a_node_that_saves_nothing_does_not_say_it_is_finishing_a_save(capfd):
     """The second signal's line (run_node: saves=True only for nodes with an exit action)."""
     import faulthandler

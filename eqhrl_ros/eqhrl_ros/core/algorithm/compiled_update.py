@@ -292,6 +292,11 @@ def stopped_by(error: BaseException) -> Optional[str]:
     return None
 
 
+def compiling() -> bool:
+    """Whether a compile runs now, in any thread of this process (nodes/spinning.end_process)."""
+    return _COMPILING.locked()
+
+
 def _clone(value):
     """A copy of every tensor in nested dicts, tuples and lists."""
     if isinstance(value, torch.Tensor):
