@@ -20,7 +20,7 @@ def main(argv=None) -> int:
     parser.add_argument('--params', default='demo', help='params file (name or path)')
     args = parser.parse_args(argv)
 
-    status = train.main(['--params', args.params, '--output', args.output, '--overwrite'])
+    status = train.train(['--params', args.params, '--output', args.output, '--overwrite'])
     if status != 0:
         return status
     output = Path(args.output)
@@ -43,6 +43,9 @@ def main(argv=None) -> int:
     print(f'  plot: {png}')
     print(f'  csv:  {output / "episodes.csv"}; checkpoint and policy in {output}')
     print('=' * 64)
+    from ..nodes.spinning import end_process
+
+    end_process(0)  # at once only while a compile_update compile still runs (nodes/spinning.py)
     return 0
 
 

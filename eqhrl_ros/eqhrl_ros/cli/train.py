@@ -242,24 +242,30 @@ def run(args):
             stop.finished()
 
 
-def main(argv=None) -> int:
+def train(argv=None) -> int:
+    """eqhrl-train's work, for the programs built on it (eqhrl-demo): its exit status."""
     args = parse_args(argv)
-    from ..nodes.spinning import ExitError, end_process
+    from ..nodes.spinning import ExitError
 
     try:
         learner = run(args)
     except ExitError as error:
         print(f'eqhrl-train: {error}', file=sys.stderr)
-        end_process(1)  # (at once only while a compile_update compile still runs: see there)
         return 1
     except StartUpRefused as error:
         print(f'eqhrl-train: refused to start: {error}', file=sys.stderr)
-        end_process(1)
         return 1
     episodes = learner.learner.episode if learner.learner is not None else 0
     print(f'done: {episodes} episodes in {learner.wall_time_s:.0f} s, results in {learner.output_dir}')
-    end_process(0)
     return 0
+
+
+def main(argv=None) -> int:
+    status = train(argv)
+    from ..nodes.spinning import end_process
+
+    end_process(status)  # at once only while a compile_update compile still runs (see there)
+    return status
 
 
 if __name__ == '__main__':
