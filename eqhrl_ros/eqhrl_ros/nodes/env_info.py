@@ -33,9 +33,10 @@ ENV_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durab
 HOLD_S = 10.0
 NAMED_HOLD_S = 2.0
 HELD_MESSAGES = 8
-# A node still without an env, holding nothing, subscribes anew this often: the latched env_info
-# comes again and is judged again (the env's own, dropped because the graph was slow to show its
-# observation publisher, would otherwise never come back: it is published once).
+# A node that has not heard the env's own env_info yet (no spaces, or spaces from env_id but not the
+# env's pace), holding nothing, subscribes anew this often after one was dropped: the latched
+# env_info comes again and is judged again (the env's own, dropped because the graph was slow to
+# show its observation publisher, would otherwise never come back: it is published once).
 RESUBSCRIBE_S = 5.0
 MAX_CAMERAS = 16  # an EnvInfo that announces more is refused
 
@@ -200,7 +201,7 @@ class EnvInfoWatcher:
 
     def _on_recheck(self) -> None:
         now = time.monotonic()
-        if self.spec is None and not self._held and now - self._subscribed_at >= RESUBSCRIBE_S and self.untrusted:
+        if self.announced is None and not self._held and now - self._subscribed_at >= RESUBSCRIBE_S and self.untrusted:
             self.node.destroy_subscription(self.subscription)
             self.subscription = self.node.create_subscription(EnvInfo, TOPIC, self._on_env_info, ENV_INFO_QOS)
             self._subscribed_at, self.resubscribed = now, self.resubscribed + 1
