@@ -3,6 +3,8 @@ AdviceRequest and Advice, in one place: the learner sends and reads, experts rea
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from eqhrl_interfaces.srv import Advise
@@ -26,6 +28,20 @@ def request_msg(request: AdviceRequest, timeout_s: float = 0.0) -> Advise.Reques
         step=int(request.step),
         frames=stack_msgs(request.pixels),
     )
+
+
+def request_refusal(msg: Advise.Request) -> str:
+    """'' when a request can be answered, by what every expert needs of it: finite values and
+    action bounds with low < high in every dimension (an answer clipped to upside-down bounds, or
+    made from NaN ones, would be no action at all); else why not, for the expert's decline."""
+    low, high = list(msg.action_low), list(msg.action_high)
+    if len(low) != len(high):
+        return f'action_low has {len(low)} values, action_high {len(high)}'
+    if not all(math.isfinite(v) for v in (*msg.observation, *low, *high)):
+        return 'the observation or the action bounds hold a non-finite value'
+    if any(lo >= hi for lo, hi in zip(low, high)):
+        return f'action bounds need low < high in every dimension: low {low}, high {high}'
+    return ''
 
 
 def request_from_msg(msg: Advise.Request) -> AdviceRequest:

@@ -10,7 +10,6 @@ node stays responsive meanwhile (its service has its own callback group).
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Optional
 
@@ -26,7 +25,7 @@ from ..core.experts.controllers import expert_disagreements
 from ..core.experts.factory import make_expert
 from ..core.experts.simulated_human import HumanLimits, SimulatedHuman
 from ..parameters import EXPERT_PARAMS, HUMAN_LIMIT_PARAMS
-from .advise_msgs import answer, fill_response, frames_refused, request_from_msg
+from .advise_msgs import answer, fill_response, frames_refused, request_from_msg, request_refusal
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .params import choices_validator, declare, reject_unknown_overrides
 from .recording import introspect
@@ -109,12 +108,14 @@ class ExpertNode(Node):
         for field, (got, want) in sizes.items():
             if want is not None and got != want:
                 return Advice.decline(f'{field} has {got} values; the env {env!r} has {want}')
-        if len(request.action_low) != len(request.action_high):
-            return Advice.decline(
-                f'action_low has {len(request.action_low)} values, action_high {len(request.action_high)}'
-            )
-        if not all(math.isfinite(v) for v in (*request.observation, *request.action_low, *request.action_high)):
-            return Advice.decline('the observation or the action bounds hold a non-finite value')
+        refusal = request_refusal(request)
+        if refusal:
+            return Advice.decline(refusal)
+        if spec is not None:  # an answer is made in the env's units: outside bounds that are not the env's
+            asked = EnvSpec(spec.name, spec.observation_size, request.action_low, request.action_high)
+            differences = spec.disagreements(asked)
+            if differences:
+                return Advice.decline(f'the request has {differences[0]} (the env {env!r})')
         return None
 
     def _on_request(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:

@@ -36,7 +36,7 @@ from ..core.envs.spec import EnvSpec
 from ..core.experts.teleop import TWIST_FIELDS, Command, TeleopExpert, array_command, joy_command, twist_command
 from ..parameters import TELEOP_EXPERT_PARAMS
 from . import messages
-from .advise_msgs import answer, fill_response, frames_refused, request_from_msg
+from .advise_msgs import answer, fill_response, frames_refused, request_from_msg, request_refusal
 from .env_info import EnvInfoWatcher, configured_spec
 from .graph_trust import OnePublisher
 from .params import choices_validator, declare, reject_unknown_overrides
@@ -246,9 +246,15 @@ class TeleopExpertNode(Node):
         waiting.set_result(advice)
 
     def _on_request_now(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        refusal = request_refusal(request)
+        if refusal:
+            return fill_response(response, Advice.decline(refusal, self.expert.name), self.expert.name)
         return answer(self.expert, request, response, self.expert.name, self.get_logger())
 
     async def _on_request_in_window(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        refusal = request_refusal(request)
+        if refusal:  # declined at once: no person is alerted to a request no answer can fit
+            return fill_response(response, Advice.decline(refusal, self.expert.name), self.expert.name)
         try:
             asked = request_from_msg(request)
         except FrameError as error:

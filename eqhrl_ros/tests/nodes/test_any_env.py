@@ -441,6 +441,37 @@ def test_an_expert_declines_a_request_of_the_wrong_size_naming_the_sizes(
     assert not response.advised and problem in response.reason and 'unpack' not in response.reason
 
 
+@pytest.mark.parametrize('answer_mode', ['window', 'instant'])
+def test_experts_decline_action_bounds_that_cannot_be_the_envs(harness, ros_context, answer_mode):
+    """Before (ros2 service call, from outside): an expert for Pendulum ([-2, 2]) asked with bounds
+    [-0.5, 0.5] answered -2.0, outside them; bounds upside down were answered by every expert, and
+    teleop_expert answered NaN bounds with a NaN action (or alerted its person to them)."""
+    from eqhrl_interfaces.srv import Advise
+
+    spaces = dict(observation_size=3, action_low=[-2.0], action_high=[2.0])
+    harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1', **spaces)))
+    teleop = params(source='array', axes=[0], scales=[1.0], offsets=[0.0], answer_mode=answer_mode)
+    harness.add(TeleopExpertNode(context=ros_context, namespace='/person', parameter_overrides=teleop))
+    caller = harness.add(rclpy.create_node('caller', context=ros_context))
+    clients = {name: caller.create_client(Advise, name) for name in ('advise', '/person/advise')}
+
+    def ask(name, low, high):
+        client = clients[name]
+        assert harness.spin_until(client.service_is_ready)
+        request = Advise.Request(observation=[1.0, 0.0, 5.0], proposed_action=[0.0], action_low=low, action_high=high)
+        future = client.call_async(request)
+        assert harness.spin_until(future.done, timeout=2.0)  # at once: no person's window opened
+        return future.result()
+
+    narrow, own = ask('advise', [-0.5], [0.5]), ask('advise', [-2.0], [2.0])
+    assert not narrow.advised and 'action bounds [[-0.5], [0.5]], not [[-2.0], [2.0]]' in narrow.reason
+    assert own.advised and -2.0 <= own.action[0] <= 2.0
+    for name in clients:
+        upside_down, nan = ask(name, [2.0], [-2.0]), ask(name, [float('nan')], [2.0])
+        assert not upside_down.advised and 'low < high' in upside_down.reason, name
+        assert not nan.advised and 'non-finite' in nan.reason, name
+
+
 @pytest.mark.parametrize('configured_by', ['env_info', 'env_id'])
 def test_the_envs_own_env_info_dropped_while_the_graph_was_slow_is_taken_when_it_comes_again(
     harness, ros_context, tmp_path, monkeypatch, configured_by
