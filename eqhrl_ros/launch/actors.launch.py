@@ -17,7 +17,8 @@ trainer_actors:= (actors on other machines), or any that signs with key_file:=. 
 with an error (a trainer refusing to start) stops the launch, which exits non-zero.
 One params file configures everything:
 its learner: section gives the algorithm to the actors and the trainer (and each the keys of
-its own table); gym_env: and expert: go to every actor's env and expert; /**: to all. Actor i
+its own table); gym_env: (or double_integrator_env:, which starts the example env instead) and
+expert: go to every actor's env and expert; /**: to all. Actor i
 runs with seed + i (its env's start states and its action noise differ from the others'). With
 camera: in the learner: section (and the camera in gym_env:), the actors read it and the
 trainer is given no env_id: it takes its spaces and camera from the actors' first batch.
@@ -34,7 +35,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from eqhrl_ros.files.yaml_files import load_mapping
-from eqhrl_ros.nodes.launching import dds_profile_env, fail_launch_on_error
+from eqhrl_ros.nodes.launching import dds_profile_env, env_node_for, fail_launch_on_error
 from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, SPACE_PARAMS, TRAINER_PARAMS, learner_section_for
 
 # What a trainer is told of the env; camera actors' trainer takes it (and the camera) from their batches.
@@ -112,13 +113,14 @@ def _nodes(context):
         if resume == 'true':
             trainer['resume'] = True
         nodes.append(node('trainer', trainer, remappings=remaps, output='screen'))
-    env_params = {**shared, **_section(data, 'gym_env')}
+    env_node = env_node_for(data)  # the file's gym_env: or double_integrator_env: section says which
+    env_params = {**shared, **_section(data, env_node)}
     actor_params = {**shared, **learner_section_for(learner, ACTOR_NODE_PARAMS)}
     for i in range(offset, offset + actors):
         ns = f'{prefix}{i}'
         env_i = {**env_params, 'seed': int(env_params.get('seed', 42)) + i}
         actor_i = {**actor_params, 'seed': int(actor_params.get('seed', 42)) + i, **key}
-        nodes.append(node('gym_env', env_i, namespace=ns))
+        nodes.append(node(env_node, env_i, namespace=ns))
         if with_expert == 'true':
             expert = {**shared, **_section(data, 'expert')}
             nodes.append(node('expert', expert, namespace=ns))
@@ -131,7 +133,9 @@ def generate_launch_description():
     return LaunchDescription(
         [
             DeclareLaunchArgument(
-                'env', default_value='pendulum', description='params file name: pendulum, lunar_lander or demo'
+                'env',
+                default_value='pendulum',
+                description='params file name: pendulum, lunar_lander, demo or double_integrator',
             ),
             DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
             DeclareLaunchArgument('actors', default_value='2', description='actors to start, each with env and expert'),

@@ -3,8 +3,10 @@
 ros2 launch eqhrl_ros train.launch.py env:=pendulum
 ros2 launch eqhrl_ros train.launch.py env:=lunar_lander mode:=qasac
 ros2 launch eqhrl_ros train.launch.py params_file:=/path/to/my.yaml
-ros2 launch eqhrl_ros train.launch.py env:=double_integrator env_node:=double_integrator_env
+ros2 launch eqhrl_ros train.launch.py env:=double_integrator   (the example env: its section in the file)
 ros2 launch eqhrl_ros train.launch.py params_file:=/path/to/my.yaml env_node:=none   (your own env node)
+    env_node:= defaults to the env node the params file has a section for (gym_env: or
+    double_integrator_env:), gym_env when it has neither
 ros2 launch eqhrl_ros train.launch.py env:=teleop_pendulum expert:=teleop   (a person advises)
     with expert:=teleop the person's page starts too (advice_console, http://127.0.0.1:8080/);
     console:=false leaves it out (keyboard_teleop or a joystick instead)
@@ -18,9 +20,9 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from eqhrl_ros.nodes.launching import fail_launch_on_error
+from eqhrl_ros.files.yaml_files import load_mapping
+from eqhrl_ros.nodes.launching import env_node_for, fail_launch_on_error
 
-ENV_NODES = ('gym_env', 'double_integrator_env', 'none')
 # expert:=... -> the executable it starts (none: your own expert, started apart).
 EXPERT_NODES = {'expert': 'expert', 'teleop': 'teleop_expert', 'none': None}
 
@@ -31,9 +33,7 @@ def _nodes(context):
         get_package_share_directory('eqhrl_ros'), 'params', f'{env}.yaml'
     )
     mode = LaunchConfiguration('mode').perform(context)
-    env_node = LaunchConfiguration('env_node').perform(context)
-    if env_node not in ENV_NODES:
-        raise ValueError(f'env_node:={env_node} is not one of {", ".join(ENV_NODES)}')
+    env_node = env_node_for(load_mapping(params_file, 'params file'), LaunchConfiguration('env_node').perform(context))
     expert = LaunchConfiguration('expert').perform(context)
     if expert not in EXPERT_NODES:
         raise ValueError(f'expert:={expert} is not one of {", ".join(EXPERT_NODES)}')
@@ -110,9 +110,10 @@ def generate_launch_description():
             ),
             DeclareLaunchArgument(
                 'env_node',
-                default_value='gym_env',
+                default_value='',
                 description='env node to start: gym_env, double_integrator_env (the example env), '
-                'or none (your own, started apart)',
+                'or none (your own, started apart); default: the one the params file has a section for, '
+                'else gym_env',
             ),
             OpaqueFunction(function=_nodes),
         ]

@@ -1,6 +1,7 @@
 """eqhrl-demo (make demo): EQSAC learns Pendulum-v1 through the three ROS nodes, with the
 heuristic expert, then prints a summary and saves a plot of return and advice per episode.
-Each run replaces the previous demo in its output folder."""
+Each run replaces the previous demo in its output folder. With --params, the env node, mode and
+env are the file's (eqhrl-train's choice), and the summary and plot name them."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.algorithm.config import MODE_LABELS
 from ..reports.plots import plot_training, read_episodes
 from . import train
 
@@ -20,19 +22,19 @@ def main(argv=None) -> int:
     parser.add_argument('--params', default='demo', help='params file (name or path)')
     args = parser.parse_args(argv)
 
-    status = train.train(['--params', args.params, '--output', args.output, '--overwrite'])
+    status, node = train.train(['--params', args.params, '--output', args.output, '--overwrite'])
     if status != 0:
         return status
+    # What ran, as the learner node knew it (a params file may name another env or mode).
+    what = f'{MODE_LABELS.get(node.config.mode, node.config.mode)} on {node.spec.name or "the env"}'
     output = Path(args.output)
     data = read_episodes(output / 'episodes.csv')
     returns = data['return']
     k = max(1, len(returns) // 10)
-    png = plot_training(
-        output / 'episodes.csv', output / 'demo.png', title='EQSAC on Pendulum-v1 through ROS 2 (heuristic expert)'
-    )
+    png = plot_training(output / 'episodes.csv', output / 'demo.png', title=f'{what} through ROS 2')
     print()
     print('=' * 64)
-    print(f'EQSAC on Pendulum-v1: {len(returns)} episodes, {int(data["total_steps"][-1])} steps')
+    print(f'{what}: {len(returns)} episodes, {int(data["total_steps"][-1])} steps')
     print(f'  mean return, first {k} episodes: {np.mean(returns[:k]):8.1f}')
     print(f'  mean return, last  {k} episodes: {np.mean(returns[-k:]):8.1f}')
     print(f'  success rate, last {k} episodes: {np.mean(data["success"][-k:]):8.0%}')

@@ -2,7 +2,7 @@
 
     eqhrl-train --params pendulum --output runs/pendulum_eqsac [--mode qasac] [--episodes 50]
     eqhrl-train --params teleop_pendulum --expert-node teleop     (a person advises)
-    eqhrl-train --params double_integrator --env-node double_integrator_env --output runs/di
+    eqhrl-train --params double_integrator --output runs/di    (the example env: its section in the file)
     eqhrl-train --params my.yaml --env-node none    (your own env node, started apart)
 
 The nodes are the same classes `ros2 run` starts. Here each group (the env, the
@@ -26,10 +26,10 @@ import sys
 import time
 
 from ..core.algorithm.config import ADVICE_PROTOCOLS, MODES, check_value
+from ..nodes.launching import ENV_NODES, env_node_for
 from ..nodes.spinning import EXECUTORS
 
 DISCOVERY = ('off', 'localhost', 'subnet')
-ENV_NODES = ('gym_env', 'double_integrator_env', 'none')
 EXPERT_NODES = ('expert', 'teleop', 'none')  # the launch file's expert:= takes the same names
 
 
@@ -92,10 +92,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         '--env-node',
         choices=ENV_NODES,
-        default='gym_env',
+        default=None,
         help='which env node to start: gym_env (a gymnasium env), double_integrator_env (the example '
         'env that is not gymnasium), or none (your own env node, started apart; the learner takes '
-        'the spaces from its env_info or from the spaces parameters)',
+        'the spaces from its env_info or from the spaces parameters); default: the one the params '
+        'file has a section for, else gym_env',
     )
     parser.add_argument(
         '--executor',
@@ -198,7 +199,8 @@ def run(args):
 
     try:
         path = params_file(args.params)
-        load_mapping(path, 'params file')  # rcl's own parser has no limits on size or depth
+        # rcl's own parser has no limits on size or depth
+        args.env_node = env_node_for(load_mapping(path, 'params file'), args.env_node or '')
     except (FileNotFoundError, ValueError) as error:
         raise StartUpRefused(str(error)) from error
     stop = spinning.init(['--ros-args', '--params-file', str(path)], 'eqhrl-train')
@@ -242,8 +244,9 @@ def run(args):
             stop.finished()
 
 
-def train(argv=None) -> int:
-    """eqhrl-train's work, for the programs built on it (eqhrl-demo): its exit status."""
+def train(argv=None) -> tuple[int, object]:
+    """eqhrl-train's work, for the programs built on it (eqhrl-demo): its exit status, and the
+    learner node that ran (None when it did not)."""
     args = parse_args(argv)
     from ..nodes.spinning import ExitError
 
@@ -251,17 +254,17 @@ def train(argv=None) -> int:
         learner = run(args)
     except ExitError as error:
         print(f'eqhrl-train: {error}', file=sys.stderr)
-        return 1
+        return 1, None
     except StartUpRefused as error:
         print(f'eqhrl-train: refused to start: {error}', file=sys.stderr)
-        return 1
+        return 1, None
     episodes = learner.learner.episode if learner.learner is not None else 0
     print(f'done: {episodes} episodes in {learner.wall_time_s:.0f} s, results in {learner.output_dir}')
-    return 0
+    return 0, learner
 
 
 def main(argv=None) -> int:
-    status = train(argv)
+    status, _ = train(argv)
     from ..nodes.spinning import end_process
 
     end_process(status)  # at once only while a compile_update compile still runs (see there)

@@ -48,3 +48,25 @@ def dds_profile_env(value: str, share_dir) -> dict:
         names = ', '.join(DDS_PROFILES)
         raise ValueError(f'dds_profile:={value} is neither one of {names} nor an XML file')
     return {DDS_PROFILE_VARIABLE: str(path)}
+
+
+# The env nodes eqhrl-train and train.launch.py start (none: your own env node, started apart).
+ENV_NODES = ('gym_env', 'double_integrator_env', 'none')
+
+
+def env_node_for(params: dict, given: str = '') -> str:
+    """Which env node to start with the parsed params file ``params``: ``given`` when set; else the
+    shipped env node the file has a section for (params/double_integrator.yaml starts the example
+    env, with no flag to forget); gym_env when it has neither. ValueError for a name not in
+    ENV_NODES, and for a file with a section for both (which one is meant cannot be told)."""
+    if given:
+        if given not in ENV_NODES:
+            raise ValueError(f'env node {given!r} is not one of {", ".join(ENV_NODES)}')
+        return given
+    sections = [name for name in ENV_NODES[:-1] if name in params or f'/{name}' in params]
+    if len(sections) > 1:
+        raise ValueError(
+            f'the params file has a section for each of {" and ".join(sections)}: say which env node to start '
+            '(env_node:= for ros2 launch, --env-node for eqhrl-train)'
+        )
+    return sections[0] if sections else 'gym_env'

@@ -97,6 +97,46 @@ def test_actors_launch_on_one_host_trains_and_its_ctrl_c_loses_no_episode(ros2_e
         assert f'[INFO] [{node}]: process has finished cleanly' in text, text[-3000:]
 
 
+LAUNCH_NODES = """
+import sys
+from launch import LaunchContext
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.launch_description_sources import get_launch_description_from_python_launch_file
+from launch_ros.actions import Node
+
+description = get_launch_description_from_python_launch_file(sys.argv[1])
+context = LaunchContext()
+given = dict(argument.split(':=', 1) for argument in sys.argv[2:])
+for entity in description.entities:
+    if isinstance(entity, DeclareLaunchArgument):
+        default = entity.default_value[0].perform(context) if entity.default_value else ''
+        context.launch_configurations[entity.name] = given.get(entity.name, default)
+actions = [a for e in description.entities if isinstance(e, OpaqueFunction) for a in e.execute(context)]
+print(' '.join(a.node_executable for a in actions if isinstance(a, Node)))
+"""
+
+
+@pytest.mark.parametrize(
+    'launch_file,arguments,nodes',
+    [
+        ('train.launch.py', ['env:=double_integrator'], 'double_integrator_env expert learner'),
+        ('train.launch.py', ['env:=double_integrator', 'env_node:=none'], 'expert learner'),
+        ('train.launch.py', ['env:=pendulum'], 'gym_env expert learner'),
+        ('actors.launch.py', ['env:=double_integrator', 'actors:=1'], 'trainer double_integrator_env expert actor'),
+    ],
+)
+def test_the_launch_files_start_the_env_node_of_the_params_file(
+    ros2_env, colcon_install, launch_file, arguments, nodes
+):
+    """The nodes each launch file would start, its description evaluated by launch itself. Before,
+    env:=double_integrator started gym_env (Pendulum) unless env_node:= said otherwise."""
+    path = colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros' / 'launch' / launch_file
+    result = subprocess.run(
+        ['python3', '-c', LAUNCH_NODES, str(path), *arguments], env=ros2_env, capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 0 and result.stdout.split() == nodes.split(), result.stdout + result.stderr[-2000:]
+
+
 def test_train_launch_and_the_readmes_ros2_commands(ros2_env, tmp_path):
     launch = Launched(['ros2', 'launch', 'eqhrl_ros', 'train.launch.py', 'env:=demo'], tmp_path, ros2_env)
     out = tmp_path / 'runs' / 'demo' / 'episodes.csv'

@@ -260,16 +260,33 @@ def test_launch_file_is_valid_python_naming_the_executables():
     assert "executable='learner'" in source
     assert 'executable=env_node' in source and 'executable=EXPERT_NODES[expert]' in source
     assert "executable='advice_console'" in source  # with expert:=teleop
-    # Its choices are eqhrl-train's (checked here: the launch file imports nothing of ours).
-    from eqhrl_ros.cli.train import ENV_NODES, EXPERT_NODES
+    # Its experts are eqhrl-train's; the env node is chosen by the same function (launching.py).
+    from eqhrl_ros.cli.train import EXPERT_NODES
 
     constants = {
         node.targets[0].id: ast.literal_eval(node.value)
         for node in ast.parse(source).body
         if isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name)
     }
-    assert constants['ENV_NODES'] == ENV_NODES and tuple(constants['EXPERT_NODES']) == EXPERT_NODES
+    assert tuple(constants['EXPERT_NODES']) == EXPERT_NODES and 'env_node_for(' in source
     assert {v for v in constants['EXPERT_NODES'].values() if v} == {'expert', 'teleop_expert'}
+
+
+def test_the_env_node_is_the_one_the_params_file_has_a_section_for():
+    """Before: `eqhrl-train --params double_integrator` and `ros2 launch eqhrl_ros train.launch.py
+    env:=double_integrator` started gym_env, and the learner, told no env_id, trained on Pendulum."""
+    from eqhrl_ros.files.yaml_files import load_mapping
+    from eqhrl_ros.nodes.launching import env_node_for
+
+    names = ('pendulum', 'double_integrator')
+    chosen = {name: env_node_for(load_mapping(PARAMS_DIR / f'{name}.yaml')) for name in names}
+    assert chosen == {'pendulum': 'gym_env', 'double_integrator': 'double_integrator_env'}
+    assert env_node_for({'learner': {}}) == 'gym_env'  # a file with no env section: gym_env, as before
+    assert env_node_for({'/double_integrator_env': {}}, 'none') == 'none'  # named: as named
+    with pytest.raises(ValueError, match='a section for each of gym_env and double_integrator_env'):
+        env_node_for({'gym_env': {}, 'double_integrator_env': {}})
+    with pytest.raises(ValueError, match="'mujoco' is not one of"):
+        env_node_for({}, 'mujoco')
 
 
 def test_realtime_env_with_a_slow_expert_keeps_every_transition(harness, ros_context, tmp_path):
