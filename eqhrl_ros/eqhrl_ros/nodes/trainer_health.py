@@ -48,6 +48,8 @@ def report(node) -> None:
         return
     now, transitions, updates = time.monotonic(), node.learner.total_steps, node.learner.updates
     then, before_t, before_u = node.report_mark
+    if node.done and (transitions, updates) == (before_t, before_u):
+        return  # the run has ended and its last counts are said: the same line every period says nothing
     node.report_mark = (now, transitions, updates)
     seconds = max(now - then, 1e-9)
     sequences = node.trainer.sequences.actors

@@ -136,7 +136,21 @@ def test_a_trainer_at_max_episodes_ends_its_actors_run_and_nothing_is_called_los
     assert harness.spin_until(lambda: trainer.done and all(a.run_ended for a in actors), timeout=60)
     stored, steps = trainer.learner.total_steps, [a.learner.total_steps for a in actors]
     sent = [a.sent_batches for a in actors]
+    logger, said = trainer.get_logger(), []
+
+    class Said:  # the trainer's info lines, kept as it says them
+        def __getattr__(self, name):
+            return getattr(logger, name)
+
+        def info(self, line, **kw):
+            said.append(line)
+            logger.info(line, **kw)
+
+    trainer.get_logger = lambda: Said()
     harness.spin_until(lambda: False, timeout=1.5)
+    # Its periodic line (report_period_s 0.2) once more at most: not the same counts 7 times over.
+    assert len([line for line in said if ' transitions from ' in line]) <= 1, said
+    del trainer.get_logger
     assert [a.learner.total_steps for a in actors] == steps and [a.sent_batches for a in actors] == sent
     assert all(a.done for a in actors) and trainer.learner.total_steps == stored
     assert not trainer.silent_actors  # 1.5 s of silence past actor_silence_s: asked for, not news
