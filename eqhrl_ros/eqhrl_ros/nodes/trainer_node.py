@@ -44,8 +44,9 @@ from .graph_trust import GRAPH_CACHE_S, full_name
 from .health import Health
 from .messages import printable_name
 from .params import choices_validator, declare, reject_unknown_overrides
-from .run_files import RunFiles, save_and_close
+from .run_files import RunFiles
 from .spinning import run_node, steady_clock, stop_with_error
+from .trainer_exit import stop_save_and_close
 
 STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 # Refused batches of this many bytes since the last report make a new transitions subscription.
@@ -92,7 +93,8 @@ class TrainerNode(RunFiles, Node):
         self.learner: Optional[EQSACLearner] = None
         self.record: Optional[EpisodeRecord] = None
         self.spaces: Optional[tuple] = None  # (obs_dim, action_low, action_high)
-        self.done = False
+        self.done = False  # max_episodes reached: the actors stop, no batch is stored any more
+        self.paying = False  # done, and still making the updates owed before the final save
         self.refused_batches = 0
         self.weights_published = 0
         self.summaries: list[tuple[EpisodeSummary, str]] = []
@@ -348,14 +350,33 @@ class TrainerNode(RunFiles, Node):
         limit, every = p['max_episodes'], p['checkpoint_every_episodes']
         if limit and self.learner.episode >= limit and not self.done:
             self.done = True
-            self.save_or_log()
-            self.get_logger().info(f'reached max_episodes={limit}; learning stopped')
+            self.save_or_log()  # every batch stored is saved before the actors hear that the run ended
             for actor in list(self.trainer.sequences.actors):  # each actor stops acting for this run
                 self._acknowledge(actor)
-            if p['shutdown_when_done']:
-                self.context.try_shutdown()
+            owed = self.trainer.updates_owed()
+            if owed > 0:  # free-running actors outran the updates: the final policy gets them all
+                self.paying = True
+                self.get_logger().info(
+                    f'reached max_episodes={limit}: the actors stop; the {owed} updates still owed '
+                    f'(updates_per_transition {self.trainer.updates_per_transition:g}) come before the final save'
+                )
+            else:
+                self._finish()
         elif every and self.learner.episode % every == 0:
             self._save_due = True  # saved once the step's batches are all stored (_learn_step)
+
+    def _finish(self) -> None:
+        """The run's end, its updates all made: the last weights out, the final save."""
+        if self.trainer.weights_at != self.learner.updates:
+            self._publish_weights()
+        self.save_or_log()
+        self.paying = False
+        self.get_logger().info(
+            f'reached max_episodes={self.params["max_episodes"]}; learning stopped '
+            f'({self.learner.updates} updates, {self.learner.total_steps} transitions)'
+        )
+        if self.params['shutdown_when_done']:
+            self.context.try_shutdown()
 
     # ------------------------------------------------------------------ learning
 
@@ -388,7 +409,7 @@ class TrainerNode(RunFiles, Node):
             if self._save_due:
                 self._save_due = False
                 self.save_or_log()
-            busy = self.trainer is not None and not self.done and self.trainer.updates_owed() > 0
+            busy = self.trainer is not None and (self.paying or not self.done) and self.trainer.updates_owed() > 0
             if busy:
                 try:
                     if self.trainer.update().get('restored'):
@@ -402,6 +423,8 @@ class TrainerNode(RunFiles, Node):
                 except Exception as error:  # never a silent death: say it and stop the node
                     self._stopping.set()
                     stop_with_error(self, f'update failed: {error!r}')
+            if self.paying and self.trainer.updates_owed() <= 0 and not self._stopping.is_set():
+                self._finish()
             return busy or stored > 0
 
     def save(self) -> None:
@@ -458,41 +481,8 @@ class TrainerNode(RunFiles, Node):
         trainer_health.report(self)
 
 
-def _take_the_last_batches(node: TrainerNode) -> None:
-    """At exit, before the save: actors stopped by the same Ctrl-C (one launch) send what they
-    have left and wait for it to be stored (their exit_wait_s). Keep spinning, storing and
-    acknowledging, until no actor publishes any more, for at most exit_wait_s."""
-    from rclpy.executors import SingleThreadedExecutor
-
-    wait = node.params['exit_wait_s']
-    if wait <= 0 or not node.context.ok():
-        return
-    executor = SingleThreadedExecutor(context=node.context)
-    executor.add_node(node)
-    deadline = time.monotonic() + wait
-    try:
-        while time.monotonic() < deadline and node.context.ok() and not node.done:
-            if node.count_publishers(node.transitions_topic) == 0 and not node._inbox:
-                break
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        executor.remove_node(node)
-        executor.shutdown(timeout_sec=0)
-
-
-def _stop_save_and_close(node: TrainerNode) -> None:
-    """At exit: the actors' last batches, then the learning thread stops, so that the checkpoint
-    and the record end together."""
-    try:
-        _take_the_last_batches(node)
-    except Exception as error:  # the middleware may already be going down (a second Ctrl-C)
-        node.get_logger().warn(f'could not take the last batches: {error}')
-    node.stop_learning()
-    save_and_close(node)
-
-
 def main(args=None):
-    run_node(TrainerNode, args, on_exit=_stop_save_and_close, name='trainer')
+    run_node(TrainerNode, args, on_exit=stop_save_and_close, name='trainer')
 
 
 if __name__ == '__main__':

@@ -24,7 +24,8 @@ def run_params(output_dir: str) -> tuple:
         Param(
             'max_episodes',
             0,
-            "Stop learning after this many episodes (0: never); the learner stops acting, a trainer's actors too",
+            "Stop after this many episodes (0: never): the learner stops acting and learning; a trainer's actors "
+            'stop acting, and the trainer makes the updates it still owes, then stops',
             (0, INT_MAX),
         ),
         Param('shutdown_when_done', False, 'Shut the process down once max_episodes is reached'),

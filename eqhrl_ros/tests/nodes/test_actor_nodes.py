@@ -11,6 +11,8 @@ import rclpy
 
 from eqhrl_interfaces.msg import PolicyWeights, TransitionAck, TransitionBatch
 from eqhrl_ros.core.data.summary import EpisodeSummary
+from eqhrl_ros.core.data.torch_files import safe_load
+from eqhrl_ros.core.runs.checkpoint import CHECKPOINT_FORMAT
 from eqhrl_ros.files.mcap_record import read_record
 from eqhrl_ros.nodes import messages, trainer_msgs
 from eqhrl_ros.nodes.actor_node import ActorNode
@@ -132,8 +134,17 @@ def test_a_trainer_at_max_episodes_ends_its_actors_run_and_nothing_is_called_los
     sending a batch the trainer never stores every 2 s, and saying at Ctrl-C that it was lost.
     An actor that starts after the end hears it at its first batch."""
     actors = [add_actor(harness, ros_context, f'/e{i}') for i in range(2)]
-    trainer = add_trainer(harness, ros_context, tmp_path, max_episodes=4, actor_silence_s=0.5, report_period_s=0.2)
+    quick = dict(actor_silence_s=0.5, report_period_s=0.2)
+    trainer = add_trainer(harness, ros_context, tmp_path, max_episodes=4, updates_per_transition=4.0, **quick)
     assert harness.spin_until(lambda: trainer.done and all(a.run_ended for a in actors), timeout=60)
+    # Free-running actors outran the updates (4 a transition): the trainer makes those it owes, then
+    # saves. Before, it stopped with them unmade, and its policy had had a fraction of Algorithm 1's.
+    owed_at_the_end = trainer.trainer.updates_owed()
+    assert harness.spin_until(lambda: not trainer.paying, timeout=60)
+    assert owed_at_the_end > 0 and trainer.trainer.updates_owed() == 0
+    assert trainer.learner.updates == int(4 * trainer.trainer.eligible) > 0
+    saved = safe_load(tmp_path / 'trainer' / 'checkpoint.pt', CHECKPOINT_FORMAT)['counters']
+    assert saved['updates'] == trainer.learner.updates  # the final save came after them
     stored, steps = trainer.learner.total_steps, [a.learner.total_steps for a in actors]
     sent = [a.sent_batches for a in actors]
     logger, said = trainer.get_logger(), []
