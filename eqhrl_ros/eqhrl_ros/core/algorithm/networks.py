@@ -73,7 +73,19 @@ def tanh(x: torch.Tensor) -> torch.Tensor:
     return _NumpyTanh.apply(x)
 
 
-class Tanh(nn.Module):
+class Module(nn.Module):
+    """nn.Module, called through its own ``__call__``, fixed when this module is imported.
+
+    Why: torch.fx's symbolic tracing replaces nn.Module.__call__ on the class, for every thread,
+    while it traces, and inductor traces small functions so while compile_update compiles in its
+    background thread. A network called meanwhile in another thread (acting, D(s), an eager
+    update) went to the tracer and raised NameError('module is not installed as a submodule'):
+    a trainer died so. The function is the same one (dynamo and torch.func see nn.Module's own)."""
+
+    __call__ = nn.Module.__call__
+
+
+class Tanh(Module):
     """nn.Tanh with the faster ``tanh`` above."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -102,7 +114,7 @@ def _kaiming_linear(in_features: int, out_features: int, nonlinearity: Literal['
     return layer
 
 
-class SquashedGaussianActor(nn.Module):
+class SquashedGaussianActor(Module):
     """pi_phi(a|s): an MLP with Tanh hidden activations giving the mean and log-std of u; a = tanh(u)."""
 
     def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...] = (256, 256)):
@@ -144,7 +156,7 @@ def _tensors(parameters: nn.ParameterList) -> list[torch.Tensor]:
     return [tensor for tensor in parameters._parameters.values() if tensor is not None]
 
 
-class TwinCritic(nn.Module):
+class TwinCritic(Module):
     """Q_theta1 and Q_theta2: two independent ReLU MLPs Q(s, a), evaluated as one batched network.
 
     Each layer stores both critics' weights stacked on a leading axis of size 2 and

@@ -401,6 +401,32 @@ def test_an_eager_update_while_a_compile_runs_elsewhere_stays_eager(monkeypatch)
     assert got == expected and largest_difference(eager, during) == 0.0
 
 
+def test_the_networks_work_in_one_thread_while_fx_traces_in_another():
+    """While compile_update compiles in its thread, inductor traces small functions with
+    torch.fx.symbolic_trace, and fx patches nn.Module.__call__ for every thread meanwhile: a module
+    called in another thread then raised NameError('module is not installed as a submodule'). A
+    trainer making its owed updates died so in a real launch (`update failed: NameError(...)`).
+    Here the patch is held open on purpose, and the learner acts, judges and updates through it."""
+    learner = filled(mode='eqsac')
+    inside, release = threading.Event(), threading.Event()
+
+    def held(x):  # traced: fx's patch stays on until it returns
+        inside.set()
+        release.wait(30)
+        return x
+
+    tracer = threading.Thread(target=torch.fx.symbolic_trace, args=(held,), daemon=True)
+    tracer.start()
+    try:
+        assert inside.wait(30)
+        proposal = learner.propose(np.zeros(3))  # the actor, the twin critics' D(s), E(s)
+        info = learner.update()
+        assert np.isfinite(proposal.action).all() and np.isfinite(info['critic_loss'])
+    finally:
+        release.set()
+        tracer.join(30)
+
+
 def test_the_compiled_adam_step_is_torchs_with_each_networks_bias_corrections_computed_once():
     from torch._inductor.utils import run_and_get_code
     from torch.optim.adam import adam as torchs_adam
