@@ -25,7 +25,7 @@ import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import CompressionType, Writer
+from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import serialize_dynamic
 
@@ -69,6 +69,11 @@ def record_files(run_or_file) -> list[Path]:
         return files
     if not path.exists():
         raise RecordError(f'{path}: no such file or folder')
+    # Any other file would read as a record cut short before its first message: a mistyped name
+    # (a CSV, a checkpoint) would seed nothing and say only that it was cut short.
+    with open(path, 'rb') as stream:
+        if stream.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+            raise RecordError(f'{path}: not an MCAP file (it does not begin with MCAP\'s magic bytes)')
     return [path]
 
 

@@ -146,6 +146,13 @@ def test_a_prior_from_other_spaces_is_refused_in_one_line(tmp_path):
     (tmp_path / 'empty').mkdir()
     with pytest.raises(RecordError, match='no record'):
         load_prior([tmp_path / 'empty'], 2, [-1.0], [1.0])
+    # Before: any file read as a record cut short before its first message, and seeded nothing.
+    (tmp_path / 'episodes.csv').write_text('episode,return\n0,-1.0\n')
+    with pytest.raises(RecordError, match='episodes.csv: not an MCAP file'):
+        load_prior([tmp_path / 'episodes.csv'], 2, [-1.0], [1.0])
+    cut = tmp_path / 'cut.mcap'  # a record cut short (kill -9) is still one: read up to its last chunk
+    cut.write_bytes((tmp_path / 'record.mcap').read_bytes()[:-100])
+    assert load_prior([cut], 2, [-1.0], [1.0]).cut_short == [cut]
 
 
 def test_a_record_cut_short_reads_up_to_its_last_chunk(tmp_path):
