@@ -73,7 +73,7 @@ def record_files(run_or_file) -> list[Path]:
     # (a CSV, a checkpoint) would seed nothing and say only that it was cut short.
     with open(path, 'rb') as stream:
         if stream.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
-            raise RecordError(f'{path}: not an MCAP file (it does not begin with MCAP\'s magic bytes)')
+            raise RecordError(f"{path}: not an MCAP file (it does not begin with MCAP's magic bytes)")
     return [path]
 
 
