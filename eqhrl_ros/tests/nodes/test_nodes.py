@@ -14,6 +14,7 @@ from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
+from eqhrl_ros.nodes.spinning import start_up_errors
 
 from ros_helpers import PARAMS_DIR, Probe, StubExpert, params, run_learner, small_learner_params
 
@@ -218,10 +219,12 @@ def test_each_params_file_loads_into_all_three_nodes(name, tmp_path):
         (dict(mode='ddpg'), 'mode'),
         (dict(batch_size='big'), 'batch_size'),
         (dict(advice_timeuot_s=1.0), 'advice_timeuot_s'),
+        # Before: a traceback from torch's allocator (40 GB for one layer), not a refusal.
+        (dict(hidden_sizes=[100000, 100000]), r'hidden sizes \[100000, 100000\] make networks of 30,002,100,004'),
     ],
 )
 def test_bad_parameters_are_refused_at_start_up_naming_the_key(ros_context, tmp_path, override, message):
-    with pytest.raises(Exception, match=message):
+    with pytest.raises(start_up_errors(), match=message):
         LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, **override))
 
 

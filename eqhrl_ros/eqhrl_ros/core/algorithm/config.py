@@ -127,7 +127,9 @@ class LearnerConfig:
         choices=MODES,
     )
     hidden: tuple[int, ...] = hyper(
-        (256, 256), 'Hidden layer sizes of actor and critics (Table 1: 256x256)', ros_name='hidden_sizes'
+        (256, 256),
+        'Hidden layer sizes of actor and critics (Table 1: 256x256); refused when the networks cannot fit in memory',
+        ros_name='hidden_sizes',
     )
     actor_lr: float = hyper(1e-4, 'Actor learning rate (Table 1)', range=(1e-8, 1.0))
     critic_lr: float = hyper(1e-3, 'Critic learning rate (Table 1)', range=(1e-8, 1.0))

@@ -47,7 +47,7 @@ from .config import SCORE_MODES, LearnerConfig, check_value
 from .critics import Critics
 from .learner_state import check_camera, check_state, resumed_settings
 from .memories import ReplayMemories
-from .networks import SquashedGaussianActor, TwinCritic
+from .networks import SquashedGaussianActor, TwinCritic, check_fits_in_memory
 from .observations import CameraObservation, VectorObservation
 from .policy import Policy
 from .state_scores import StateScores
@@ -69,6 +69,7 @@ def initial_networks(obs_dim: int, action_dim: int, config: LearnerConfig, devic
     """(actor, twin critic) initialised from the seed without disturbing the caller's global RNG,
     on the CPU: the same initial weights on every device. ``observation``: a camera's part makes
     its encoder after them, from the same stream."""
+    check_fits_in_memory(obs_dim, action_dim, config.hidden, torch.device(device))
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(stream_seeds(config.seed)['networks'])
         actor = SquashedGaussianActor(obs_dim, action_dim, config.hidden).to(device)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Literal
 
 import numpy as np
@@ -205,3 +206,36 @@ class TwinCritic(Module):
         """Critic k's (0 or 1) layers as an ordinary MLP: (weight [in, out], bias [out]) for
         h @ weight + bias, ReLU between layers, the last giving Q. Views of the parameters."""
         return [(weight[k], bias[k, 0]) for weight, bias in zip(self.weights, self.biases)]
+
+
+# Floats a learner keeps per network weight: the actor's and the critics' weights, the target
+# critics, the gradients and Adam's two moments (a trainer also keeps a finite copy of each).
+FLOATS_PER_WEIGHT = 6
+
+
+def weight_count(obs_dim: int, action_dim: int, hidden: tuple[int, ...]) -> int:
+    """Weights and biases of the actor (its heads give mean and log-std) and the twin critic."""
+
+    def layers(sizes: list[int]) -> int:
+        return sum((fan_in + 1) * fan_out for fan_in, fan_out in zip(sizes[:-1], sizes[1:]))
+
+    return layers([obs_dim, *hidden, 2 * action_dim]) + 2 * layers([obs_dim + action_dim, *hidden, 1])
+
+
+def check_fits_in_memory(obs_dim: int, action_dim: int, hidden: tuple[int, ...], device: torch.device) -> None:
+    """ValueError, naming the sizes, when networks of these sizes cannot fit in this machine's
+    memory (CPU): refused at once, not a failed allocation's traceback (or the out-of-memory
+    killer) once the node has started."""
+    if device.type != 'cpu':
+        return
+    needed = 4 * FLOATS_PER_WEIGHT * weight_count(obs_dim, action_dim, hidden)
+    try:
+        memory = os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES')
+    except (ValueError, OSError):  # not known here: the allocation itself will say
+        return
+    if needed > memory:
+        raise ValueError(
+            f'hidden sizes {list(hidden)} make networks of {weight_count(obs_dim, action_dim, hidden):,} weights, '
+            f'about {needed / 2**30:,.0f} GiB with their targets, gradients and Adam moments; '
+            f'this machine has {memory / 2**30:,.0f} GiB'
+        )
