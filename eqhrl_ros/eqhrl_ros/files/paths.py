@@ -18,14 +18,20 @@ def share_dir(package: str = 'eqhrl_ros') -> Path:
 
 def shared_file(folder: str, name_or_path: str, what: str) -> Path:
     """A YAML file by path, or by short name from share/eqhrl_ros/<folder>
-    (``pendulum`` -> share/eqhrl_ros/<folder>/pendulum.yaml); ``what`` names it in the error."""
+    (``pendulum`` -> share/eqhrl_ros/<folder>/pendulum.yaml); ``what`` names it in the error.
+    A path (a folder in it, or a suffix) is only ever that file: a mistyped path to a user's own
+    ``pendulum.yaml`` used to fall back to the shipped one, silently."""
     path = Path(name_or_path)
-    if path.suffix in ('.yaml', '.yml') and path.exists():
+    available = sorted(p.stem for p in (share_dir() / folder).glob('*.yaml'))
+    if path.name != name_or_path or path.suffix:  # a path: that file, never a shipped one of its name
+        if not path.is_file():
+            raise FileNotFoundError(f'no {what} {name_or_path!r}: no such file (or give one of {available})')
+        if path.suffix not in ('.yaml', '.yml'):
+            raise FileNotFoundError(f'{name_or_path!r} is not a {what}: give a .yaml file (or one of {available})')
         return path
-    candidate = share_dir() / folder / f'{path.stem}.yaml'
+    candidate = share_dir() / folder / f'{name_or_path}.yaml'
     if candidate.exists():
         return candidate
-    available = sorted(p.stem for p in (share_dir() / folder).glob('*.yaml'))
     raise FileNotFoundError(f'no {what} {name_or_path!r}; give a path or one of {available}')
 
 

@@ -107,3 +107,21 @@ def test_the_commands_refuse_hostile_files_with_one_line_and_exit_2(tmp_path, co
         assert done.returncode == 2, (name, done.stderr)
         assert done.stderr.count('\n') == 1 and str(path) in done.stderr and 'Traceback' not in done.stderr, done.stderr
         assert not (tmp_path / 'out').exists()
+
+
+def test_a_params_path_is_that_file_and_never_a_shipped_one_of_its_name(tmp_path, monkeypatch):
+    """Before: `--params runs/mine/pendulum.yaml`, mistyped, silently ran the shipped pendulum.yaml
+    (its stem was looked up among the shipped files), and `--params /etc/passwd` said 'no params file'."""
+    from eqhrl_ros.files.paths import params_file, share_dir
+
+    monkeypatch.chdir(tmp_path)
+    assert params_file('pendulum') == share_dir() / 'params' / 'pendulum.yaml'  # a short name
+    with pytest.raises(FileNotFoundError, match="no params file 'runs/mine/pendulum.yaml': no such file"):
+        params_file('runs/mine/pendulum.yaml')
+    with pytest.raises(FileNotFoundError, match="no params file 'pendulum.yaml': no such file"):
+        params_file('pendulum.yaml')  # a file name is a path too (here, in the working folder)
+    (tmp_path / 'notes.txt').write_text('learner: {}\n')
+    with pytest.raises(FileNotFoundError, match="'notes.txt' is not a params file: give a .yaml file"):
+        params_file('notes.txt')
+    (tmp_path / 'pendulum.yaml').write_text('learner: {}\n')
+    assert params_file('pendulum.yaml') == Path('pendulum.yaml')  # one's own, beside the shipped one
