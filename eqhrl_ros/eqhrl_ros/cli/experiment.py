@@ -49,6 +49,7 @@ from ..experiments.seed_runs import (
     seeds_together_refusal,
 )
 from ..experiments.settings import Settings, load_settings
+from .arguments import at_least, config_value
 
 
 def add_save_every(parser) -> None:
@@ -88,14 +89,14 @@ def parse_args(argv=None):
         default=list(PAPER_MODES),
         help="modes to run (default: the paper's three; respond and random are ablations, see eqhrl-study)",
     )
-    parser.add_argument('--seeds', nargs='+', type=int, default=[0, 1, 2, 3, 4])
-    parser.add_argument('--episodes', type=int, help='episodes per run (default: max_episodes of the file)')
-    parser.add_argument('--max-steps', type=int, help='steps per episode (default: from the file)')
-    parser.add_argument('--budget', type=int, help='early-advising budget in episodes')
+    parser.add_argument('--seeds', nargs='+', type=config_value('seed'), default=[0, 1, 2, 3, 4])
+    parser.add_argument('--episodes', type=at_least(1), help='episodes per run (default: max_episodes of the file)')
+    parser.add_argument('--max-steps', type=at_least(1), help='steps per episode (default: from the file)')
+    parser.add_argument('--budget', type=config_value('advising_budget'), help='early-advising budget in episodes')
     parser.add_argument('--expert', choices=(*EXPERT_BACKENDS, 'none'), help='expert backend')
     parser.add_argument('--policy-path', help='policy file for --expert policy')
     parser.add_argument('--output', required=True, help='output folder')
-    parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1, help='parallel runs')
+    parser.add_argument('--jobs', type=at_least(1), default=os.cpu_count() or 1, help='parallel runs')
     parser.add_argument('--through-ros', action='store_true', help='run through the ROS nodes')
     parser.add_argument(
         '--eval-every',

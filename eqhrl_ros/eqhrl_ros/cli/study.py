@@ -56,6 +56,7 @@ from ..experiments.seed_runs import run_dir
 from ..experiments.study_plan import arm_settings, load_plan, run_list
 from ..experiments.study_runs import run_study, time_left, write_arms
 from . import experiment
+from .arguments import at_least
 
 
 def parse_args(argv=None):
@@ -67,9 +68,9 @@ def parse_args(argv=None):
     )
     parser.add_argument('--plan', default='pendulum', help='study plan (name or path)')
     parser.add_argument('--output', required=True, help='output folder')
-    parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1, help='parallel runs (one core each)')
+    parser.add_argument('--jobs', type=at_least(1), default=os.cpu_count() or 1, help='parallel runs (one core each)')
     parser.add_argument('--groups', nargs='+', help='run only these groups (default: all, in order)')
-    parser.add_argument('--max-seeds', type=int, help='run only the first N seeds of each group')
+    parser.add_argument('--max-seeds', type=at_least(1), help='run only the first N seeds of each group')
     parser.add_argument('--list', action='store_true', help='print the runs and what is finished; run nothing')
     experiment.add_cluster(parser)
     experiment.add_save_every(parser)

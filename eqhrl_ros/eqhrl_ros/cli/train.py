@@ -25,9 +25,10 @@ import os
 import sys
 import time
 
-from ..core.algorithm.config import ADVICE_PROTOCOLS, MODES, check_value
+from ..core.algorithm.config import ADVICE_PROTOCOLS, MODES
 from ..nodes.launching import ENV_NODES, env_node_for
 from ..nodes.spinning import EXECUTORS
+from .arguments import at_least, config_value
 
 DISCOVERY = ('off', 'localhost', 'subnet')
 EXPERT_NODES = ('expert', 'teleop', 'none')  # the launch file's expert:= takes the same names
@@ -35,14 +36,6 @@ EXPERT_NODES = ('expert', 'teleop', 'none')  # the launch file's expert:= takes 
 
 class StartUpRefused(Exception):
     """A node refused the configuration (one line for the user, exit code 1)."""
-
-
-def _budget_seconds(text: str) -> float:
-    """--budget-s: the learner's own range check, said as a usage error."""
-    try:
-        return check_value('advising_budget_s', float(text))
-    except (ValueError, OverflowError) as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -54,13 +47,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument('--output', default=None, help='output folder (overrides learner output_dir)')
     parser.add_argument('--mode', choices=MODES, help='overrides learner mode')
-    parser.add_argument('--episodes', type=int, help='overrides learner max_episodes')
-    parser.add_argument('--seed', type=int, help='overrides the env and learner seeds')
-    parser.add_argument('--max-steps', type=int, help='overrides gym_env max_episode_steps')
-    parser.add_argument('--budget', type=int, help='overrides learner advising_budget')
+    parser.add_argument('--episodes', type=at_least(0), help='overrides learner max_episodes (0: no limit)')
+    parser.add_argument('--seed', type=config_value('seed'), help='overrides the env and learner seeds')
+    parser.add_argument('--max-steps', type=at_least(1), help='overrides gym_env max_episode_steps')
+    parser.add_argument('--budget', type=config_value('advising_budget'), help='overrides learner advising_budget')
     parser.add_argument(
         '--budget-s',
-        type=_budget_seconds,
+        type=config_value('advising_budget_s', float),
         help="overrides learner advising_budget_s (the person's seconds; 0: no limit)",
     )
     parser.add_argument(

@@ -143,6 +143,30 @@ def test_report_reads_the_advice_free_evaluation(tmp_path):
     assert (tmp_path / 'out' / 'eval_returns.png').read_bytes()[:4] == b'\x89PNG'
 
 
+@pytest.mark.parametrize(
+    'program,arguments,message',
+    [
+        ('experiment', ['--seeds', '-1'], 'argument --seeds: LearnerConfig.seed must be in [0'),
+        ('experiment', ['--budget', '-2'], 'argument --budget: LearnerConfig.advising_budget must be in [0'),
+        ('experiment', ['--episodes', '-5'], 'argument --episodes: -5 is below 1'),
+        ('experiment', ['--max-steps', '0'], 'argument --max-steps: 0 is below 1'),
+        ('experiment', ['--jobs', '0'], 'argument --jobs: 0 is below 1'),
+        ('study', ['--plan', 'pendulum', '--max-seeds', '0'], 'argument --max-seeds: 0 is below 1'),
+        ('train', ['--seed', 'x'], "argument --seed: 'x' is not an integer"),
+        ('train', ['--budget-s', '-5'], 'argument --budget-s: LearnerConfig.advising_budget_s must be in [0'),
+    ],
+)
+def test_command_line_values_are_checked_by_meaning_as_a_usage_error(program, arguments, message, capsys):
+    """Before: eqhrl-experiment --seeds -1 (or --budget -2) ended in a worker's traceback, and
+    --episodes -5 ran nothing and said 'all runs finished'; --jobs 0 and --max-steps 0 ran anyway."""
+    from eqhrl_ros.cli import study, train
+
+    parse = {'experiment': experiment.parse_args, 'study': study.parse_args, 'train': train.parse_args}[program]
+    with pytest.raises(SystemExit) as ended:
+        parse([*arguments, '--output', 'x'] if program != 'train' else arguments)
+    assert ended.value.code == 2 and message in capsys.readouterr().err
+
+
 def test_report_refuses_a_folder_without_results(tmp_path, capsys):
     assert report.main([str(tmp_path), '--output', str(tmp_path / 'out')]) == 1
     assert 'no episodes.csv' in capsys.readouterr().err
