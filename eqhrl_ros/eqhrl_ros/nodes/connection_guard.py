@@ -1,5 +1,5 @@
 """Limits on the connections a small web server holds, so that idle or half-open ones never lock
-a person out of their page (advice_console). No ROS here.
+a person out of their page (advice_console), and what the server logs of clients' mistakes. No ROS here.
 
 Each accepted TCP connection goes through ``GuardedProtocol``, which hands every event to the
 web server's own protocol (aiohttp's) and tells ``ConnectionGuard`` what it saw:
@@ -18,9 +18,12 @@ Refusals and closures are counted and logged at most once per ``log_every_s``.
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 from collections import OrderedDict
 from typing import Callable, Optional
+
+from aiohttp.http_exceptions import HttpProcessingError
 
 HEADER_END = b'\r\n\r\n'
 MAX_HEADER_BYTES = 16 * 1024  # aiohttp refuses longer headers itself; past this the guard stops looking
@@ -146,3 +149,25 @@ class GuardedProtocol(asyncio.Protocol):
     def close(self) -> None:
         if self.transport is not None:
             self.transport.abort()
+
+
+class ServerLog:
+    """aiohttp's server logger for the page. A request the client got wrong (a header over 8 KiB,
+    bytes that are not HTTP) was a traceback in the node's log each time, so any client could fill
+    the log; it is now one line in the guard's rate-limited log. An error of the page's own code
+    keeps its traceback (aiohttp's own logger)."""
+
+    def __init__(self, guard: ConnectionGuard):
+        self.guard = guard
+        self.own = logging.getLogger('aiohttp.server')
+
+    def debug(self, *args, **kwargs) -> None:
+        pass
+
+    def exception(self, message: str, *args, exc_info=None, **kwargs) -> None:
+        if not isinstance(exc_info, HttpProcessingError):
+            self.own.exception(message, *args, exc_info=exc_info, **kwargs)
+            return
+        text = message % args if args else message
+        reason = (str(exc_info.message) or type(exc_info).__name__).splitlines()[0][:120]
+        self.guard._say(f'{text} refused ({exc_info.code}): {reason}')

@@ -33,7 +33,7 @@ from aiohttp import WSMsgType, web
 from sensor_msgs.msg import Image
 
 from ..core.data import camera_frames
-from .connection_guard import ConnectionGuard, GuardedProtocol
+from .connection_guard import ConnectionGuard, GuardedProtocol, ServerLog
 from .frame_msgs import frame_of, stack_of
 
 MAX_PAGE_MESSAGE = 4096  # bytes; the page sends small JSON only
@@ -169,7 +169,7 @@ class ConsoleServer:
         app.router.add_get('/console.js', self._script)
         app.router.add_get('/ws', self._websocket)
         # A short keep-alive: a connection that made its request and then idles gives its place back.
-        self._runner = web.AppRunner(app, access_log=None, keepalive_timeout=5.0)
+        self._runner = web.AppRunner(app, access_log=None, keepalive_timeout=5.0, logger=ServerLog(self.guard))
         await self._runner.setup()
         server = self._runner.server
         self._server = await self._loop.create_server(

@@ -178,3 +178,18 @@ def test_the_guard_never_holds_more_than_its_limit_even_before_evicted_ones_are_
         assert guard.admit(connection, '127.0.0.1')
         assert len(guard.open) <= 8
     assert guard.evicted == 92 and sum(c.closed for c in held) == 92
+
+
+def test_a_malformed_request_is_one_line_in_the_log_not_a_traceback_each_time(console, capfd):
+    """Before: aiohttp logged a request it could not parse (here a header of 100 KB) as a 10-line
+    traceback, each time, so any client could fill the node's log. Now one rate-limited line."""
+    lines = []
+    console.server.guard._log, console.server.guard._logged_at = lines.append, float('-inf')
+    for _ in range(5):
+        with socket.create_connection(('127.0.0.1', console.port), timeout=5) as s:
+            s.sendall(b'GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: ' + b'a' * 100_000 + b'\r\n\r\n')
+            assert s.recv(4096).split()[1] == b'400'
+    time.sleep(0.2)
+    assert 'Traceback' not in capfd.readouterr().err
+    assert len(lines) == 1 and 'Error handling request from 127.0.0.1 refused (400): Got more than' in lines[0], lines
+    assert get(console.port, f'127.0.0.1:{console.port}') == 200  # and the page is served on
