@@ -108,9 +108,17 @@ class Probe:
         self.node.create_subscription(Float32MultiArray, 'observation', self.observations.append, 50)
         self.node.create_subscription(EpisodeStats, 'learner/episode_stats', self.stats.append, 100)
         self.node.create_subscription(GateDecision, 'learner/gate_debug', self.gates.append, 1000)
-        self.action_pub = self.node.create_publisher(Float32MultiArray, 'action', 10)
+        self._action_pub = None
         self.actions = []
         self.node.create_subscription(Float32MultiArray, 'action', self.actions.append, 50)
+
+    @property
+    def action_pub(self):
+        """A publisher on 'action', made when a test first acts: an env takes no action while two
+        nodes publish it, so a probe that only watches must not be one of them."""
+        if self._action_pub is None:
+            self._action_pub = self.node.create_publisher(Float32MultiArray, 'action', 10)
+        return self._action_pub
 
     def acted_on(self) -> list:
         """The (episode, step) each action on 'action' answers (tagged actions only)."""

@@ -12,7 +12,9 @@ this package's runner, for a clean Ctrl-C):
   step, success (a std_msgs/Float32MultiArray, labelled);
 - it steps when an action comes on ``action`` (lock-step), or at ``rate_hz`` with the latest
   action (``realtime``), where an action older than ``action_timeout_s`` is replaced by zero
-  force (the deadman a real robot needs).
+  force (the deadman a real robot needs);
+- it takes actions only while one node publishes ``action``: a second (another learner, a
+  stranger's ``ros2 topic pub``) stops it taking any until one is left.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ NAME = 'double_integrator'  # the expert's heuristic backend has a PD controller
 OBS_LABELS = ('x', 'v')
 ACTION_LABELS = ('force',)
 ACTION_LOW, ACTION_HIGH = -1.0, 1.0
+UNKNOWN = ('_NODE_NAMESPACE_UNKNOWN_', '_NODE_NAME_UNKNOWN_')  # rmw's name for a node it no longer knows
 
 
 # The node's parameters: name, default, description, (low, high) or None.
@@ -111,6 +114,11 @@ class DoubleIntegratorEnv(Node):
         self.info_pub = self.create_publisher(EnvInfo, 'env_info', latched)
         self.observation_pub = self.create_publisher(Float32MultiArray, 'observation', qos)
         self.create_subscription(Float32MultiArray, 'action', self._on_action, qos)
+        # One learner drives the robot: while a second node publishes action (another learner, a
+        # stranger), no action is taken, as neither can be told from the other (asked of the graph
+        # at most every 0.5 s: a query walks every endpoint).
+        self.action_topic = self.resolve_topic_name('action')
+        self.action_publishers, self.publishers_seen_at, self.refused_actions = 1, float('-inf'), 0
         self.create_subscription(Bool, '/stop', self._on_stop, latched)  # every env hears one STOP
         self.info_pub.publish(
             EnvInfo(
@@ -174,6 +182,20 @@ class DoubleIntegratorEnv(Node):
             return
         if self.stopped:
             return  # the person's stop outranks the learner
+        if time.monotonic() - self.publishers_seen_at >= 0.5:
+            # Nodes, not endpoints (a node restarted after a kill -9 may show twice for a while),
+            # and only nodes the graph names (one being torn down shows as _NODE_NAME_UNKNOWN_).
+            infos = self.get_publishers_info_by_topic(self.action_topic)
+            self.action_publishers = len({(i.node_namespace, i.node_name) for i in infos} - {UNKNOWN})
+            self.publishers_seen_at = time.monotonic()
+        if self.action_publishers > 1:
+            self.refused_actions += 1
+            self.get_logger().warn(
+                f'action refused: {self.action_publishers} nodes publish {self.action_topic}, and their actions '
+                f'cannot be told apart ({self.refused_actions} refused so far)',
+                throttle_duration_sec=5.0,
+            )
+            return
         if self.realtime:
             self.action, self.action_time = float(data[0]), time.monotonic()
             return

@@ -35,6 +35,7 @@ from ..core.envs.spec import EnvCamera, spec_from_parameters
 from ..parameters import GYM_ENV_PARAMS
 from . import env_info, messages
 from .frame_msgs import image_msg
+from .graph_trust import OnePublisher
 from .health import OK, WARN, Check, Health
 from .params import choices_validator, declare, reject_unknown_overrides
 from .spinning import run_node, seconds_since_process_start, steady_clock
@@ -74,8 +75,7 @@ class GymEnvNode(Node):
         self.episode = 0
         self.step_index = 0
         self.steps_taken = 0
-        self.rejected_actions = 0
-        self.stale_actions = 0
+        self.rejected_actions = self.stale_actions = self.refused_actions = 0  # refused: two publishers
         # Real time: steps taken with the previous action because the answer to the current
         # observation had not come by the tick (late_steps; per episode in the log).
         self.late_steps = 0
@@ -101,6 +101,8 @@ class GymEnvNode(Node):
         # Actions arrive serialized (raw): see messages.SerializedReader.
         self._action_reader = messages.SerializedReader(messages.action_layouts(self.action_dim), 'action')
         self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS, raw=True)
+        # One node drives an env: while a second publishes action (a learner, a stranger), none is taken.
+        self.action_source = OnePublisher(self, self.resolve_topic_name('action'))
         self.create_subscription(Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS)
         self.health = Health(self, self.health_checks)
         # Latched: nodes that start later still learn the spaces from it.
@@ -151,6 +153,7 @@ class GymEnvNode(Node):
 
     def health_checks(self) -> list:
         values = {'steps': self.steps_taken, 'episode': self.episode, 'rejected actions': self.rejected_actions}
+        values['actions refused (two publishers)'] = self.refused_actions
         if self.stopped:
             return [Check('stop', WARN, 'STOPPED by the person: no step until released', values)]
         return [Check('stop', OK, 'running', values)]
@@ -165,6 +168,8 @@ class GymEnvNode(Node):
                 self._publish()  # the observation the learner acts on next (the episode goes on)
 
     def _step(self, action: np.ndarray) -> None:
+        # Inside the bounds it announced, whatever arrived (not every gymnasium env clips itself).
+        action = np.clip(action, self.env.action_space.low, self.env.action_space.high).astype(np.float32)
         action = messages.rate_limited(action, self._previous_action, self.params['max_action_change'])
         self._previous_action = action
         obs, reward, terminated, truncated, _ = self.env.step(action)
@@ -197,6 +202,14 @@ class GymEnvNode(Node):
             return
         if self.stopped:
             self.stopped_actions += 1
+            return
+        refusal = self.action_source.refusal()
+        if refusal:
+            self.refused_actions += 1
+            self.get_logger().warn(
+                f'action refused, not stepping: {refusal} ({self.refused_actions} refused so far)',
+                throttle_duration_sec=5.0,
+            )
             return
         if self.params['realtime']:
             self._held_action = action

@@ -41,8 +41,9 @@ def test_env_node_layout_step_reset_and_rejections(harness, ros_context):
     assert (step0.episode, step0.step, step0.done) == (0, 0, False)
 
     probe.observations.clear()
-    probe.action_pub.publish(messages.action_msg([0.5], 0, 0))
+    probe.action_pub.publish(messages.action_msg([50.0], 0, 0))  # beyond Pendulum's torque bound
     assert harness.spin_until(lambda: any(messages.parse_observation(m, 3).step == 1 for m in probe.observations))
+    assert env._previous_action.tolist() == [2.0]  # stepped clipped to the bounds it announced
 
     for bad in ([0.1, 0.2], [float('nan')]):
         probe.action_pub.publish(messages.action_msg(bad))
@@ -328,3 +329,30 @@ def test_realtime_env_with_a_slow_expert_keeps_every_transition(harness, ros_con
     assert [s.length for s in learner.summaries] == [40, 40, 40]
     assert not any(s.interrupted for s in learner.summaries)
     assert len(learner.learner.replay) == learner.learner.total_steps == 120
+
+
+@pytest.mark.parametrize('env_class', ['gym_env', 'double_integrator_env'])
+def test_an_env_takes_no_action_while_two_nodes_publish_action(harness, ros_context, env_class):
+    """Before: a second learner, or a stranger's `ros2 topic pub /action`, stepped the env as the
+    learner did (an untagged action steps a lock-step env at once): anyone on the graph drove it."""
+    from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegratorEnv
+
+    make = GymEnvNode if env_class == 'gym_env' else DoubleIntegratorEnv
+    env = harness.add(make(context=ros_context, parameter_overrides=params(republish_period_s=0.2)))
+    driver = Probe(harness, 'driver')
+    assert harness.spin_until(lambda: driver.action_pub.get_subscription_count() > 0)
+    driver.action_pub.publish(messages.action_msg([0.5]))
+    assert harness.spin_until(lambda: env.step_index == 1)
+    stranger = Probe(harness, 'stranger')
+    assert stranger.action_pub is not None  # it publishes action from now on
+    assert harness.spin_until(lambda: driver.node.count_publishers('action') == 2)
+    harness.spin_until(lambda: False, timeout=0.6)  # past the env's look at the graph (0.5 s)
+    for probe in (driver, stranger, driver):
+        probe.action_pub.publish(messages.action_msg([0.5]))
+    assert harness.spin_until(lambda: env.refused_actions == 3) and env.step_index == 1
+    harness.nodes.remove(stranger.node)
+    stranger.node.destroy_node()
+    assert harness.spin_until(lambda: driver.node.count_publishers('action') == 1)
+    harness.spin_until(lambda: False, timeout=0.6)
+    driver.action_pub.publish(messages.action_msg([0.5]))
+    assert harness.spin_until(lambda: env.step_index == 2)
