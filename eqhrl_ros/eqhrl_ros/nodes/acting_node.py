@@ -89,6 +89,8 @@ class ActingNode(Node):
             Float32MultiArray, 'observation', self._on_observation, OBSERVATION_QOS, raw=True
         )
         self._observation_topic = observations.topic_name
+        # One env feeds a learner (env_node, if named): while a second node publishes observation, none is taken.
+        self.observation_source = OnePublisher(self, self._observation_topic, p.get('env_node', ''))
         # The person's command (teleop_expert passes it on): a takeover when it departs from ours.
         person = self.create_subscription(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, self._on_person_command, 10)
         self._person_topic = person.topic_name
@@ -257,6 +259,8 @@ class ActingNode(Node):
                 self.early_observations += 1  # the env re-sends it; acted on once the spaces are known
                 return
             if not held:
+                if not self.observation_source.admits(self.get_logger(), 'observation'):
+                    return
                 self.tracking.observed()
                 if self.recording is not None:
                     self.recording.write_raw(self._observation_topic, Float32MultiArray, data)
@@ -361,15 +365,10 @@ class ActingNode(Node):
             self.get_logger().error(f'person commands refused: {refusal}', throttle_duration_sec=5.0)
             return
         try:
-            fields = messages.read_fields(msg)
-            action = np.asarray(fields['action'], dtype=np.float32)
-            if not np.isfinite(action).all():
-                raise ValueError('a non-finite action')
+            action, deadman, take_over = messages.person_command(msg)
         except (KeyError, ValueError) as error:
             self.get_logger().error(f"'{messages.PERSON_COMMAND_TOPIC}' refused: {error}", throttle_duration_sec=5.0)
             return
-        deadman = bool(fields.get('deadman', [0.0])[0])
-        take_over = bool(fields.get('take_over', [0.0])[0])
         with self._lock:
             if self.wheel is not None:
                 self.wheel.heard(action, deadman, take_over, time.monotonic())

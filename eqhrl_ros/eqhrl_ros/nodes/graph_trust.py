@@ -38,6 +38,16 @@ class OnePublisher:
         self.expected = (expected,) if isinstance(expected, str) else tuple(expected)
         self.expected = tuple(e for e in self.expected if e)
         self._checked_at, self._verdict = float('-inf'), ''
+        self.refused = 0  # messages admits() turned away
+
+    def admits(self, logger, what: str) -> bool:
+        """Whether a message on the topic may be taken now; if not, it is counted and ``logger``
+        warns why (at most every 5 s), naming ``what`` was refused."""
+        refusal = self.refusal()
+        if refusal:
+            self.refused += 1
+            logger.warn(f'{what} refused: {refusal} ({self.refused} refused so far)', throttle_duration_sec=5.0)
+        return not refusal
 
     def refusal(self) -> str:
         """'' while the topic's publisher can be trusted; else why not, in one line."""

@@ -75,7 +75,7 @@ class GymEnvNode(Node):
         self.episode = 0
         self.step_index = 0
         self.steps_taken = 0
-        self.rejected_actions = self.stale_actions = self.refused_actions = 0  # refused: two publishers
+        self.rejected_actions = self.stale_actions = 0
         # Real time: steps taken with the previous action because the answer to the current
         # observation had not come by the tick (late_steps; per episode in the log).
         self.late_steps = 0
@@ -151,6 +151,11 @@ class GymEnvNode(Node):
         self._shoot()
         self._publish()
 
+    @property
+    def refused_actions(self) -> int:
+        """Actions not taken because a second node published action too."""
+        return self.action_source.refused
+
     def health_checks(self) -> list:
         values = {'steps': self.steps_taken, 'episode': self.episode, 'rejected actions': self.rejected_actions}
         values['actions refused (two publishers)'] = self.refused_actions
@@ -203,13 +208,7 @@ class GymEnvNode(Node):
         if self.stopped:
             self.stopped_actions += 1
             return
-        refusal = self.action_source.refusal()
-        if refusal:
-            self.refused_actions += 1
-            self.get_logger().warn(
-                f'action refused, not stepping: {refusal} ({self.refused_actions} refused so far)',
-                throttle_duration_sec=5.0,
-            )
+        if not self.action_source.admits(self.get_logger(), 'action (not stepping)'):
             return
         if self.params['realtime']:
             self._held_action = action

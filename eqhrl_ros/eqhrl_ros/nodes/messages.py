@@ -345,6 +345,16 @@ def command_values(fields: dict) -> list:
     return np.asarray(flat, dtype=np.float32).tolist()
 
 
+def person_command(msg: Float32MultiArray) -> tuple[np.ndarray, bool, bool]:
+    """A person_command message (PERSON_COMMAND_FIELDS) as (action, deadman, take_over); KeyError
+    or ValueError says what is wrong with it."""
+    fields = read_fields(msg)
+    action = np.asarray(fields['action'], dtype=np.float32)
+    if not np.isfinite(action).all():
+        raise ValueError('a non-finite action')
+    return action, bool(fields.get('deadman', [0.0])[0]), bool(fields.get('take_over', [0.0])[0])
+
+
 def read_fields(msg: Float32MultiArray) -> dict:
     """{label: [values]} of a labelled message; an unlabelled one is all 'command'. A layout
     whose sizes do not add up to the data raises MessageError."""

@@ -97,7 +97,8 @@ ENV_PARAMS = (
         'env_node',
         '',
         'The node whose env_info to take (full name); empty: the node publishing observation. An env_info '
-        'while another node publishes it too is held, not obeyed',
+        'while another node publishes it too is held, not obeyed. A learner or actor takes observations only '
+        'while one node publishes them (this one, when set)',
     ),
 )
 # What a params file's shared `/**:` section may set: every node accepts these.

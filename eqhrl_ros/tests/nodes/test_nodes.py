@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from std_msgs.msg import Float32MultiArray
 
 from eqhrl_ros.core.data.summary import EpisodeSummary
 from eqhrl_ros.nodes import messages
@@ -356,3 +357,23 @@ def test_an_env_takes_no_action_while_two_nodes_publish_action(harness, ros_cont
     harness.spin_until(lambda: False, timeout=0.6)
     driver.action_pub.publish(messages.action_msg([0.5]))
     assert harness.spin_until(lambda: env.step_index == 2)
+
+
+def test_a_learner_takes_no_observation_while_two_nodes_publish_observation(harness, ros_context, tmp_path):
+    """Before: a stranger's observations (`ros2 topic pub /observation ...`) were acted on and
+    stored as the env's transitions, with whatever reward they claimed. Now, while a second node
+    publishes observation, the learner takes none (and says so); the run goes on once it leaves."""
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(republish_period_s=0.2)))
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    assert harness.spin_until(lambda: learner.learner is not None and learner.learner.total_steps > 5, timeout=30)
+    stranger = harness.add(rclpy.create_node('stranger', context=ros_context))
+    fake = stranger.create_publisher(Float32MultiArray, 'observation', 10)
+    assert harness.spin_until(lambda: learner.count_publishers('observation') == 2)
+    harness.spin_until(lambda: False, timeout=0.6)  # past the learner's look at the graph (0.5 s)
+    steps = learner.learner.total_steps
+    fake.publish(messages.observation_msg([0.0, 1.0, 0.0], 1000.0, False, False, 7, 1))
+    assert harness.spin_until(lambda: learner.observation_source.refused >= 2)  # the fake and the env's re-send
+    assert learner.learner.total_steps == steps
+    harness.nodes.remove(stranger)
+    stranger.destroy_node()
+    assert harness.spin_until(lambda: learner.learner.total_steps > steps + 5, timeout=30)
