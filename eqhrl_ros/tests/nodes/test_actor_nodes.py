@@ -4,6 +4,7 @@ Each actor has its own env (and expert) in a namespace of its own; all send to o
 /transitions and take its weights from /weights, as on several machines."""
 
 import array
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -175,6 +176,30 @@ def test_a_trainer_at_max_episodes_ends_its_actors_run_and_nothing_is_called_los
     late = add_actor(harness, ros_context, '/late')
     assert harness.spin_until(lambda: late.run_ended, timeout=30)
     assert trainer.learner.total_steps == stored and '/late/actor' not in trainer.trainer.sequences.actors
+
+
+def test_a_trainer_stopped_while_making_its_owed_updates_saves_them_and_says_how_many_are_left(
+    harness, ros_context, tmp_path
+):
+    """Ctrl-C (the node's on_exit) while the trainer makes the updates owed at max_episodes: the
+    checkpoint holds every update made so far, and one line says how many were left unmade."""
+    from eqhrl_ros.nodes.trainer_exit import stop_save_and_close
+
+    add_actor(harness, ros_context, '/p0')
+    trainer = add_trainer(harness, ros_context, tmp_path, max_episodes=2, updates_per_transition=100.0)
+    assert harness.spin_until(lambda: trainer.paying and trainer.learner.updates > 10, timeout=60)
+    logger, warned = trainer.get_logger(), []
+    trainer.get_logger = lambda: SimpleNamespace(warn=warned.append, info=logger.info, error=logger.error)
+    harness.nodes.remove(trainer)
+    harness.executor.remove_node(trainer)
+    stop_save_and_close(trainer)
+    saved = safe_load(tmp_path / 'trainer' / 'checkpoint.pt', CHECKPOINT_FORMAT)['counters']
+    left = trainer.trainer.updates_owed()
+    assert saved['updates'] == trainer.learner.updates and left > 0
+    assert [line.split(':')[0] for line in warned] == [
+        f'stopped with {left} of the updates owed at max_episodes still unmade'
+    ]
+    trainer.destroy_node()
 
 
 def test_a_resumed_trainer_whose_run_had_ended_stores_nothing_and_ends_its_actors_run(harness, ros_context, tmp_path):
