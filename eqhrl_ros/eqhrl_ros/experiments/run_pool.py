@@ -60,16 +60,20 @@ class _DaskTask:
         return self.future.result()
 
 
+# How long a study waits for the Dask scheduler it is given before it says none is reachable.
+CONNECT_TIMEOUT_S = 10.0
+
+
 class DaskPool:
     """Runs submitted to the Dask scheduler at ``address``, one task per run."""
 
-    def __init__(self, address: str, timeout_s: float = 10.0):
+    def __init__(self, address: str):
         try:
             from distributed import Client
         except ImportError as error:  # pragma: no cover - distributed is in requirements.txt
             raise ClusterUnavailable('--cluster needs the distributed package (pip install distributed)') from error
         try:
-            self.client = Client(address, timeout=timeout_s, set_as_default=False)
+            self.client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
         except OSError as error:
             raise ClusterUnavailable(f'--cluster {address}: no Dask scheduler reachable ({error})') from None
         threads = sum(self.client.nthreads().values())

@@ -7,6 +7,7 @@ import pytest
 import yaml
 
 from eqhrl_ros.cli import experiment, study
+from eqhrl_ros.experiments import run_pool
 
 pytestmark = pytest.mark.slow
 
@@ -74,7 +75,8 @@ def test_an_experiment_on_a_dask_cluster_writes_every_run(tmp_path, cluster, cap
     assert '[4/4 runs,' in capsys.readouterr().out  # progress in finished runs (no episode reports)
 
 
-def test_an_unreachable_cluster_is_refused_in_one_line(tmp_path, capsys):
+def test_an_unreachable_cluster_is_refused_in_one_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(run_pool, 'CONNECT_TIMEOUT_S', 1.0)  # nothing listens: the wait is all it costs
     plan = tmp_path / 'plan.yaml'
     plan.write_text(yaml.safe_dump(PLAN, sort_keys=False))
     code = study.main(['--plan', str(plan), '--output', str(tmp_path / 'o'), '--cluster', 'tcp://127.0.0.1:9'])
