@@ -221,8 +221,6 @@ def test_each_params_file_loads_into_all_three_nodes(name, tmp_path):
         (dict(mode='ddpg'), 'mode'),
         (dict(batch_size='big'), 'batch_size'),
         (dict(advice_timeuot_s=1.0), 'advice_timeuot_s'),
-        # Before: a traceback from torch's allocator (40 GB for one layer), not a refusal.
-        (dict(hidden_sizes=[100000, 100000]), r'hidden sizes \[100000, 100000\] make networks of 30,002,100,004'),
     ],
 )
 def test_bad_parameters_are_refused_at_start_up_naming_the_key(ros_context, tmp_path, override, message):
@@ -335,27 +333,28 @@ def test_realtime_env_with_a_slow_expert_keeps_every_transition(harness, ros_con
 @pytest.mark.parametrize('env_class', ['gym_env', 'double_integrator_env'])
 def test_an_env_takes_no_action_while_two_nodes_publish_action(harness, ros_context, env_class):
     """Before: a second learner, or a stranger's `ros2 topic pub /action`, stepped the env as the
-    learner did (an untagged action steps a lock-step env at once): anyone on the graph drove it."""
+    learner did (an untagged action steps a lock-step env at once): anyone on the graph drove it.
+    (In a namespace of its own: a node of an earlier test may still show on the domain's /action.)"""
     from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegratorEnv
 
     make = GymEnvNode if env_class == 'gym_env' else DoubleIntegratorEnv
-    env = harness.add(make(context=ros_context, parameter_overrides=params(republish_period_s=0.2)))
-    driver = Probe(harness, 'driver')
-    assert harness.spin_until(lambda: driver.action_pub.get_subscription_count() > 0)
-    driver.action_pub.publish(messages.action_msg([0.5]))
+    ns = f'/two_{env_class}'
+    env = harness.add(make(context=ros_context, namespace=ns, parameter_overrides=params(republish_period_s=0.2)))
+    driver, stranger = (harness.add(rclpy.create_node(n, namespace=ns, context=ros_context)) for n in ('d', 's'))
+    drive = driver.create_publisher(Float32MultiArray, 'action', 10)
+    assert harness.spin_until(lambda: drive.get_subscription_count() > 0)
+    drive.publish(messages.action_msg([0.5]))
     assert harness.spin_until(lambda: env.step_index == 1)
-    stranger = Probe(harness, 'stranger')
-    assert stranger.action_pub is not None  # it publishes action from now on
-    assert harness.spin_until(lambda: driver.node.count_publishers('action') == 2)
+    forge = stranger.create_publisher(Float32MultiArray, 'action', 10)
+    assert harness.spin_until(lambda: driver.count_publishers(f'{ns}/action') == 2)
     harness.spin_until(lambda: False, timeout=0.6)  # past the env's look at the graph (0.5 s)
-    for probe in (driver, stranger, driver):
-        probe.action_pub.publish(messages.action_msg([0.5]))
+    for publisher in (drive, forge, drive):
+        publisher.publish(messages.action_msg([0.5]))
     assert harness.spin_until(lambda: env.refused_actions == 3) and env.step_index == 1
-    harness.nodes.remove(stranger.node)
-    stranger.node.destroy_node()
-    assert harness.spin_until(lambda: driver.node.count_publishers('action') == 1)
+    stranger.destroy_publisher(forge)
+    assert harness.spin_until(lambda: driver.count_publishers(f'{ns}/action') == 1)
     harness.spin_until(lambda: False, timeout=0.6)
-    driver.action_pub.publish(messages.action_msg([0.5]))
+    drive.publish(messages.action_msg([0.5]))
     assert harness.spin_until(lambda: env.step_index == 2)
 
 
@@ -363,17 +362,19 @@ def test_a_learner_takes_no_observation_while_two_nodes_publish_observation(harn
     """Before: a stranger's observations (`ros2 topic pub /observation ...`) were acted on and
     stored as the env's transitions, with whatever reward they claimed. Now, while a second node
     publishes observation, the learner takes none (and says so); the run goes on once it leaves."""
-    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(republish_period_s=0.2)))
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    ns = '/two_envs'  # a namespace of its own: a node of an earlier test may still show on the domain
+    harness.add(GymEnvNode(context=ros_context, namespace=ns, parameter_overrides=params(republish_period_s=0.2)))
+    learner = harness.add(
+        LearnerNode(context=ros_context, namespace=ns, parameter_overrides=small_learner_params(tmp_path))
+    )
     assert harness.spin_until(lambda: learner.learner is not None and learner.learner.total_steps > 5, timeout=30)
-    stranger = harness.add(rclpy.create_node('stranger', context=ros_context))
+    stranger = harness.add(rclpy.create_node('stranger', namespace=ns, context=ros_context))
     fake = stranger.create_publisher(Float32MultiArray, 'observation', 10)
-    assert harness.spin_until(lambda: learner.count_publishers('observation') == 2)
+    assert harness.spin_until(lambda: learner.count_publishers(f'{ns}/observation') == 2)
     harness.spin_until(lambda: False, timeout=0.6)  # past the learner's look at the graph (0.5 s)
     steps = learner.learner.total_steps
     fake.publish(messages.observation_msg([0.0, 1.0, 0.0], 1000.0, False, False, 7, 1))
     assert harness.spin_until(lambda: learner.observation_source.refused >= 2)  # the fake and the env's re-send
     assert learner.learner.total_steps == steps
-    harness.nodes.remove(stranger)
-    stranger.destroy_node()
+    stranger.destroy_publisher(fake)
     assert harness.spin_until(lambda: learner.learner.total_steps > steps + 5, timeout=30)

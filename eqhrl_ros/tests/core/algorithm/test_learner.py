@@ -300,3 +300,10 @@ def test_exported_policy_serves_the_learners_deterministic_action(tmp_path):
     obs = np.array([0.2, -0.3, 1.0], dtype=np.float32)
     assert np.allclose(expert.action(obs), learner.act(obs, deterministic=True))
     assert (tmp_path / 'policy.pt').stat().st_size < 100_000
+
+
+def test_networks_that_cannot_fit_in_memory_are_refused_naming_the_sizes():
+    """Before: hidden_sizes [100000, 100000] died in torch's allocator (40 GB for one layer) with a
+    traceback, or later by the out-of-memory killer; a ValueError is a node's one-line refusal."""
+    with pytest.raises(ValueError, match=r'hidden sizes \[100000, 100000\] make networks of 30,002,100,004'):
+        EQSACLearner(3, [-2.0], [2.0], LearnerConfig(hidden=(100000, 100000)))
