@@ -45,7 +45,7 @@ from .messages import printable_name
 from .params import choices_validator, declare, reject_unknown_overrides
 from .person_wheel import PersonWheel
 from .recording import NodeRecord
-from .spinning import steady_clock
+from .spinning import leaves_nothing_when_refused, steady_clock
 from .start_wait import StartWait
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -60,6 +60,7 @@ class ActingNode(Node):
     """The acting half, shared by the learner and actor nodes. A subclass gives its node name
     and parameter table, and says what a transition and an episode's end become."""
 
+    @leaves_nothing_when_refused
     def __init__(self, node_name: str, node_params: tuple, **kwargs):
         super().__init__(node_name, **kwargs)
         reject_unknown_overrides(self, LEARNER_CONFIG_PARAMS, node_params)

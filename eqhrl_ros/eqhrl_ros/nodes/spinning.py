@@ -14,6 +14,7 @@ both are handled the same way.
 from __future__ import annotations
 
 import faulthandler
+import functools
 import gc
 import logging
 import os
@@ -38,6 +39,26 @@ def start_up_errors() -> tuple:
     errors = (ValueError, OSError, CheckpointError, rclpy.exceptions.ParameterException)
     gymnasium = sys.modules.get('gymnasium')  # loaded by the nodes that make envs
     return errors + ((gymnasium.error.Error,) if gymnasium is not None else ())
+
+
+def leaves_nothing_when_refused(init: Callable) -> Callable:
+    """For a node's ``__init__``: a node that refuses to start (raises) destroys the publishers,
+    subscriptions and timers it had made, then raises. Else, until the garbage collector found it,
+    the half-built node stayed on the graph (a ghost publisher of a learner's action, seen by an
+    env as a second node driving it) in any process that goes on: eqhrl-train's, a test run's."""
+
+    @functools.wraps(init)
+    def wrapped(self, *args, **kwargs):
+        try:
+            init(self, *args, **kwargs)
+        except BaseException:
+            try:
+                Node.destroy_node(self)
+            except Exception:  # Node.__init__ itself failed: nothing was made
+                pass
+            raise
+
+    return wrapped
 
 
 class ExitError(RuntimeError):

@@ -124,8 +124,13 @@ def test_spaces_as_parameters_work_with_an_env_that_publishes_no_env_info(harnes
 )
 def test_incomplete_or_contradictory_spaces_are_refused_at_start_up(ros_context, tmp_path, spaces, message):
     overrides = [p for p in small_learner_params(tmp_path) if p.name not in spaces] + params(**spaces)
+    looker = rclpy.create_node('looker', context=ros_context)
     with pytest.raises(ValueError, match=message):
         LearnerNode(context=ros_context, parameter_overrides=overrides)
+    # Nothing of the refused node is left on the graph: before, its publisher of action stayed
+    # until the garbage collector came, and an env took it for a second node driving it.
+    assert looker.count_publishers('/action') == 0 and looker.count_subscribers('/observation') == 0
+    looker.destroy_node()
 
 
 def test_a_learner_configured_for_another_env_refuses_its_env_info(harness, ros_context, tmp_path):
