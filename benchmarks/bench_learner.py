@@ -161,6 +161,10 @@ class BaselinesLoop:
             verbose=0,
             **({} if library == 'sbx' else {'device': 'cpu'}),
         )
+        # A logger of our own: without one, each learn() call makes an empty SB3-<time> folder in /tmp.
+        from stable_baselines3.common.logger import Logger
+
+        self.model.set_logger(Logger(folder=None, output_formats=[]))
         self.model.learn(total_timesteps=warmup)
         self.model.learn(total_timesteps=1, reset_num_timesteps=False)  # SBX: JAX compiles its update here
 
