@@ -206,21 +206,29 @@ class EnvInfoWatcher:
             self.subscription = self.node.create_subscription(EnvInfo, TOPIC, self._on_env_info, ENV_INFO_QOS)
             self._subscribed_at, self.resubscribed = now, self.resubscribed + 1
         for held in list(self._held):
-            if now - held[0] > (NAMED_HOLD_S if held[1].publisher else HOLD_S):
-                self._held.remove(held)  # never vouched for in time: dropped
-                self.node.get_logger().warn(
-                    f'env_info not obeyed: {self.refusal(held[1]) or "its sender is not vouched for"}; '
-                    f'dropped after {now - held[0]:.1f} s',
-                    throttle_duration_sec=5.0,
-                )
-        for held in list(self._held):
             # Taken only if a node that published env_info when it came is vouched for now: a
             # stranger's message, held until the real env appears, is never taken for the env's
             # (none known when it came: the graph had not caught up, and the rule alone decides).
+            # Looked at before the drops below: one vouched for at the moment its time is up is taken.
             if not self.refusal(held[1]) and (not held[2] or held[2] & self._vouched()):
                 self._held.remove(held)
                 self._on_env_info(held[1])
                 return
+        for held in list(self._held):
+            if now - held[0] > (NAMED_HOLD_S if held[1].publisher else HOLD_S):
+                self._held.remove(held)  # never vouched for in time: dropped
+                self._log_drop(held, now)
+
+    def _log_drop(self, held: tuple, now: float) -> None:
+        """A warning, unless this is the first drop and the node will hear the latched env_info again
+        (it subscribes anew while it has not heard the env's own): at a start the graph often shows
+        the env's observation publisher seconds after its env_info came, and the next look takes it."""
+        why = self.refusal(held[1]) or 'its sender is not vouched for'
+        line = f'env_info not obeyed: {why}; dropped after {now - held[0]:.1f} s'
+        if self.announced is None and not self.resubscribed:
+            self.node.get_logger().info(f'{line}; looked at again when it comes again', throttle_duration_sec=5.0)
+        else:
+            self.node.get_logger().warn(line, throttle_duration_sec=5.0)
 
     def _on_env_info(self, msg: EnvInfo) -> None:
         if self.node.context is None or not self.node.context.ok():
