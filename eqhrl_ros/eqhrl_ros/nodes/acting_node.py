@@ -394,17 +394,12 @@ class ActingNode(Node):
             self._finish_step(proposal.action, advised=False)
             return
         protocol = self.protocol
-        if not protocol:  # 'auto' before the env said whether it runs in real time: nothing is asked yet
-            self.start_wait.say_unasked(self.env_info.topic)
-            self._finish_step(
-                *self.learner.resolve_advice(proposal, failure='unavailable').action_and_advised(), 'learner'
-            )
+        if protocol == 'wheel' and self.person_guard.heard_from():
+            # Ask the person to take over from here; the learner drives meanwhile.
+            self._finish_step(self.wheel.ask(proposal, now, key[1], self.pace), advised=False)
             return
-        if protocol == 'wheel':  # ask the person to take over from here; the learner drives meanwhile
-            action = self.wheel.ask(proposal, now, key[1], self.pace)
-            self._finish_step(action, advised=False)
-            return
-        if not self.advice.ready():
+        if protocol != 'answer' or not self.advice.ready():  # nobody to ask: counted as unavailable
+            self.start_wait.say_unasked(protocol, self.env_info.topic, self._person_topic, self.advice.ready())
             self._finish_step(
                 *self.learner.resolve_advice(proposal, failure='unavailable').action_and_advised(), 'learner'
             )

@@ -37,7 +37,7 @@ class OnePublisher:
         self.node, self.topic = node, topic
         self.expected = (expected,) if isinstance(expected, str) else tuple(expected)
         self.expected = tuple(e for e in self.expected if e)
-        self._checked_at, self._verdict = float('-inf'), ''
+        self._checked_at, self._verdict, self._names = float('-inf'), '', frozenset()
         self.refused = 0  # messages admits() turned away
 
     def admits(self, logger, what: str) -> bool:
@@ -56,11 +56,16 @@ class OnePublisher:
             self._checked_at, self._verdict = now, self._judge()
         return self._verdict
 
+    def heard_from(self) -> bool:
+        """Whether one node the topic may be taken from publishes it now (refusal() is '' and the
+        graph names a publisher): a request that only it can answer has someone to reach."""
+        return not self.refusal() and bool(self._names)
+
     def _judge(self) -> str:
         # A publisher whose node the graph no longer names is a participant being torn down (its
         # node gone, its endpoints not yet): not a second node. A restarted node's old endpoints,
         # still there after a kill -9, carry its own name, and count once.
-        names = publishers(self.node, self.topic) - {UNKNOWN_NODE}
+        names = self._names = frozenset(publishers(self.node, self.topic) - {UNKNOWN_NODE})
         if self.expected and names and not names <= set(self.expected):
             return f"'{self.topic}' is published by {sorted(names)}, not by {' or '.join(self.expected)}"
         if len(names) > 1:

@@ -137,12 +137,27 @@ class StartWait:
             while self.held:
                 self._act(self.held.popleft())
 
-    def say_unasked(self, topic: str) -> None:
-        """The gates fired while the pace is still unknown (the wait ran out): nothing is asked."""
-        self._node.get_logger().warn(
-            f"advice_protocol auto: no env_info from the env on '{topic}' in {AUTO_PACE_WAIT_S:g} s, so "
-            'whether it runs in real time (the wheel) or lock-step (one answer) is not known; the gates fired, '
-            'nothing was asked and the learner acts on its own (counted as unavailable; set advice_protocol '
-            'answer or wheel for an env that publishes no env_info)',
-            throttle_duration_sec=5.0,
-        )
+    def say_unasked(self, protocol: str, env_info_topic: str, person_topic: str, advise_served: bool) -> None:
+        """The gates fired and nobody could be asked, in a warning at most every 5 s: the pace is
+        still unknown (protocol '': the wait ran out) or no person can take the wheel. (No node serving
+        'advise' for one answer is said by the episode's line: 'failed 1 (unavailable)'.)"""
+        if protocol == 'wheel':
+            advise = (
+                "; a node serves 'advise': set advice_protocol answer to ask it for one answer instead"
+                if advise_served
+                else ''
+            )
+            self._node.get_logger().warn(
+                f"the gates fired, and nobody can take the wheel: no node publishes '{person_topic}' (the "
+                f"person's teleop_expert), so nothing was asked (counted as unavailable, no person's "
+                f'seconds){advise}',
+                throttle_duration_sec=5.0,
+            )
+        elif not protocol:
+            self._node.get_logger().warn(
+                f"advice_protocol auto: no env_info from the env on '{env_info_topic}' in {AUTO_PACE_WAIT_S:g} s, "
+                'so whether it runs in real time (the wheel) or lock-step (one answer) is not known; the gates '
+                'fired, nothing was asked and the learner acts on its own (counted as unavailable; set '
+                'advice_protocol answer or wheel for an env that publishes no env_info)',
+                throttle_duration_sec=5.0,
+            )

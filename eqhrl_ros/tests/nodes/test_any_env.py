@@ -537,7 +537,7 @@ def test_auto_asks_nothing_until_the_env_says_its_pace_then_asks_for_the_wheel(h
     a learner asked a real-time env's person for one answer until the env's env_info came (the
     robot had moved on); now it holds the first observation for AUTO_PACE_WAIT_S, then acts, and a
     gate that fires asks nothing, counted as unavailable; once the env says it runs in real time,
-    the request is for the wheel."""
+    the request is for the wheel, while a person's teleop_expert is there to take it."""
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=asking_learner_params(tmp_path)))
     expert = StubExpert(ros_context)  # an answer would be served: only the protocol keeps it from being asked
     try:
@@ -562,8 +562,17 @@ def test_auto_asks_nothing_until_the_env_says_its_pace_then_asks_for_the_wheel(h
         info = env_info.env_info_msg(spec, publisher=probe.node.get_fully_qualified_name())
         probe.node.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(info)
         assert harness.spin_until(lambda: learner.env_info.announced is not None, timeout=10)
+        # No node publishes person_command yet: nobody could take the wheel. Before, the requests
+        # were made anyway, each counting person's seconds though no person was there.
         unavailable = learner.learner.episode_advice.failed['unavailable']
         steps(40, 40)
+        assert requests == [] and expert.requests == [] and learner.learner.human_time_total_s == 0
+        assert learner.learner.episode_advice.failed['unavailable'] > unavailable
+        person = harness.add(rclpy.create_node('teleop_expert', context=ros_context))
+        person.create_publisher(Float32MultiArray, 'person_command', 10)
+        assert harness.spin_until(learner.person_guard.heard_from, timeout=10)
+        unavailable = learner.learner.episode_advice.failed['unavailable']
+        steps(80, 40)
         assert requests and all(r.wheel for r in requests) and expert.requests == []
         assert learner.learner.episode_advice.failed['unavailable'] == unavailable
     finally:
@@ -581,9 +590,12 @@ def test_auto_holds_the_first_observation_until_the_env_says_its_pace(harness, r
     learner = harness.add(
         LearnerNode(context=ros_context, parameter_overrides=asking_learner_params(tmp_path, random_ask_rate=1.0))
     )
+    person = harness.add(rclpy.create_node('teleop_expert', context=ros_context))  # who could take the wheel
+    person.create_publisher(Float32MultiArray, 'person_command', 10)
     publisher, probe = observation_publisher(harness)
     requests = []
     probe.node.create_subscription(AdviceRequestMsg, 'learner/advice_request', requests.append, messages.LATCHED_QOS)
+    assert harness.spin_until(learner.person_guard.heard_from, timeout=10)
     for step in range(3):  # the env's ticks before its env_info is heard
         publisher.publish(messages.observation_msg([1.0, 0.0, 0.1 * step], 0.0, False, False, 0, step))
         harness.spin_until(lambda: False, timeout=0.25)
