@@ -24,7 +24,6 @@ camera: in the learner: section (and the camera in gym_env:), the actors read it
 trainer is given no env_id: it takes its spaces and camera from the actors' first batch.
 """
 
-import os
 import re
 import socket
 
@@ -34,6 +33,8 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from eqhrl_ros.files.paths import params_file as shipped_params_file
+from eqhrl_ros.files.paths import shipped
 from eqhrl_ros.files.yaml_files import load_mapping
 from eqhrl_ros.nodes.launching import dds_profile_env, env_node_for, fail_launch_on_error
 from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, SPACE_PARAMS, TRAINER_PARAMS, learner_section_for
@@ -58,9 +59,7 @@ def _prefix(given: str, with_trainer: bool) -> str:
 
 def _nodes(context):
     env = LaunchConfiguration('env').perform(context)
-    params_file = LaunchConfiguration('params_file').perform(context) or os.path.join(
-        get_package_share_directory('eqhrl_ros'), 'params', f'{env}.yaml'
-    )
+    params_file = LaunchConfiguration('params_file').perform(context) or str(shipped_params_file(env))
     data = load_mapping(params_file, 'params file')  # refused in one line, as the nodes refuse it
     shared = _section(data, '/**')
     learner = _section(data, 'learner')
@@ -135,7 +134,7 @@ def generate_launch_description():
             DeclareLaunchArgument(
                 'env',
                 default_value='pendulum',
-                description='params file name: pendulum, lunar_lander, demo or double_integrator',
+                description=f'params file name: {", ".join(shipped("params"))}',
             ),
             DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
             DeclareLaunchArgument('actors', default_value='2', description='actors to start, each with env and expert'),

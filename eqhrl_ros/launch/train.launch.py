@@ -12,14 +12,14 @@ ros2 launch eqhrl_ros train.launch.py env:=teleop_pendulum expert:=teleop   (a p
     console:=false leaves it out (keyboard_teleop or a joystick instead)
 """
 
-import os
-
-from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from eqhrl_ros.core.algorithm.config import MODES
+from eqhrl_ros.files.paths import params_file as shipped_params_file
+from eqhrl_ros.files.paths import shipped
 from eqhrl_ros.files.yaml_files import load_mapping
 from eqhrl_ros.nodes.launching import env_node_for, fail_launch_on_error
 
@@ -29,10 +29,10 @@ EXPERT_NODES = {'expert': 'expert', 'teleop': 'teleop_expert', 'none': None}
 
 def _nodes(context):
     env = LaunchConfiguration('env').perform(context)
-    params_file = LaunchConfiguration('params_file').perform(context) or os.path.join(
-        get_package_share_directory('eqhrl_ros'), 'params', f'{env}.yaml'
-    )
+    params_file = LaunchConfiguration('params_file').perform(context) or str(shipped_params_file(env))
     mode = LaunchConfiguration('mode').perform(context)
+    if mode and mode not in MODES:
+        raise ValueError(f'mode:={mode} is not one of {", ".join(MODES)}')
     env_node = env_node_for(load_mapping(params_file, 'params file'), LaunchConfiguration('env_node').perform(context))
     expert = LaunchConfiguration('expert').perform(context)
     if expert not in EXPERT_NODES:
@@ -91,11 +91,13 @@ def generate_launch_description():
             DeclareLaunchArgument(
                 'env',
                 default_value='pendulum',
-                description='params file name: pendulum, lunar_lander, demo or double_integrator',
+                description=f'params file name: {", ".join(shipped("params"))}',
             ),
             DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
             DeclareLaunchArgument(
-                'mode', default_value='', description='sac, qasac or eqsac (overrides the params file)'
+                'mode',
+                default_value='',
+                description=f'the learning mode, one of {", ".join(MODES)} (overrides the params file)',
             ),
             DeclareLaunchArgument(
                 'expert',

@@ -16,13 +16,18 @@ def share_dir(package: str = 'eqhrl_ros') -> Path:
         return Path(sys.prefix) / 'share' / package
 
 
+def shipped(folder: str) -> list[str]:
+    """The short names of the YAML files shipped in share/eqhrl_ros/<folder> (``params``, ``studies``)."""
+    return sorted(p.stem for p in (share_dir() / folder).glob('*.yaml'))
+
+
 def shared_file(folder: str, name_or_path: str, what: str) -> Path:
     """A YAML file by path, or by short name from share/eqhrl_ros/<folder>
     (``pendulum`` -> share/eqhrl_ros/<folder>/pendulum.yaml); ``what`` names it in the error.
     A path (a folder in it, or a suffix) is only ever that file: a mistyped path to a user's own
     ``pendulum.yaml`` used to fall back to the shipped one, silently."""
     path = Path(name_or_path)
-    available = sorted(p.stem for p in (share_dir() / folder).glob('*.yaml'))
+    available = shipped(folder)
     if path.name != name_or_path or path.suffix:  # a path: that file, never a shipped one of its name
         if not path.is_file():
             raise FileNotFoundError(f'no {what} {name_or_path!r}: no such file (or give one of {available})')

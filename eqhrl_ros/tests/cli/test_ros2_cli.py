@@ -14,6 +14,8 @@ import time
 
 import pytest
 
+from eqhrl_ros.core.algorithm.config import MODES
+
 from process_helpers import settled, wait_for
 
 pytestmark = pytest.mark.slow
@@ -135,6 +137,26 @@ def test_the_launch_files_start_the_env_node_of_the_params_file(
         ['python3', '-c', LAUNCH_NODES, str(path), *arguments], env=ros2_env, capture_output=True, text=True, timeout=60
     )
     assert result.returncode == 0 and result.stdout.split() == nodes.split(), result.stdout + result.stderr[-2000:]
+
+
+def test_the_launch_files_name_their_choices_and_refuse_others_naming_them(ros2_env, colcon_install):
+    """Before: the env argument's description named 4 of the 6 shipped params files (not the
+    teleop ones the README launches), mode's named 3 of the 10 modes, and env:=<a typo> said only
+    that a file could not be read."""
+    share = colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros'
+    names = sorted(p.stem for p in (share / 'params').glob('*.yaml'))
+    assert 'teleop_pendulum' in names
+    shown = ros2(ros2_env, 'launch', 'eqhrl_ros', 'train.launch.py', '--show-args')
+    assert f'params file name: {", ".join(names)}' in shown, shown
+    assert f'one of {", ".join(MODES)}' in shown, shown
+    path = share / 'launch' / 'train.launch.py'
+    for argument, refusal in [
+        ('env:=bogus', f"no params file 'bogus'; give a path or one of {names}"),
+        ('mode:=bogus', f'mode:=bogus is not one of {", ".join(MODES)}'),
+    ]:
+        command = ['python3', '-c', LAUNCH_NODES, str(path), argument]
+        result = subprocess.run(command, env=ros2_env, capture_output=True, text=True, timeout=60)
+        assert result.returncode != 0 and refusal in result.stderr, result.stderr[-2000:]
 
 
 def test_train_launch_and_the_readmes_ros2_commands(ros2_env, tmp_path):
