@@ -84,7 +84,8 @@ lint: $(VENV)/.stamp-deps
 test: system-deps setup ros2-tools lint
 	$(VENV)/bin/pytest eqhrl_ros/tests --durations=25
 
-# Feedback for a developer in under a minute: everything but the tests marked slow.
+# A developer's loop: everything but the tests marked slow, stopping at the first failure
+# (about 4 minutes on 2 cores, against about 12 for make test's pytest).
 test-fast: setup
 	$(VENV)/bin/pytest eqhrl_ros/tests -m "not slow" -x -q
 
