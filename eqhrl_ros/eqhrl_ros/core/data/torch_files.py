@@ -97,10 +97,18 @@ def check_zip(path: Path, expected_format: str, max_bytes: int | None) -> None:
             )
 
 
+def not_a_file(path: Path) -> str:
+    """Why ``path`` cannot be read as a file ('' when it can): missing, or a folder (a run's folder
+    where its policy.pt or checkpoint.pt was meant)."""
+    if path.is_dir():
+        return f'{path}: a folder, not a file'
+    return '' if path.is_file() else f'{path}: no such file'
+
+
 def safe_load(path: Path, expected_format: str, max_bytes: int | None = None) -> dict:
     path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f'{path}: no such file')
+    if not_a_file(path):
+        raise CheckpointError(not_a_file(path))
     check_zip(path, expected_format, max_bytes)
     try:
         obj = torch.load(path, map_location='cpu', weights_only=True)
@@ -118,7 +126,7 @@ def safe_load(path: Path, expected_format: str, max_bytes: int | None = None) ->
         raise CheckpointError(f'{path}: not a readable {expected_format} file ({first_line})') from error
     if not isinstance(obj, dict) or obj.get('format') != expected_format:
         found = obj.get('format') if isinstance(obj, dict) else type(obj).__name__
-        raise CheckpointError(f'{path}: expected a {expected_format} file, found {found!r}')
+        raise CheckpointError(f'{path}: expected an {expected_format} file, found {found!r}')
     if obj.get('version') != FORMAT_VERSION:
         raise CheckpointError(f'{path}: format version {obj.get("version")!r}, this code reads {FORMAT_VERSION}')
     return obj

@@ -28,7 +28,7 @@ import torch
 
 from ..data.errors import CheckpointError
 from .records import previous_replay_path
-from ..data.torch_files import FORMAT_VERSION, check_zip, replace_file, safe_load, write_temporary
+from ..data.torch_files import FORMAT_VERSION, check_zip, not_a_file, replace_file, safe_load, write_temporary
 
 CHECKPOINT_FORMAT = 'eqhrl_ros.checkpoint'
 REPLAY_FORMAT = 'eqhrl_ros.replay'
@@ -142,8 +142,8 @@ def check_checkpoint_file(path) -> None:
     """Refuse at once, without unpickling, a checkpoint that is missing or not one (before a
     learner exists to load it into: a node still waiting for the env's spaces)."""
     path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f'{path}: no such file')
+    if not_a_file(path):
+        raise CheckpointError(not_a_file(path))
     check_zip(path, CHECKPOINT_FORMAT, None)
 
 

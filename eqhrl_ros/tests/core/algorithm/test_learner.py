@@ -267,9 +267,10 @@ def test_corrupt_and_foreign_checkpoints_give_clear_errors_and_change_nothing(tm
     for name, message in [
         ('truncated.pt', 'not a readable'),
         ('text.pt', 'not a readable'),
-        ('other.pt', 'expected a eqhrl_ros.checkpoint'),
+        ('other.pt', 'expected an eqhrl_ros.checkpoint'),
         ('lunar.pt', 'observations of 8'),
         ('missing.pt', 'no such file'),
+        ('.', 'a folder, not a file'),  # a run's folder where its checkpoint was meant
     ]:
         with pytest.raises(CheckpointError, match=message):
             load_checkpoint(target, tmp_path / name)
@@ -291,6 +292,8 @@ def test_a_malicious_pickle_is_refused_without_running_code(tmp_path):
     with pytest.raises(CheckpointError):
         PolicyExpert(tmp_path / 'evil.pt')
     assert not os.path.exists(marker)
+    with pytest.raises(CheckpointError, match='a folder, not a file'):  # before: 'no such file'
+        PolicyExpert(tmp_path)
 
 
 def test_exported_policy_serves_the_learners_deterministic_action(tmp_path):
