@@ -38,9 +38,8 @@ class LearnerNode(RunFiles, ActingNode):
             # A bad checkpoint stops start-up with CheckpointError: silently starting
             # from scratch would overwrite the run the person asked to continue.
             load_checkpoint(learner, self.checkpoint_path, self.replay_path)
-            self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')
+            self._resumed(learner)
             self._show_resumed_settings(learner)
-            self._finished_when_resumed(learner.episode)
             if self.params['prior']:
                 self.get_logger().info('prior not loaded: it seeds a fresh start only (a resumed run goes on as saved)')
         elif self.params['prior']:

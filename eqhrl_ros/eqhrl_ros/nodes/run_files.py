@@ -33,6 +33,18 @@ class RunFiles:
             # A missing or corrupt checkpoint is refused now, not after waiting for the env.
             check_checkpoint_file(self.checkpoint_path)
 
+    def _resumed(self, learner) -> None:
+        """Say where the run goes on from, and which of its settings the resume changed (before,
+        a run resumed with another mode or learning rate went on with them unsaid); then
+        _finished_when_resumed."""
+        self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')
+        if learner.resumed_changes:
+            self.get_logger().warn(
+                f'resumed with settings other than the run had at its save: {"; ".join(learner.resumed_changes)}. '
+                f'The episodes from {learner.episode} on learn with them (overwrite: true starts the run anew)'
+            )
+        self._finished_when_resumed(learner.episode)
+
     def _finished_when_resumed(self, episode: int) -> None:
         """A resumed run that has already reached max_episodes learns and stores nothing more,
         not one episode more (as after the episode that reached it); one line says so."""

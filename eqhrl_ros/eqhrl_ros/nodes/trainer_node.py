@@ -135,8 +135,7 @@ class TrainerNode(RunFiles, Node):
         extra = None
         if self.params['resume']:
             extra = load_checkpoint(learner, self.checkpoint_path, self.replay_path)
-            self.get_logger().info(f'resumed from {self.checkpoint_path} at episode {learner.episode}')
-            self._finished_when_resumed(learner.episode)
+            self._resumed(learner)
         p = self.params
         self.record = EpisodeRecord(
             self.csv_path, TRAINER_CSV_FIELDS, keep_before=learner.episode if p['resume'] else None

@@ -439,16 +439,21 @@ def test_env_throttles_its_rejection_log(harness, ros_context, capfd):
     assert 1 <= logged <= 2
 
 
-def test_a_resumed_run_that_reached_max_episodes_learns_and_writes_nothing_more(harness, ros_context, tmp_path):
+def test_a_resumed_run_that_reached_max_episodes_learns_and_writes_nothing_more(harness, ros_context, tmp_path, capfd):
     """Resuming a run that has reached max_episodes (the same params file again) adds not one
     episode more: the learner says so in one line and leaves the env alone; with
-    shutdown_when_done (eqhrl-train --resume), it ends once spinning, not mid-construction."""
+    shutdown_when_done (eqhrl-train --resume), it ends once spinning, not mid-construction.
+    Resumed with another mode and critic_lr, it says so in a warning (before: not a word)."""
     first, _ = run_learner(harness, ros_context, tmp_path, episodes=2)
     steps = first.learner.total_steps
     first.close()
     harness.executor.remove_node(first)
-    overrides = small_learner_params(tmp_path, max_episodes=2, resume=True)
+    capfd.readouterr()
+    overrides = small_learner_params(tmp_path, max_episodes=2, resume=True, mode='qasac', critic_lr=5e-4)
     resumed = harness.add(LearnerNode(context=ros_context, parameter_overrides=overrides))
+    said = capfd.readouterr().err
+    assert "resumed with settings other than the run had at its save: mode 'qasac' (was 'eqsac'); critic_lr " in said
+    assert 'advising_budget' not in said.split('resumed with settings')[1].splitlines()[0]
     harness.spin_until(lambda: False, timeout=2.0)  # the env re-sends its observation meanwhile
     assert resumed.done and resumed.learner.total_steps == steps and resumed.learner.episode == 2
     assert len(rows_of(tmp_path / 'episodes.csv')) == 2

@@ -45,7 +45,7 @@ from .advice_window import AdviceBudget, AdviceWindow
 from .advising import GateDecision, gates_for
 from .config import SCORE_MODES, LearnerConfig, check_value
 from .critics import Critics
-from .learner_state import check_camera, check_state, resumed_settings
+from .learner_state import check_camera, check_state, resumed_changes, resumed_settings
 from .memories import ReplayMemories
 from .networks import SquashedGaussianActor, TwinCritic, check_fits_in_memory
 from .observations import CameraObservation, VectorObservation
@@ -94,6 +94,7 @@ class EQSACLearner:
         """``obs_dim``: the observation's vector; with a ``camera``, the state vector beside it
         (0: pixels alone), and an observation is {'state': vector, 'pixels': uint8 [k, H, W, C]}."""
         self.config = cfg = config or LearnerConfig()
+        self.resumed_changes: list = []  # settings a resume changed from its checkpoint's (learner_state.py)
         self.device = learning_device(cfg.device)
         self.observation: VectorObservation | CameraObservation
         if camera is None:
@@ -492,6 +493,7 @@ class EQSACLearner:
         self.tally = RunTally(int(counters['episode']), int(counters['total_steps']), advice_total)
         # The settings a person may change while the run goes on (the budgets) come back as they
         # were at the save: a resumed run keeps the budget set on the page or with ros2 param set.
+        self.resumed_changes = resumed_changes(state['config'], self.config)
         for name in resumed_settings(state['config']):
             setattr(self.config, name, check_value(name, state['config'][name]))
         self._reset_episode()

@@ -109,3 +109,25 @@ def resumed_settings(saved_config: dict) -> list:
     from .config import CONFIG_FIELDS
 
     return [name for name, f in CONFIG_FIELDS.items() if f.metadata['dynamic'] and name in saved_config]
+
+
+# Settings that change how fast a run goes, not what it learns: a resume may change them unsaid.
+SPEED_SETTINGS = ('device', 'compile_update')
+
+
+def resumed_changes(saved_config: dict, config) -> list:
+    """The settings a resume changes from those its checkpoint was saved with, each as 'name now
+    (was saved)': a resumed run learns on with them, which a person should hear (a mode or a
+    learning rate changed by a params file edited since). The run-time settings come back as
+    saved (resumed_settings), hidden layers must match, and SPEED_SETTINGS are left out."""
+    from .config import CONFIG_FIELDS, ros_name
+
+    now = config.to_dict()
+    return [
+        f'{ros_name(f)} {now[name]!r} (was {saved_config[name]!r})'
+        for name, f in CONFIG_FIELDS.items()
+        if name in saved_config
+        and not f.metadata['dynamic']
+        and name not in SPEED_SETTINGS
+        and saved_config[name] != now[name]
+    ]

@@ -252,6 +252,20 @@ def _state_tensors(learner):
     ]
 
 
+def test_a_resume_names_the_settings_it_changes_from_the_checkpoints(tmp_path):
+    """Before, a run resumed with another mode or learning rate went on with them unsaid. Speed
+    settings (compile_update, device) and the run-time budgets (which come back as saved) are
+    not changes of the run."""
+    save_checkpoint(small_learner('random'), tmp_path / 'run.pt')
+    same = small_learner('random', compile_update=True)
+    load_checkpoint(same, tmp_path / 'run.pt')
+    assert same.resumed_changes == []
+    other = small_learner('eqsac', critic_lr=5e-4, advising_budget=3)
+    load_checkpoint(other, tmp_path / 'run.pt')
+    assert other.resumed_changes == ["mode 'eqsac' (was 'random')", 'critic_lr 0.0005 (was 0.001)']
+    assert other.config.advising_budget == 10  # as saved
+
+
 def test_corrupt_and_foreign_checkpoints_give_clear_errors_and_change_nothing(tmp_path):
     learner = small_learner()
     save_checkpoint(learner, tmp_path / 'good.pt')
