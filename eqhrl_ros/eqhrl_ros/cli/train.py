@@ -61,8 +61,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         choices=ADVICE_PROTOCOLS,
         help='overrides learner advice_protocol (auto: the wheel in a real-time env, one answer in lock-step)',
     )
-    parser.add_argument('--resume', action='store_true', help='continue from <output>/checkpoint.pt')
-    parser.add_argument('--overwrite', action='store_true', help='replace a run already in the output folder')
+    run_folder = parser.add_mutually_exclusive_group()
+    run_folder.add_argument('--resume', action='store_true', help='continue from <output>/checkpoint.pt')
+    run_folder.add_argument('--overwrite', action='store_true', help='replace a run already in the output folder')
     parser.add_argument('--record', action='store_true', help="write <output>/record.mcap (the learner's record: true)")
     parser.add_argument(
         '--prior',

@@ -19,7 +19,7 @@ def run_params(output_dir: str) -> tuple:
             'overwrite',
             False,
             'Replace a run already in output_dir (episodes.csv, checkpoint, replay, policy); '
-            'without it (or resume) such a folder is refused',
+            'without it (or resume) such a folder is refused, and so is the two together',
         ),
         Param(
             'max_episodes',

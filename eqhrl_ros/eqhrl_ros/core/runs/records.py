@@ -61,6 +61,11 @@ class RunFolder:
         self.replay = self.path / 'replay.pt'
         self.policy = self.path / 'policy.pt'
         self.episodes = self.path / 'episodes.csv'
+        if resume and overwrite:  # before: resume won, unsaid
+            raise RunFolderError(
+                f"resume and overwrite both given: resume continues the run in '{self.path}', overwrite replaces it; "
+                'give one'
+            )
         if self.path.exists() and not self.path.is_dir():
             raise RunFolderError(f"output folder '{self.path}' is a file")
         try:
@@ -80,7 +85,7 @@ class RunFolder:
             raise RunFolderError(f"nothing to resume: '{self.checkpoint}' does not exist")
         self.removed_temporaries = remove_stale_temporaries(self.path)
         self.provenance = note_provenance(self.path)  # what made this start of the run
-        if overwrite and not resume:
+        if overwrite:
             for name in RUN_FILES:
                 (self.path / name).unlink(missing_ok=True)
             for record in self.path.glob(RECORD_FILES):  # the MCAP record (record: true), resumes included

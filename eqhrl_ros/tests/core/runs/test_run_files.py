@@ -293,6 +293,11 @@ def test_folders_that_cannot_be_used_are_refused_with_one_line(tmp_path):
         RunFolder(a_file / 'run')
     with pytest.raises(RunFolderError, match='nothing to resume'):
         RunFolder(tmp_path / 'empty', resume=True)
+    (tmp_path / 'run').mkdir()
+    (tmp_path / 'run' / 'episodes.csv').write_text('episode\n0\n')
+    with pytest.raises(RunFolderError, match='resume and overwrite both given'):  # before: resume won, unsaid
+        RunFolder(tmp_path / 'run', resume=True, overwrite=True)
+    assert (tmp_path / 'run' / 'episodes.csv').exists()
 
 
 def test_a_fresh_record_is_there_with_its_header_before_the_first_row(tmp_path, monkeypatch):
