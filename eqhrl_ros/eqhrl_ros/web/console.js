@@ -258,18 +258,35 @@ function showRequest() {
   }
 }
 
+// One audio context for the page's tones. A browser lets a page sound only after the person's
+// first gesture on it (its autoplay policy), so the context is made, or resumed, then; until
+// then the page says so beside the sound box. (Before: a new context for every request, each
+// left open, and silent, with a console warning, until the person had touched the page.)
+let audio = null;
+
+function unlockAudio() {
+  try {
+    audio = audio || new (window.AudioContext || window.webkitAudioContext)();
+    if (audio.state === 'suspended') audio.resume().then(showSoundState, showSoundState);
+  } catch (error) { audio = null; /* no audio device: the flash remains */ }
+  showSoundState();
+}
+
+function showSoundState() {
+  $('sound-locked').hidden = audio !== null && audio.state === 'running';
+}
+
+['pointerdown', 'keydown'].forEach((kind) => window.addEventListener(kind, unlockAudio, { capture: true }));
+
 function alertPerson(box) {
   box.classList.add('flash');
   setTimeout(() => box.classList.remove('flash'), 1100);
-  if (!$('sound').checked) return;
-  try {
-    const audio = new (window.AudioContext || window.webkitAudioContext)();
-    const tone = audio.createOscillator();
-    tone.frequency.value = 880;
-    tone.connect(audio.destination);
-    tone.start();
-    tone.stop(audio.currentTime + 0.15);
-  } catch (error) { /* no audio device: the flash remains */ }
+  if (!$('sound').checked || audio === null || audio.state !== 'running') return;
+  const tone = audio.createOscillator();
+  tone.frequency.value = 880;
+  tone.connect(audio.destination);
+  tone.start();
+  tone.stop(audio.currentTime + 0.15);
 }
 
 function drawBars() {

@@ -40,6 +40,7 @@ def browser():
     for argument in ('--headless=new', '--no-sandbox', '--disable-gpu', '--disable-dev-shm-usage'):
         options.add_argument(argument)
     options.add_argument('--window-size=1400,1000')
+    options.set_capability('goog:loggingPrefs', {'browser': 'ALL'})  # the page's console, read by tests
     driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
     try:
         yield driver
@@ -126,6 +127,14 @@ def test_a_person_advises_from_the_browser(browser, ros_context, tmp_path):
                 return getattr(done, kind) + getattr(current, kind)
 
         totals = Counted()
+        # The browser lets the page sound only after a gesture: until then the page says so. Before,
+        # each request made a new audio context, silent until then, and the console warned of it.
+        hidden = "return document.getElementById('sound-locked').hidden"
+        assert browser.execute_script(hidden) is False
+        ActionChains(browser).send_keys(Keys.ARROW_RIGHT, Keys.ARROW_LEFT).perform()
+        wait_for(lambda: browser.execute_script(hidden), what='the sound allowed after a key press')
+        # Nothing in the page's console: no favicon 404 (before: one error at each load), no warning.
+        assert [e['message'] for e in browser.get_log('browser') if e['level'] in ('WARNING', 'SEVERE')] == []
 
         def pending():
             return browser.execute_script("return document.getElementById('request').className") == 'pending'
