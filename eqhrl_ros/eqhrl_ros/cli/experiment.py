@@ -42,7 +42,7 @@ from ..core.experts.factory import EXPERT_BACKENDS
 from ..experiments.experiment_runs import submit_runs, wait_for_runs, write_settings
 from ..experiments.gather import gather
 from ..experiments.progress import EpisodeCount
-from ..experiments.run_pool import ClusterUnavailable, progress_queue, run_pool, stopping_like_ctrl_c
+from ..experiments.run_pool import ClusterUnavailable, RunFailed, progress_queue, run_pool, stopping_like_ctrl_c
 from ..experiments.seed_runs import (
     run_dir,
     seeds_together_by_default,
@@ -187,6 +187,10 @@ def main(argv=None) -> int:
     except ClusterUnavailable as error:
         print(f'eqhrl-experiment: {error}', file=sys.stderr)
         return 2
+    except RunFailed as error:
+        print(f'eqhrl-experiment: {error}; finished runs are kept: run the same command to continue', file=sys.stderr)
+        gather(output, args.algorithms, args.seeds)
+        return 1
     path = gather(output, args.algorithms, args.seeds)
     print(f'all runs finished in {(time.monotonic() - start) / 60:.1f} min; episodes in {path}')
     return 0

@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+from .run_pool import RunFailed
 from .settings import Settings, env_node_command
 
 
@@ -70,7 +71,7 @@ def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Pa
                 if env_node is not None and env_node.poll() is not None:
                     process.send_signal(signal.SIGINT)  # the env is gone: stop and save
                     process.wait()
-                    raise RuntimeError(
+                    raise RunFailed(
                         f'the env node exited ({env_node.returncode}) for {algorithm} seed {seed}; '
                         f'see {directory / "env_node.log"}'
                     )
@@ -84,7 +85,7 @@ def run_through_ros(settings: Settings, algorithm: str, seed: int, directory: Pa
                     env_node.kill()
                     env_node.wait()
     if process.returncode != 0:
-        raise RuntimeError(f'eqhrl-train failed for {algorithm} seed {seed}; see {directory / "train.log"}')
+        raise RunFailed(f'eqhrl-train failed for {algorithm} seed {seed}; see {directory / "train.log"}')
 
 
 def _report_new_rows(path: Path, seen: int, algorithm: str, seed: int, progress) -> int:

@@ -26,6 +26,11 @@ class ClusterUnavailable(RuntimeError):
     """--cluster names no reachable scheduler, or one without workers."""
 
 
+class RunFailed(RuntimeError):
+    """A run's own process ended with an error (eqhrl-train, or the user's env node), which its log
+    in the run's folder explains: the command says so in one line, not with the worker's traceback."""
+
+
 class NoProgress:
     """Stands in for the progress queue where runs go to other hosts (a local Manager queue
     cannot reach them): the commands then count finished runs by their DONE marks."""

@@ -13,7 +13,7 @@ from pathlib import Path
 import yaml
 
 from . import gather as gathering
-from .run_pool import ClusterUnavailable, progress_queue, run_pool, stopping_like_ctrl_c
+from .run_pool import ClusterUnavailable, RunFailed, progress_queue, run_pool, stopping_like_ctrl_c
 from .seed_runs import GATE_FIELDS, run_dir, run_worker
 from .study_plan import Arm, Plan, budget_of
 
@@ -208,6 +208,10 @@ def run_study(plan: Plan, settings: dict, output: Path, todo: list, jobs: int, c
     except ClusterUnavailable as error:
         print(f'eqhrl-study: {error}', file=sys.stderr)
         return 2, finished
+    except RunFailed as error:
+        print(f'eqhrl-study: {error}; finished runs are kept: run the same command to continue', file=sys.stderr)
+        gather(output, plan)
+        return 1, finished
     gather(output, plan)
     print(f'{finished} runs finished in {(time.monotonic() - start) / 60:.1f} min; gathered in {output}')
     return 0, finished

@@ -73,6 +73,13 @@ def test_the_experiment_runner_drives_a_users_env_node_by_command(tmp_path, caps
     assert 'double_integrator: lock-step' in (tmp_path / 'out' / 'sac' / 'seed4' / 'env_node.log').read_text()
     assert experiment.main([*common, '--env-node', command, '--output', str(tmp_path / 'x')]) == 2
     assert '--env-node runs an env node, so it needs --through-ros' in capsys.readouterr().err
+    # An env node that exits with an error: one line naming its log, not the worker's traceback (before).
+    failing = 'double_integrator_env --ros-args -p seed:=-1'
+    arguments = ['--params', str(params), '--algorithms', 'sac', '--seeds', '4', '--through-ros']
+    assert experiment.main([*arguments, '--env-node', failing, '--output', str(tmp_path / 'y')]) == 1
+    said = capsys.readouterr().err
+    assert f'eqhrl-experiment: the env node exited (1) for sac seed 4; see {tmp_path / "y" / "sac" / "seed4"}' in said
+    assert 'Traceback' not in said
 
 
 def test_parallel_runs_of_one_experiment_never_share_a_ros_domain():
