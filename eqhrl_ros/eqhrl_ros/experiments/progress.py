@@ -25,8 +25,9 @@ class EpisodeCount:
 
     def line(self, runs_done: int, runs: int, seconds: float) -> str:
         rate = self.run_here / max(seconds, 1e-9)
-        eta = (self.total - self.done) / rate if rate > 0 else float('nan')
+        # No episode finished here yet: no rate to go by (before: 'eta nan min').
+        eta = f'{(self.total - self.done) / rate / 60:5.1f} min' if rate > 0 else '    ? min'
         return (
             f'[{self.done}/{self.total} episodes, {runs_done}/{runs} runs] '
-            f'{100 * self.done / max(self.total, 1):5.1f}%  eta {eta / 60:5.1f} min'
+            f'{100 * self.done / max(self.total, 1):5.1f}%  eta {eta}'
         )
