@@ -61,9 +61,9 @@ def summarize(runs, threshold: float) -> list[dict]:
     for algorithm in algorithms:
         per_run = [runs[key] for key in sorted(runs) if key[0] == algorithm]
 
-        def stat(values):
+        def stat(values):  # mean and spread over runs; one run has no spread (not '± 0')
             values = np.asarray(values, dtype=float)
-            return float(values.mean()), float(values.std())
+            return float(values.mean()), float(values.std()) if len(values) > 1 else math.nan
 
         tail = [max(1, len(r['return']) // 10) for r in per_run]
         reach = [episodes_to_reach(r['return'], threshold) for r in per_run]
@@ -90,6 +90,8 @@ def format_table(table: list[dict], threshold: float) -> str:
         mean, std = pair
         if math.isnan(mean):
             return '—'
+        if math.isnan(std):  # one run
+            return f'{100 * mean:.{digits}f} %' if percent else f'{mean:.{digits}f}'
         if percent:
             return f'{100 * mean:.{digits}f} ± {100 * std:.{digits}f} %'
         return f'{mean:.{digits}f} ± {std:.{digits}f}'

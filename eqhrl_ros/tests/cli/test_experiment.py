@@ -111,7 +111,12 @@ def test_report_table_shows_the_known_values(tmp_path):
     assert eqsac['reached'] == 2 and 17 <= eqsac['episodes_to_threshold'][0] <= 21
     text = run_report.format_table(list(table.values()), -200.0)
     assert '| EQSAC | 2 | 40 | 4 ± 1 | 8 ± 2 | 0.0 ± 0.0 | 100 ± 0 % | 50 ± 0 % |' in text
-    assert '(1 of 2 runs reached it)' in text
+    # One run has no spread: its value alone (before: '± 0', as if two runs had agreed).
+    reached = [line for line in text.splitlines() if '(1 of 2 runs reached it)' in line]
+    assert len(reached) == 1 and '±' not in reached[0].split('|')[-2], reached
+    runs = run_report.read_runs([tmp_path / 'runs'])
+    one = run_report.summarize({key: run for key, run in runs.items() if key[1] == 0}, -200.0)
+    assert '±' not in run_report.format_table(one, -200.0).splitlines()[2]
 
 
 def test_report_command_writes_table_and_figures(tmp_path):
