@@ -45,7 +45,7 @@ from .health import Health
 from .messages import printable_name
 from .params import choices_validator, declare, reject_unknown_overrides
 from .run_files import RunFiles
-from .spinning import run_node, steady_clock, stop_with_error
+from .spinning import leaves_nothing_when_refused, run_node, steady_clock, stop_with_error
 from .trainer_exit import stop_save_and_close
 
 STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -68,6 +68,7 @@ def give_back_freed_memory() -> None:
 
 
 class TrainerNode(RunFiles, Node):
+    @leaves_nothing_when_refused
     def __init__(self, **kwargs):
         super().__init__('trainer', **kwargs)
         reject_unknown_overrides(self, LEARNER_CONFIG_PARAMS, TRAINER_PARAMS)
@@ -120,13 +121,14 @@ class TrainerNode(RunFiles, Node):
         self._hold = threading.Event()  # set while another thread saves
         self._save_due = False  # an episode made a periodic checkpoint due (checkpoint_every_episodes)
         self._stopping = threading.Event()
-        self._learning = threading.Thread(target=self._learn, name='trainer-updates', daemon=True)
-        self._learning.start()
 
         self.health = Health(self, self.health_checks)
         spec = configured_spec(p)
         if spec is not None:
             self._build(spec.observation_size, spec.action_low, spec.action_high)
+        # Last: a trainer that refuses to start (above) leaves no learning thread behind.
+        self._learning = threading.Thread(target=self._learn, name='trainer-updates', daemon=True)
+        self._learning.start()
 
     def _build(self, obs_dim: int, action_low, action_high, camera: Optional[CameraSpec] = None) -> None:
         """The learner for these spaces and camera (with resume, from the checkpoint); weights go out at once."""

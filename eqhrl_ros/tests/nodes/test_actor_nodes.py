@@ -67,6 +67,26 @@ def test_a_trainer_told_nobody_refuses_to_start(ros_context, tmp_path):
         TrainerNode(context=ros_context, parameter_overrides=params(**values))
 
 
+def test_a_trainer_that_refuses_to_start_leaves_no_publisher_or_thread(ros_context, tmp_path):
+    """Refused after its publishers were made (spaces that contradict env_id): before, the half-built
+    trainer stayed on the graph with its weights and acknowledgement publishers, and its learning
+    thread ran on, in any process that goes on (a test run's)."""
+    import threading
+
+    values = dict(ALGORITHM, output_dir=str(tmp_path / 'trainer'), accept_any_actor=True, observation_size=5)
+    values.update(action_low=[-2.0], action_high=[2.0])
+    probe = rclpy.create_node('probe', namespace='/refused_trainer', context=ros_context)
+    try:
+        with pytest.raises(ValueError, match='the parameters give'):
+            TrainerNode(context=ros_context, namespace='/refused_trainer', parameter_overrides=params(**values))
+        for topic in ('/weights', '/transitions_ack', '/refused_trainer/trainer/episode_stats'):
+            publishers = probe.get_publishers_info_by_topic(topic)
+            assert not [i for i in publishers if i.node_namespace == '/refused_trainer'], topic
+        assert not any(t.name == 'trainer-updates' and t.is_alive() for t in threading.enumerate())
+    finally:
+        probe.destroy_node()
+
+
 def batch_message(actor: str, sequence: int = 0, n: int = 5, advised: bool = False) -> TransitionBatch:
     """A well-formed TransitionBatch of n zero transitions on Pendulum's spaces."""
     return TransitionBatch(
