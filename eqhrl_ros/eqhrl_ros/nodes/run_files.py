@@ -130,3 +130,9 @@ def save_and_close(node: RunFiles) -> None:
             node.get_logger().error(str(close_error))
         raise ExitError(f'checkpoint not saved at exit: {error}; the last saved checkpoint is intact') from error
     node.close()
+    learner = node.learner
+    if learner is not None:  # the last line of a run that ends well (before: nothing after the last episode)
+        node.get_logger().info(
+            f'saved in {node.output_dir}: {learner.episode} episodes, {learner.total_steps} steps, '
+            f'{learner.updates} updates (checkpoint.pt, policy.pt, episodes.csv)'
+        )

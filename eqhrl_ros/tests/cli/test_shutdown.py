@@ -94,6 +94,9 @@ def test_every_node_exits_0_and_quietly_on_a_signal_and_a_second_one(tmp_path, s
         assert clean(logs[name]), (name, logs[name][-3000:])
     state = torch.load(out / 'checkpoint.pt', weights_only=True)
     assert state['counters']['episode'] >= 2
+    # Its last line says what was saved, where (before: nothing after the last episode's line).
+    saved = f'saved in {out}: {state["counters"]["episode"]} episodes, '
+    assert saved in logs['learner'].strip().splitlines()[-1], logs['learner'][-1000:]
 
 
 @pytest.mark.slow
