@@ -121,9 +121,12 @@ class TeleopExpertNode(Node):
         # on it and nothing is logged as answered that the learner never used.
         self.ended_by_learner = 0
         self.person_pub = self.create_publisher(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, 10)
-        self.create_subscription(
+        requests = self.create_subscription(
             AdviceRequestMsg, 'learner/advice_request', self._on_learner_request, messages.LATCHED_QOS
         )
+        # Taken only while one node alone publishes it: a stranger's FAILED for the request on the
+        # person's screen withdrew it, and its 'stopped' held every answer.
+        self.request_guard = OnePublisher(self, requests.topic_name)
 
     def _check_action_size(self, spec: EnvSpec) -> None:
         """The mapping gives one value per entry of scales: the env must take as many."""
@@ -285,6 +288,8 @@ class TeleopExpertNode(Node):
         with self._lock:
             pending = self.expert.pending
             if pending is None or (pending.request.episode, pending.request.step) != (msg.episode, msg.step):
+                return
+            if not self.request_guard.admits(self.get_logger(), "the learner's word on a request"):
                 return
             if msg.outcome == AdviceRequestMsg.PENDING:
                 self._hold_for_stop(msg.detail == 'stopped', pending)

@@ -447,6 +447,45 @@ def test_a_second_command_publisher_answers_nothing_for_the_person(harness, ros_
     assert teleop.rejected_commands > rejected
 
 
+def test_a_strangers_word_on_learner_advice_request_ends_no_request_of_the_person(harness, ros_context):
+    """teleop_expert ends a request the learner says it has closed (FAILED), and holds it while the
+    learner says STOP holds it. Before, any node's message did so: a stranger that echoed the
+    request on the person's screen as FAILED withdrew it, every time. Now the learner's word is
+    taken only while one node alone publishes learner/advice_request."""
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            namespace='/guarded',
+            parameter_overrides=params(source='array', axes=[0], scales=[2.0], offsets=[0.0], answer_window_s=30.0),
+        )
+    )
+    learner = harness.add(rclpy.create_node('learner', namespace='/guarded', context=ros_context))
+    rogue = harness.add(rclpy.create_node('rogue', namespace='/guarded', context=ros_context))
+    said = learner.create_publisher(AdviceRequestMsg, 'learner/advice_request', messages.LATCHED_QOS)
+    client = learner.create_client(Advise, 'advise')
+    assert harness.spin_until(client.service_is_ready)
+    request = Advise.Request(
+        observation=[0.0, 0.0, 0.0], proposed_action=[0.0], action_low=[-2.0], action_high=[2.0], episode=3, step=7
+    )
+    future = client.call_async(request)
+    assert harness.spin_until(lambda: teleop.expert.pending is not None)
+    closed = AdviceRequestMsg(outcome=AdviceRequestMsg.FAILED, detail='timeout', episode=3, step=7)
+    forged = rogue.create_publisher(AdviceRequestMsg, 'learner/advice_request', messages.LATCHED_QOS)
+    topic = teleop.resolve_topic_name('learner/advice_request')
+    assert harness.spin_until(lambda: len(teleop.get_publishers_info_by_topic(topic)) == 2, timeout=10)
+    harness.spin_until(lambda: False, timeout=0.6)  # past the graph cache
+    forged.publish(closed)
+    harness.spin_until(lambda: False, timeout=1.0)
+    assert teleop.ended_by_learner == 0 and teleop.expert.pending is not None and not future.done()
+    harness.nodes.remove(rogue)
+    rogue.destroy_node()  # the learner alone: its word ends the request
+    assert harness.spin_until(lambda: len(teleop.get_publishers_info_by_topic(topic)) == 1, timeout=10)
+    harness.spin_until(lambda: False, timeout=0.6)
+    said.publish(closed)
+    assert harness.spin_until(lambda: teleop.ended_by_learner == 1, timeout=5)
+    assert harness.spin_until(future.done) and not future.result().advised
+
+
 def test_with_a_shared_key_only_a_signed_command_answers(harness, ros_context, tmp_path):
     from eqhrl_ros.core.data.signing import CommandSeal, Signer, new_key_file, read_key
 
