@@ -40,7 +40,7 @@ from . import messages
 from .console_camera import LearnerCamera
 from .console_server import AskedFrames, ConsoleServer, host_allowed, host_name, is_loopback  # noqa: F401
 from .env_info import EnvInfoWatcher, configured_spec, shown
-from .graph_trust import OnePublisher
+from .graph_trust import subscribe_from_one
 from .params import declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
 from .teleop_expert_node import ANSWER_MARGIN_S
@@ -119,13 +119,13 @@ class AdviceConsole(Node):
         self.stopped = False
         self.stop_pub = self.create_publisher(Bool, messages.STOP_TOPIC, messages.STOP_QOS)
         self.create_subscription(Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS)
-        requests = self.create_subscription(
-            AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS
-        )
-        self.request_guard = OnePublisher(self, requests.topic_name)  # a stranger's beside the learner's: none shown
-        self.create_subscription(EpisodeStats, 'learner/episode_stats', self._on_stats, 100)
-        self.create_subscription(String, 'learner/driver', self._on_driver, messages.LATCHED_QOS)
-        self.create_subscription(Image, p['image_topic'], self._on_frame, 2)
+        # What the page shows of the learner and the env: never a stranger's beside theirs.
+        self.shown_from_one = [
+            subscribe_from_one(self, AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS),
+            subscribe_from_one(self, EpisodeStats, 'learner/episode_stats', self._on_stats, 100),
+            subscribe_from_one(self, String, 'learner/driver', self._on_driver, messages.LATCHED_QOS),
+            subscribe_from_one(self, Image, p['image_topic'], self._on_frame, 2),
+        ]
         self.env_info = EnvInfoWatcher(self, configured_spec(p), self._on_env)
         self.learner_client = AsyncParameterClient(self, p['learner_node'])
         self.teleop_client = AsyncParameterClient(self, p['teleop_node'])
@@ -167,8 +167,6 @@ class AdviceConsole(Node):
             self._bump()
 
     def _on_request(self, msg: AdviceRequest) -> None:
-        if not self.request_guard.admits(self.get_logger(), 'learner/advice_request'):
-            return
         # Decoded and encoded before the lock: the page waits for nothing.
         asked = AskedFrames.of_request(msg, self.asked, self.get_logger())
         with self.lock:

@@ -74,3 +74,18 @@ class OnePublisher:
                 "told from a stranger's, so none is taken until one publisher is left"
             )
         return ''
+
+
+def subscribe_from_one(node: Node, kind, topic: str, callback, qos, what: str = '') -> OnePublisher:
+    """A subscription whose messages reach ``callback`` only while one node alone publishes
+    ``topic`` (OnePublisher, no name expected): what the person's page or terminal shows of the
+    learner (its requests, statistics, driver, the env's frames) is then never a stranger's
+    beside it. Returns the guard (its ``refused`` counts what was turned away)."""
+    guard: list = []
+
+    def taken(msg) -> None:
+        if guard[0].admits(node.get_logger(), what or guard[0].topic):
+            callback(msg)
+
+    guard.append(OnePublisher(node, node.create_subscription(kind, topic, taken, qos).topic_name))
+    return guard[0]

@@ -29,7 +29,7 @@ from ..core.envs.spec import EnvSpec
 from ..parameters import KEYBOARD_PARAMS
 from . import messages
 from .env_info import EnvInfoWatcher, configured_spec
-from .graph_trust import OnePublisher
+from .graph_trust import subscribe_from_one
 from .params import declare, reject_unknown_overrides
 from .spinning import run_node
 
@@ -59,10 +59,10 @@ class KeyboardTeleop(Node):
         self.holding = False  # t pressed: the person holds the wheel
         self.request_seen = 0.0
         self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
-        requests = self.create_subscription(
-            AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS
+        # A stranger's beside the learner's: none shown.
+        self.request_guard = subscribe_from_one(
+            self, AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS
         )
-        self.request_guard = OnePublisher(self, requests.topic_name)  # a stranger's beside the learner's: none shown
         self.env_info = EnvInfoWatcher(self, configured_spec(self.params), self._on_env)
         self.create_timer(1.0 / self.params['rate_hz'], self._publish)
         self.create_timer(0.02, self._read_keys)
@@ -78,8 +78,6 @@ class KeyboardTeleop(Node):
             self.draw()
 
     def _on_request(self, msg: AdviceRequest) -> None:
-        if not self.request_guard.admits(self.get_logger(), 'learner/advice_request'):
-            return
         self.request = msg
         self.request_seen = time.monotonic()
         if msg.wheel:

@@ -193,3 +193,37 @@ def test_a_malformed_request_is_one_line_in_the_log_not_a_traceback_each_time(co
     assert 'Traceback' not in capfd.readouterr().err
     assert len(lines) == 1 and 'Error handling request from 127.0.0.1 refused (400): Got more than' in lines[0], lines
     assert get(console.port, f'127.0.0.1:{console.port}') == 200  # and the page is served on
+
+
+def test_what_the_page_shows_of_the_learner_and_the_env_is_never_a_strangers_beside_theirs(harness, ros_context):
+    """Before, any node's learner/driver told the person who drives (a stranger's 'learner' while they
+    drove), and any node's frames were the scene they steered by; its requests and statistics were
+    shown too. Now each is taken only while one node alone publishes it."""
+    import rclpy
+    from sensor_msgs.msg import Image
+    from std_msgs.msg import String
+
+    from eqhrl_ros.nodes import messages
+
+    console = harness.add(
+        AdviceConsole(context=ros_context, namespace='/shown', parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    )
+    learner = harness.add(rclpy.create_node('learner', namespace='/shown', context=ros_context))
+    env = harness.add(rclpy.create_node('gym_env', namespace='/shown', context=ros_context))
+    rogue = harness.add(rclpy.create_node('rogue', namespace='/shown', context=ros_context))
+    learner.create_publisher(String, 'learner/driver', messages.LATCHED_QOS).publish(String(data='person_asked'))
+    env_frames = env.create_publisher(Image, 'gym_env/image', 2)
+    frame = Image(height=2, width=2, encoding='rgb8', step=6, data=bytes(12))
+    assert harness.spin_until(lambda: console.driver == 'person_asked', timeout=10)
+    env_frames.publish(frame)
+    assert harness.spin_until(lambda: console.frame_number == 1, timeout=10)
+
+    forged_driver = rogue.create_publisher(String, 'learner/driver', messages.LATCHED_QOS)
+    forged_frames = rogue.create_publisher(Image, 'gym_env/image', 2)
+    for topic in ('/shown/learner/driver', '/shown/gym_env/image'):
+        assert harness.spin_until(lambda: len(console.get_publishers_info_by_topic(topic)) == 2, timeout=10)
+    harness.spin_until(lambda: False, timeout=0.6)  # past the graph cache
+    forged_driver.publish(String(data='learner'))
+    forged_frames.publish(Image(height=2, width=2, encoding='rgb8', step=6, data=bytes([255] * 12)))
+    harness.spin_until(lambda: False, timeout=1.0)
+    assert console.driver == 'person_asked' and console.frame_number == 1
