@@ -39,7 +39,7 @@ from .advice_client import AdviceClient, PendingAdvice
 from .camera_input import CameraInput
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .episode_tracking import EpisodeTracking, episode_line
-from .graph_trust import OnePublisher
+from .graph_trust import OnePublisher, subscribe_stop
 from .health import WARN, Check, Health
 from .messages import printable_name
 from .params import choices_validator, declare, reject_unknown_overrides
@@ -101,10 +101,8 @@ class ActingNode(Node):
         self.refused_person_commands = 0
         self.wheel: Optional[PersonWheel] = None  # who drives: made with the learner (its action bounds)
         # The person's STOP holds the env: the episode is paused (not abandoned), and its record
-        # says for how long (EpisodeSummary.stops, stopped_s).
-        self._stop_topic = self.create_subscription(
-            Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS
-        ).topic_name
+        # says for how long (EpisodeSummary.stops, stopped_s). A release as the envs take it.
+        self._stop_topic = subscribe_stop(self, self._on_stop).topic
         self.early_observations = 0  # observations before the spaces were known (ignored)
         self.recording: Optional[NodeRecord] = None  # record: true (the learner node)
 

@@ -40,7 +40,7 @@ from . import messages
 from .console_camera import LearnerCamera
 from .console_server import AskedFrames, ConsoleServer, host_allowed, host_name, is_loopback  # noqa: F401
 from .env_info import EnvInfoWatcher, configured_spec, shown
-from .graph_trust import subscribe_from_one
+from .graph_trust import subscribe_from_one, subscribe_stop
 from .params import declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
 from .teleop_expert_node import ANSWER_MARGIN_S
@@ -118,7 +118,7 @@ class AdviceConsole(Node):
         # The person's STOP: latched, so that an env node that (re)starts while stopped stays stopped.
         self.stopped = False
         self.stop_pub = self.create_publisher(Bool, messages.STOP_TOPIC, messages.STOP_QOS)
-        self.create_subscription(Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS)
+        self.stop_guard = subscribe_stop(self, self._on_stop)  # as the envs take it: the page shows what holds
         # What the page shows of the learner and the env: never a stranger's beside theirs.
         self.shown_from_one = [
             subscribe_from_one(self, AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS),

@@ -154,6 +154,14 @@ class DoubleIntegratorEnv(Node):
         self._publish(self.system.reset(), 0.0, False, False, False)
 
     def _on_stop(self, msg: Bool) -> None:
+        # A stop from any node, at once; a release only while one node alone publishes /stop (else a
+        # stranger beside the person's page could set the robot going).
+        infos = self.get_publishers_info_by_topic('/stop')
+        if not msg.data and len({(i.node_namespace, i.node_name) for i in infos} - {UNKNOWN}) > 1:
+            self.get_logger().warn(
+                'stop release refused: two nodes publish /stop; still stopped', throttle_duration_sec=5.0
+            )
+            return
         if bool(msg.data) != self.stopped:
             self.stopped = bool(msg.data)
             self.get_logger().warn('STOPPED: holding' if self.stopped else 'stop released')

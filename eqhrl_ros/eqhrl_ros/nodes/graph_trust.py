@@ -10,6 +10,7 @@ against a stranger that replaces the real one, use SROS2 (the package README's s
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 from rclpy.node import Node
 
@@ -76,16 +77,31 @@ class OnePublisher:
         return ''
 
 
-def subscribe_from_one(node: Node, kind, topic: str, callback, qos, what: str = '') -> OnePublisher:
+def subscribe_from_one(
+    node: Node, kind, topic: str, callback, qos, what: str = '', judged: Callable[[object], bool] = lambda msg: True
+) -> OnePublisher:
     """A subscription whose messages reach ``callback`` only while one node alone publishes
     ``topic`` (OnePublisher, no name expected): what the person's page or terminal shows of the
     learner (its requests, statistics, driver, the env's frames) is then never a stranger's
-    beside it. Returns the guard (its ``refused`` counts what was turned away)."""
+    beside it. Only messages ``judged`` says are are held to it (subscribe_stop: a release, not a
+    stop). Returns the guard (its ``refused`` counts what was turned away)."""
     guard: list = []
 
     def taken(msg) -> None:
-        if guard[0].admits(node.get_logger(), what or guard[0].topic):
+        if not judged(msg) or guard[0].admits(node.get_logger(), what or guard[0].topic):
             callback(msg)
 
     guard.append(OnePublisher(node, node.create_subscription(kind, topic, taken, qos).topic_name))
     return guard[0]
+
+
+def subscribe_stop(node: Node, callback) -> OnePublisher:
+    """The person's STOP (/stop, latched) as a node takes it: a stop from any node, at once (the safe
+    way), and a release only while one node alone publishes /stop. Before, a stranger's false
+    beside the person's page set a stopped robot going."""
+    from std_msgs.msg import Bool
+
+    from .messages import STOP_QOS, STOP_TOPIC
+
+    what = 'the release of STOP (still stopped)'
+    return subscribe_from_one(node, Bool, STOP_TOPIC, callback, STOP_QOS, what, judged=lambda msg: not msg.data)

@@ -35,7 +35,7 @@ from ..core.envs.spec import EnvCamera, spec_from_parameters
 from ..parameters import GYM_ENV_PARAMS
 from . import env_info, messages
 from .frame_msgs import image_msg
-from .graph_trust import OnePublisher
+from .graph_trust import OnePublisher, subscribe_stop
 from .health import OK, WARN, Check, Health
 from .params import choices_validator, declare, reject_unknown_overrides
 from .spinning import run_node, seconds_since_process_start, steady_clock
@@ -103,7 +103,7 @@ class GymEnvNode(Node):
         self.create_subscription(Float32MultiArray, 'action', self._on_action, QOS, raw=True)
         # One node drives an env: while a second publishes action (a learner, a stranger), none is taken.
         self.action_source = OnePublisher(self, self.resolve_topic_name('action'))
-        self.create_subscription(Bool, messages.STOP_TOPIC, self._on_stop, messages.STOP_QOS)
+        self.stop_guard = subscribe_stop(self, self._on_stop)  # a release only from the one publisher of /stop
         self.health = Health(self, self.health_checks)
         # Latched: nodes that start later still learn the spaces from it.
         self.env_info_pub = self.create_publisher(EnvInfo, env_info.TOPIC, env_info.ENV_INFO_QOS)

@@ -147,3 +147,28 @@ def test_a_stop_pauses_the_learners_episode_and_its_record_says_how_long(harness
     with (tmp_path / 'episodes.csv').open(newline='') as f:
         rows = list(csv.DictReader(f))
     assert rows[0]['stops'] == '1' and float(rows[0]['stopped_s']) >= 1.0
+
+
+@pytest.mark.parametrize('env_node', ['gym_env', 'double_integrator_env'])
+def test_a_strangers_release_beside_the_persons_stop_moves_nothing(harness, ros_context, env_node):
+    """Before, any node's false on /stop released the person's STOP: a stranger beside the page set
+    the robot going. A stop from anyone still holds at once; a release is taken only while one node
+    alone publishes /stop."""
+    node_class = GymEnvNode if env_node == 'gym_env' else DoubleIntegratorEnv
+    env = harness.add(node_class(context=ros_context, namespace='/held'))
+    stop = stopper(harness)
+    stranger = harness.add(rclpy.create_node('stranger', context=ros_context))
+    stop.publish(Bool(data=True))
+    assert harness.spin_until(lambda: env.stopped)
+    release = stranger.create_publisher(Bool, messages.STOP_TOPIC, messages.STOP_QOS)
+    assert harness.spin_until(lambda: len(env.get_publishers_info_by_topic('/stop')) == 2, timeout=10)
+    harness.spin_until(lambda: False, timeout=0.6)  # past the graph cache
+    release.publish(Bool(data=False))
+    harness.spin_until(lambda: False, timeout=1.0)
+    assert env.stopped
+    harness.nodes.remove(stranger)
+    stranger.destroy_node()
+    assert harness.spin_until(lambda: len(env.get_publishers_info_by_topic('/stop')) == 1, timeout=10)
+    harness.spin_until(lambda: False, timeout=0.6)
+    stop.publish(Bool(data=False))  # the person's own release, alone on /stop
+    assert harness.spin_until(lambda: not env.stopped)
