@@ -329,8 +329,11 @@ class AdviceConsole(Node):
                 self.stopped = bool(msg.data)
                 self._bump()
 
-    def set_stop(self, stopped: bool) -> None:
-        """STOP (or release it): published at once, latched, for every env node on the graph."""
+    def set_stop(self, stopped: bool) -> Optional[str]:
+        """STOP (or release it): published at once, latched, for every env node on the graph. A
+        release while another node publishes /stop is not made (the envs would refuse it): why not."""
+        if not stopped and self.stop_guard.refusal():
+            return f'not released, the robot stays stopped: {self.stop_guard.refusal()}'
         with self.lock:
             self.stopped = stopped
             self._bump()
@@ -343,8 +346,7 @@ class AdviceConsole(Node):
         if kind == 'stop':
             if not isinstance(data.get('stopped'), bool):
                 return 'stop needs stopped: true or false'
-            self.set_stop(data['stopped'])
-            return None
+            return self.set_stop(data['stopped'])
         if kind == 'input':
             with self.lock:
                 size = len(self.input.command)

@@ -201,7 +201,7 @@ def test_what_the_page_shows_of_the_learner_and_the_env_is_never_a_strangers_bes
     shown too. Now each is taken only while one node alone publishes it."""
     import rclpy
     from sensor_msgs.msg import Image
-    from std_msgs.msg import String
+    from std_msgs.msg import Bool, String
 
     from eqhrl_ros.nodes import messages
 
@@ -227,3 +227,11 @@ def test_what_the_page_shows_of_the_learner_and_the_env_is_never_a_strangers_bes
     forged_frames.publish(Image(height=2, width=2, encoding='rgb8', step=6, data=bytes([255] * 12)))
     harness.spin_until(lambda: False, timeout=1.0)
     assert console.driver == 'person_asked' and console.frame_number == 1
+    # STOP on the page, then RESUME while a stranger publishes /stop too: the envs would refuse the
+    # release, so the page does not make it, and says why (before: the page said released).
+    assert console.take_input({'type': 'stop', 'stopped': True}) is None and console.stopped
+    rogue.create_publisher(Bool, messages.STOP_TOPIC, messages.STOP_QOS)
+    assert harness.spin_until(lambda: len(console.get_publishers_info_by_topic('/stop')) == 2, timeout=10)
+    harness.spin_until(lambda: False, timeout=0.6)
+    said = console.take_input({'type': 'stop', 'stopped': False})
+    assert said.startswith('not released, the robot stays stopped') and console.stopped
