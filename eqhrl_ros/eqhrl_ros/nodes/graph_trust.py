@@ -83,16 +83,16 @@ def subscribe_from_one(
     """A subscription whose messages reach ``callback`` only while one node alone publishes
     ``topic`` (OnePublisher, no name expected): what the person's page or terminal shows of the
     learner (its requests, statistics, driver, the env's frames) is then never a stranger's
-    beside it. Only messages ``judged`` says are are held to it (subscribe_stop: a release, not a
-    stop). Returns the guard (its ``refused`` counts what was turned away)."""
-    guard: list = []
+    beside it. Only the messages ``judged`` picks are held to that (subscribe_stop: a release, not
+    a stop). Returns the guard (its ``refused`` counts what was turned away)."""
+    guard = OnePublisher(node, node.resolve_topic_name(topic))
 
     def taken(msg) -> None:
-        if not judged(msg) or guard[0].admits(node.get_logger(), what or guard[0].topic):
+        if not judged(msg) or guard.admits(node.get_logger(), what or guard.topic):
             callback(msg)
 
-    guard.append(OnePublisher(node, node.create_subscription(kind, topic, taken, qos).topic_name))
-    return guard[0]
+    node.create_subscription(kind, topic, taken, qos)
+    return guard
 
 
 def subscribe_stop(node: Node, callback) -> OnePublisher:
