@@ -124,6 +124,7 @@ class ActingNode(Node):
         self.start_wait = StartWait(
             self,
             lambda: self.protocol if p['advice_enabled'] and self.learner.advice_window().open else None,
+            lambda: self.env_info.judging,
             self.advice.ready,
             lambda: p['expert_wait_s'],
             lambda data: self._on_observation(data, held=True),

@@ -36,8 +36,9 @@ HELD_MESSAGES = 8
 # A node that has not heard the env's own env_info yet (no spaces, or spaces from env_id but not the
 # env's pace), holding nothing, subscribes anew this often after one was dropped: the latched
 # env_info comes again and is judged again (the env's own, dropped because the graph was slow to
-# show its observation publisher, would otherwise never come back: it is published once).
-RESUBSCRIBE_S = 5.0
+# show its observation publisher, would otherwise never come back: it is published once). Just
+# past NAMED_HOLD_S, so that the env's own message, dropped at a slow start, comes again at once.
+RESUBSCRIBE_S = 2.5
 MAX_CAMERAS = 16  # an EnvInfo that announces more is refused
 
 
@@ -164,6 +165,13 @@ class EnvInfoWatcher:
     @property
     def ready(self) -> bool:
         return self.spec is not None
+
+    @property
+    def judging(self) -> bool:
+        """An env_info came and the env's own has not been taken yet: one is held until the graph
+        vouches for its sender, or was dropped and comes again (the node subscribes anew). At a
+        start this is most often the env's own, its node not yet on the graph of a loaded machine."""
+        return self.announced is None and bool(self._held or self.untrusted)
 
     def _use(self, spec: EnvSpec) -> None:
         self.spec = spec

@@ -5,7 +5,11 @@ The pace. A learner configured by ``env_id`` knows the env's spaces but not whet
 real time: only the env's own env_info says so, and it is taken a moment after the env's first
 observation (once the graph vouches for the env, env_info.py). Acting at once would let the first
 gates that fire ask nothing, or ask the wrong way (one answer about a state a real-time env has
-left). So the first observation waits for env_info, for at most AUTO_PACE_WAIT_S.
+left). So the first observation waits for env_info, for at most AUTO_PACE_WAIT_S; and while an
+env_info that came waits for the graph to vouch for its sender (env_info.py: on a loaded machine the
+env's node shows on the graph seconds after its message), for at most AUTO_PACE_JUDGED_S. (Three
+robots' nodes started at once on 2 cores: one learner's env_info was held 2 s, dropped, and heard
+again 5 s on; at 3 s it acted, and its first request was counted unavailable, nothing asked.)
 
 The expert. Nodes started together find each other over some seconds (the middleware's
 discovery, then the expert's own wait for env_info: it serves 'advise' only once it knows the
@@ -33,26 +37,32 @@ from rclpy.node import Node
 # How long the first observation waits for the env's env_info before the node acts without it
 # (its gates then ask nothing until env_info comes: acting_node.py says so in a warning).
 AUTO_PACE_WAIT_S = 3.0
-# Most observations held meanwhile (a real-time env at up to 85 Hz for the whole wait); past it the
+AUTO_PACE_JUDGED_S = 10.0  # ... and while an env_info that came is being judged (env_info.HOLD_S)
+# Most observations held meanwhile (a real-time env at up to 100 Hz for the longest wait); past it the
 # oldest go, and the learner joins that episode where the held ones start (marked interrupted).
-HELD_MAX = 256
+HELD_MAX = 1024
 POLL_S = 0.05  # how often a wait looks whether its reason has gone (the service shows no event)
 
 
 class StartWait:
     """``protocol()``: how a request would ask now ('answer', 'wheel'), '' while the env's pace is
-    unknown, None when nothing would be asked (advice off or closed); ``expert_ready()``: a server
+    unknown, None when nothing would be asked (advice off or closed); ``pace_judged()``: an env_info
+    came and waits for the graph to vouch for its sender (EnvInfoWatcher.judging); ``expert_ready()``: a server
     of 'advise' is there; ``expert_wait_s()``: the node's parameter; ``act(data)``: act on a held
     observation (the node's own observation callback, told the message was seen already).
     The caller holds its lock around ``hold``; ``release`` and the timer take ``lock``."""
 
-    def __init__(self, node: Node, protocol, expert_ready, expert_wait_s, act: Callable[[bytes], None], clock, lock):
-        self._node, self._protocol, self._expert_ready = node, protocol, expert_ready
+    def __init__(
+        self, node: Node, protocol, pace_judged, expert_ready, expert_wait_s, act: Callable[[bytes], None], clock, lock
+    ):
+        self._node, self._protocol, self._pace_judged, self._expert_ready = node, protocol, pace_judged, expert_ready
         self._expert_wait_s, self._act, self._clock, self._lock = expert_wait_s, act, clock, lock
         self.held: deque[bytes] = deque(maxlen=HELD_MAX)  # in the order they came
         self.state = 'not yet'  # 'not yet', 'waiting' (a timer polls), 'over'
         self.superseded = 0  # observations held, then let go for later ones (past HELD_MAX)
         self.waited_for = ''  # what the first observation waited for ('' when it did not wait)
+        self.waited_s = 0.0  # how long it waited, once the wait is over
+        self._judged_said = False  # the line that the wait goes on for a judged env_info is said once
         self._since = 0.0
         self._timer = None
 
@@ -60,7 +70,7 @@ class StartWait:
         """What the first observation waits for now: 'pace', 'expert' or '' (nothing)."""
         protocol = self._protocol()
         waited = time.monotonic() - self._since if self.state == 'waiting' else 0.0
-        if protocol == '' and waited < AUTO_PACE_WAIT_S:
+        if protocol == '' and (waited < AUTO_PACE_WAIT_S or (waited < AUTO_PACE_JUDGED_S and self._pace_judged())):
             return 'pace'
         if protocol == 'answer' and waited < self._expert_wait_s() and not self._expert_ready():
             return 'expert'
@@ -95,7 +105,7 @@ class StartWait:
             )
 
     def _say_end(self) -> None:
-        waited = time.monotonic() - self._since
+        waited = self.waited_s = time.monotonic() - self._since
         if self._protocol() == 'answer' and self._expert_wait_s() > 0:
             if self._expert_ready():
                 line = f"an expert serves 'advise' ({waited:.1f} s): acting"
@@ -115,6 +125,12 @@ class StartWait:
                 if reason != self.waited_for:  # the pace came: now the expert
                     self.waited_for = reason
                     self._say(reason)
+                elif reason == 'pace' and not self._judged_said and time.monotonic() - self._since >= AUTO_PACE_WAIT_S:
+                    self._judged_said = True
+                    self._node.get_logger().info(
+                        'advice_protocol auto: an env_info came and waits for the graph to show its sender (the '
+                        f"env's node, seconds late on a loaded machine): waiting on, up to {AUTO_PACE_JUDGED_S:g} s"
+                    )
                 return
             self.state = 'over'
             self._say_end()
@@ -155,7 +171,7 @@ class StartWait:
             )
         elif not protocol:
             self._node.get_logger().warn(
-                f"advice_protocol auto: no env_info from the env on '{env_info_topic}' in {AUTO_PACE_WAIT_S:g} s, "
+                f"advice_protocol auto: no env_info from the env on '{env_info_topic}' in {self.waited_s:.1f} s, "
                 'so whether it runs in real time (the wheel) or lock-step (one answer) is not known; the gates '
                 'fired, nothing was asked and the learner acts on its own (counted as unavailable; set '
                 'advice_protocol answer or wheel for an env that publishes no env_info)',

@@ -16,7 +16,7 @@ from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
 from eqhrl_interfaces.msg import EnvInfo
 from eqhrl_ros.core.envs.spec import SUCCESS_RULES, EnvSpec
 from eqhrl_ros.core.experts.controllers import DoubleIntegratorExpert
-from eqhrl_ros.nodes import env_info, messages
+from eqhrl_ros.nodes import env_info, messages, start_wait
 from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegrator, DoubleIntegratorEnv
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
@@ -511,6 +511,42 @@ def test_the_envs_own_env_info_dropped_while_the_graph_was_slow_is_taken_when_it
     assert harness.spin_until(lambda: learner.env_info.announced is not None, timeout=10)
     assert learner.env_info.resubscribed >= 1 and learner.learner.scaler.high.tolist() == [2.0]
     assert learner.protocol == 'answer'  # the env said it runs lock-step: one answer per request
+
+
+def test_auto_waits_on_while_the_envs_env_info_is_judged_then_asks_as_the_env_says(
+    harness, ros_context, tmp_path, monkeypatch
+):
+    """Three robots' nodes started at once on 2 cores (from outside, ros2 run in namespaces): one
+    learner held its env's env_info (the graph did not show the env's node yet), dropped it, and
+    heard it again 5 s on; at 3 s it had acted, and its first request was counted unavailable,
+    nothing asked. Now the first observation waits on while an env_info that came is judged (up to
+    AUTO_PACE_JUDGED_S), and is acted on once the env's own is taken: no request goes unasked."""
+    monkeypatch.setattr(env_info, 'NAMED_HOLD_S', 0.5)
+    monkeypatch.setattr(env_info, 'RESUBSCRIBE_S', 1.0)
+    monkeypatch.setattr(start_wait, 'AUTO_PACE_WAIT_S', 1.0)
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=asking_learner_params(tmp_path)))
+    expert = StubExpert(ros_context)
+    try:
+        publisher, probe = observation_publisher(harness)
+        assert harness.spin_until(lambda: learner.advice.ready(), timeout=10)
+        env = harness.add(rclpy.create_node('slow_env', context=ros_context))  # its observations not shown yet
+        message = env_info.env_info_msg(EnvSpec('Pendulum-v1', 3, [-2.0], [2.0]), '/slow_env')
+        env.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(message)
+        assert harness.spin_until(lambda: learner.env_info.untrusted >= 1, timeout=10)
+        publisher.publish(messages.observation_msg([1.0, 0.0, 0.0], -1.0, False, False, 0, 0))
+        harness.spin_until(lambda: False, timeout=2.5)  # past the pace's wait, a hold and a new subscription
+        assert learner.start_wait.state == 'waiting' and probe.acted_on() == []
+        shown = env.create_publisher(Float32MultiArray, 'observation', 10)  # the graph catches up
+        assert harness.spin_until(lambda: learner.env_info.announced is not None, timeout=10)
+        assert harness.spin_until(lambda: (0, 0) in probe.acted_on(), timeout=5) and learner.protocol == 'answer'
+        env.destroy_publisher(shown)  # the probe alone plays the env again
+        assert harness.spin_until(lambda: not learner.observation_source.refusal(), timeout=10)
+        for step in range(1, 40):
+            publisher.publish(messages.observation_msg([1.0, 0.0, 0.0], -1.0, False, False, 0, step))
+            assert harness.spin_until(lambda: (0, step) in probe.acted_on(), timeout=10)
+        assert expert.requests and learner.learner.episode_advice.failed['unavailable'] == 0
+    finally:
+        expert.close()
 
 
 def test_an_env_info_vouched_for_when_its_hold_ends_is_taken_not_dropped(harness, ros_context, tmp_path):
