@@ -37,9 +37,19 @@ UNSET_KINDS = {
 
 
 def declare(node: Node, params: tuple[Param, ...]) -> dict:
-    """Declare every parameter; return {name: value}. Bad values raise with the name in the message."""
+    """Declare every parameter; return {name: value}. Bad values raise with the name in the message.
+
+    A parameter with no default (an array whose absence means something: the spaces from env_id)
+    is declared only when a params file or -p gives it, else its value is None. rclpy can declare
+    no empty array (it would be typed as bytes), and one declared typed but unset made the node's
+    get_parameters answer nothing at all: `ros2 param dump` printed no parameter of any shipped
+    node, and `ros2 param get` of an unset one failed."""
     values = {}
+    given = getattr(node, '_parameter_overrides', {})  # rclpy keeps a params file's and -p's values here
     for param in params:
+        if param.default is None and param.name not in given:
+            values[param.name] = None
+            continue
         default = UNSET_KINDS[param.kind] if param.default is None else param.default
         value = node.declare_parameter(param.name, default, descriptor(param)).value
         if param.kind == 'double_array' and value is not None:

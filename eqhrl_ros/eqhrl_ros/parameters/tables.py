@@ -24,9 +24,9 @@ class Param:
     range: Optional[tuple] = None  # (low, high) for numbers, inclusive
     choices: Optional[tuple] = None  # allowed strings
     dynamic: bool = False  # may change while the node runs
-    # For a parameter with no default (default None): its type, e.g. 'double_array'. rclpy
-    # declares it typed and unset (an empty list would be typed as bytes); its value is None
-    # until a params file or -p sets it.
+    # For a parameter with no default (default None): its type, e.g. 'double_array'. It is
+    # declared only when a params file or -p gives it (nodes/params.py says why); its value is
+    # None until then.
     kind: Optional[str] = None
 
 
