@@ -165,8 +165,9 @@ def main(argv=None) -> int:
         args.seeds_together or (not args.seeds_apart and seeds_together_by_default(settings))
     )
     jobs = max(1, min(args.jobs, len(todo) or 1))
+    env = settings.env_id or settings.env_node or settings.file_env_node
     print(
-        f'{settings.env_id or settings.env_node}: {len(todo)} runs to do ({skipped} finished already), '
+        f'{env}: {len(todo)} runs to do ({skipped} finished already), '
         f'{settings.episodes} episodes x {settings.max_episode_steps} steps, {args.jobs} in parallel, '
         f'{"through ROS" if args.through_ros else "in-process"}'
         f'{", seeds together" if together else ""}',

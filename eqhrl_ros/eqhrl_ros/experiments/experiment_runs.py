@@ -19,6 +19,7 @@ def write_settings(output: Path, settings, args) -> None:
         yaml.safe_dump(
             {
                 'env_id': settings.env_id,
+                'env_node': settings.env_node or settings.file_env_node,
                 'episodes': settings.episodes,
                 'max_episode_steps': settings.max_episode_steps,
                 'algorithms': args.algorithms,

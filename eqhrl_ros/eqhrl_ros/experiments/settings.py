@@ -26,6 +26,7 @@ class Settings:
     policy_path: str = ''
     params_path: str = ''
     env_node: str = ''  # a command that starts the user's env node (--env-node), or ''
+    file_env_node: str = 'gym_env'  # the shipped env node the params file is for (launching.env_node_for)
     eval_every: int = 0  # advice-free evaluation every N episodes (in-process runs; 0: none)
     eval_starts: int = 10  # fixed start states of each evaluation
     # An imperfect expert (in-process runs; eqhrl-study): 'human' (simulated_human.HumanLimits
@@ -39,6 +40,7 @@ class Settings:
 
 def load_settings(args) -> Settings:
     """The params file's sections, refused as the nodes would refuse them (a typo included)."""
+    from ..nodes.launching import env_node_for  # no ROS in it: the rule eqhrl-train and the launch files use
     from ..parameters import (
         EXPERT_PARAMS,
         GYM_ENV_PARAMS,
@@ -52,10 +54,21 @@ def load_settings(args) -> Settings:
     path = params_file(args.params)
     data = load_mapping(path, 'params file')
     learner = file_section(data, 'learner')
-    env = file_section(data, 'gym_env')
     expert = file_section(data, 'expert')
     check_section('learner', learner, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS)
-    check_section('gym_env', env, GYM_ENV_PARAMS)
+    # The env node the file is for. Before, a file for the example env (params/double_integrator.yaml:
+    # no env_id) ran Pendulum-v1 in-process, silently, in eqhrl-experiment and eqhrl-study alike.
+    file_env_node = 'gym_env' if args.env_node else env_node_for(data)
+    env = file_section(data, file_env_node)
+    if file_env_node == 'gym_env':
+        check_section('gym_env', env, GYM_ENV_PARAMS)
+    elif not (args.env or learner.get('env_id')):
+        if not args.through_ros:
+            raise ValueError(
+                f'{path.name} is for the env node {file_env_node}, which is no gymnasium env, and an in-process '
+                'run needs one: run the file through ROS (eqhrl-experiment --through-ros), or name a gymnasium '
+                "env (--env, or env_id in a study plan's learner settings)"
+            )
     check_section('expert', expert, EXPERT_PARAMS)
     if args.budget is not None:
         learner['advising_budget'] = args.budget
@@ -74,11 +87,11 @@ def load_settings(args) -> Settings:
         if not args.through_ros:
             raise ValueError('--env-node runs an env node, so it needs --through-ros')
         env_node_command(args.env_node, 0, 1)  # refuses an empty command or a program not found
+    env_id = args.env or learner.get('env_id') or env.get('env_id')
+    if not env_id and file_env_node == 'gym_env' and not args.env_node:
+        env_id = default_of(GYM_ENV_PARAMS, 'env_id')
     settings = Settings(
-        env_id=args.env
-        or learner.get('env_id')
-        or env.get('env_id')
-        or ('' if args.env_node else default_of(GYM_ENV_PARAMS, 'env_id')),
+        env_id=env_id or '',
         learner=learner,
         max_episode_steps=args.max_steps
         or int(env.get('max_episode_steps', default_of(GYM_ENV_PARAMS, 'max_episode_steps'))),
@@ -88,6 +101,7 @@ def load_settings(args) -> Settings:
         policy_path=args.policy_path or expert.get('policy_path', default_of(EXPERT_PARAMS, 'policy_path')),
         params_path=str(path),
         env_node=args.env_node or '',
+        file_env_node=file_env_node,
         eval_every=0 if args.through_ros else args.eval_every,
         eval_starts=args.eval_starts,
     )

@@ -252,6 +252,38 @@ def test_seeds_together_that_cannot_be_had_are_refused_before_anything_runs(tmp_
         assert not seed_runs.seeds_together_by_default(settings)
 
 
+def test_a_params_file_for_the_example_env_node_never_runs_pendulum_in_its_place(tmp_path, capsys):
+    """From outside: `eqhrl-experiment --params double_integrator` (in-process) and an eqhrl-study
+    plan with `params: double_integrator` ran Pendulum-v1, silently (the report was titled so); and
+    through ROS, where the example env did run, the command said and saved 'Pendulum-v1'."""
+    from eqhrl_ros.cli import study
+    from eqhrl_ros.nodes.double_integrator_env_node import PARAMETERS
+    from eqhrl_ros.parameters import GYM_ENV_PARAMS, default_of
+
+    refused = 'double_integrator.yaml is for the env node double_integrator_env, which is no gymnasium env'
+    args = ['--params', 'double_integrator', '--seeds', '0', '--episodes', '1', '--output', str(tmp_path / 'o')]
+    assert experiment.main(args) == 2 and refused in capsys.readouterr().err
+    assert not (tmp_path / 'o').exists()
+    plan = tmp_path / 'plan.yaml'
+    plan.write_text(
+        'name: di\nparams: double_integrator\nepisodes: 2\ngroups:\n  - name: g\n    seeds: [0]\n'
+        '    arms:\n      sac: {mode: sac}\n'
+    )
+    assert study.main(['--plan', str(plan), '--output', str(tmp_path / 's'), '--list']) != 0
+    assert refused in capsys.readouterr().err
+    through = load_settings(experiment.parse_args(['--params', 'double_integrator', '--through-ros', '--output', 'x']))
+    assert through.env_id == '' and through.file_env_node == 'double_integrator_env'
+    assert through.max_episode_steps == 100  # the file's double_integrator_env section
+    # A named gymnasium env runs in-process with the file's learner settings.
+    named = load_settings(
+        experiment.parse_args(['--params', 'double_integrator', '--env', 'Pendulum-v1', '--output', 'x'])
+    )
+    assert named.env_id == 'Pendulum-v1' and named.learner['advising_budget'] == 10
+    # With no section setting it, the episode length passed to eqhrl-train is either env node's own default.
+    default_steps = {name: default for name, default, *_ in PARAMETERS}['max_episode_steps']
+    assert default_steps == default_of(GYM_ENV_PARAMS, 'max_episode_steps')
+
+
 def test_table_1_networks_run_seeds_apart_by_default():
     settings = load_settings(experiment.parse_args(['--params', 'pendulum', '--output', 'x']))
     assert not seed_runs.seeds_together_by_default(settings)
