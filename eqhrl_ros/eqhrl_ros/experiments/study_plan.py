@@ -170,7 +170,9 @@ def arm_settings(plan: Plan, arm: Arm, save_every: float | None = None) -> Setti
     ``save_every``: --save-every (minutes; None: the runner's default)."""
     args = argparse.Namespace(
         params=plan.params,
-        env=None,
+        # The env an arm's or the plan's learner settings name (before, an env_id there was ignored
+        # and the params file's env ran).
+        env=arm.learner.get('env_id') or plan.learner.get('env_id') or None,
         episodes=plan.episodes,
         max_steps=plan.max_steps,
         budget=None,

@@ -33,6 +33,20 @@ def test_the_lunar_lander_plan_has_the_papers_budget_inside_its_episodes():
     assert plan.episodes > 300 and len(plan.arms[0].seeds) >= 3
 
 
+def test_an_env_id_in_a_plans_learner_settings_is_the_env_its_runs_use(tmp_path):
+    """From outside: a plan with `params: pendulum` and `learner: {env_id: LunarLanderContinuous-v3}`
+    ran Pendulum-v1 (the env_id there was ignored), and one for the example env's params file could
+    not be given a gymnasium env at all."""
+    plan_file = tmp_path / 'plan.yaml'
+    arms = 'groups:\n  - name: g\n    seeds: [0]\n    arms:\n      sac: {mode: sac}\n'
+    for params in ('pendulum', 'double_integrator'):
+        plan_file.write_text(
+            f'name: p\nparams: {params}\nepisodes: 2\nlearner:\n  env_id: LunarLanderContinuous-v3\n{arms}'
+        )
+        plan = study_plan.load_plan(str(plan_file))
+        assert study_plan.arm_settings(plan, plan.arms[0]).env_id == 'LunarLanderContinuous-v3', params
+
+
 def test_a_finished_runs_time_gives_the_lists_estimate(tmp_path):
     import os
     import time
