@@ -78,14 +78,18 @@ class KeyboardTeleop(Node):
             self.draw()
 
     def _on_request(self, msg: AdviceRequest) -> None:
+        before = self.request
+        new = before is None or (before.episode, before.step) != (msg.episode, msg.step)
         self.request = msg
         self.request_seen = time.monotonic()
         if msg.wheel:
             # The learner asks for the wheel (advice_protocol wheel): from now on this terminal's
             # deadman is t, a toggle (a terminal hears no key releases). When a request ends, the
-            # learner has the wheel again: the deadman is released here too.
+            # learner has the wheel again: the deadman is released here too. A new request releases
+            # it as well: one held since before the request does not take it (the learner waits for
+            # a press), and the screen said YOU DRIVE while the learner drove.
             self.wheel_protocol = True
-            if msg.outcome not in (AdviceRequest.PENDING, AdviceRequest.TAKEN):
+            if msg.outcome != AdviceRequest.TAKEN and (msg.outcome != AdviceRequest.PENDING or new):
                 self.holding = False
         self.draw()
 
@@ -157,11 +161,14 @@ class KeyboardTeleop(Node):
             '',
         ]
         request = self.request
+        keys = ', '.join(AXIS_KEYS[:n])  # the keys of this env's action values only
         if not n:
             lines.append('  waiting for env_info from the env (or set the dimensions parameter)')
         elif request and request.wheel and request.outcome in (AdviceRequest.PENDING, AdviceRequest.TAKEN):
             if self.holding:
-                lines.append(f'{REVERSE}  >>> YOU DRIVE (asked): steer with a/d, w/s; t hands back <<<  {RESET}')
+                lines.append(f'{REVERSE}  >>> YOU DRIVE (asked): steer with {keys}; t hands back <<<  {RESET}')
+            elif request.outcome == AdviceRequest.TAKEN:  # until the learner says how it ended
+                lines.append('  you handed the wheel back: the learner drives')
             else:
                 left = max(0.0, request.timeout_s - (time.monotonic() - self.request_seen))
                 lines.append(
@@ -174,7 +181,7 @@ class KeyboardTeleop(Node):
                 f'{REVERSE}  >>> THE LEARNER ASKS FOR ADVICE: episode {request.episode}, '
                 f'step {request.step}, {waited:.1f} s of {request.timeout_s:.1f} s <<<  {RESET}'
             )
-            lines.append('  move (a/d, w/s) or press Enter to answer, x to skip')
+            lines.append(f'  move ({keys}) or press Enter to answer, x to skip')
         elif request:
             last = OUTCOME_NAMES.get(request.outcome, '?')
             if request.human:
@@ -182,6 +189,14 @@ class KeyboardTeleop(Node):
             lines.append(f'  learner: no request pending (last one: {last})')
         else:
             lines.append('  learner: no request yet')
+        if self.holding and not (
+            request and request.wheel and request.outcome in (AdviceRequest.PENDING, AdviceRequest.TAKEN)
+        ):
+            # Unasked, the deadman alone drives nothing: a takeover needs the learner's takeover_threshold.
+            lines.append(
+                '  t held (the deadman): unasked, you drive only once your command departs from the '
+                "learner's action by its takeover_threshold (0: never)"
+            )
         self.out.write(HOME + CLEAR + '\r\n'.join(lines) + '\r\n')
         self.out.flush()
 

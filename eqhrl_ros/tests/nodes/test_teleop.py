@@ -1,6 +1,7 @@
 """A person as the expert: teleop mapping, the teleop_expert node, frames, and keyboard_teleop in tmux."""
 
 import csv
+import dataclasses
 import os
 import re
 import shutil
@@ -362,8 +363,23 @@ def test_keyboard_teleop_in_a_real_terminal(harness, ros_context):
         assert harness.spin_until(lambda: enabled() == [0.0])
         tmux.send('t')
         assert harness.spin_until(lambda: enabled() == [1.0])
+        request_pub.publish(messages.advice_request_msg('taken', ask, 4.0, wheel=True))
+        tmux.send('t')  # handed back: until the learner says how the request ended, it drives again
+        assert tmux.wait_for('you handed the wheel back: the learner drives'), tmux.screen()
+        assert 'TAKE THE WHEEL' not in tmux.screen()  # before: the alert came back, '0.0 s left'
+        tmux.send('t')  # each key's effect is waited for on the screen: a command sent before it may still arrive
+        assert tmux.wait_for('YOU DRIVE (asked)'), tmux.screen()
         request_pub.publish(messages.advice_request_msg('given', ask, 4.0, 'agreed', human=True, wheel=True))
+        assert tmux.wait_for('last one: given'), tmux.screen()
         assert harness.spin_until(lambda: enabled() == [0.0])  # the learner took it back: released here too
+        # t pressed with nothing asked: said as it is, and a request that comes then is not taken by it
+        # (the learner waits for a press): before, the screen said YOU DRIVE while the learner drove.
+        tmux.send('t')
+        assert tmux.wait_for('t held (the deadman): unasked'), tmux.screen()
+        later = dataclasses.replace(ask, step=60)
+        request_pub.publish(messages.advice_request_msg('pending', later, 4.0, wheel=True))
+        assert tmux.wait_for('TAKE THE WHEEL: press t'), tmux.screen()
+        assert harness.spin_until(lambda: enabled() == [0.0]) and 'YOU DRIVE' not in tmux.screen()
 
         tmux.send('q')
         deadline = time.monotonic() + 20
