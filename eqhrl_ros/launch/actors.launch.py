@@ -10,7 +10,8 @@ Actor i runs in namespace /<actor_prefix><actor_offset + i>: e.g. /actor0/gym_en
 machine), and to `<hostname>_actor` where it does not (a robot machine: two robots launched
 alike never share a name). actor_offset shifts the indices and the seeds alike.
 All actors send to /transitions and take /weights (transitions_topic:=, weights_topic:= remap
-both sides, for several trainers in one domain); resume:=true continues the trainer's run;
+both sides, for several trainers in one domain); resume:=true continues the trainer's run,
+overwrite:=true replaces it, output_dir:= moves it (default: the params file's learner output_dir);
 dds_profile:=lossy_link gives every node the Fast DDS profile for hosts on a lossy link.
 The trainer takes transitions only from actors it knows: those started here, the full names in
 trainer_actors:= (actors on other machines), or any that signs with key_file:=. A node that exits
@@ -36,7 +37,7 @@ from launch_ros.actions import Node
 from eqhrl_ros.files.paths import params_file as shipped_params_file
 from eqhrl_ros.files.paths import shipped
 from eqhrl_ros.files.yaml_files import load_mapping
-from eqhrl_ros.nodes.launching import dds_profile_env, env_node_for, fail_launch_on_error
+from eqhrl_ros.nodes.launching import dds_profile_env, env_node_for, fail_launch_on_error, flag, warn_undeclared
 from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, SPACE_PARAMS, TRAINER_PARAMS, learner_section_for
 
 # What a trainer is told of the env; camera actors' trainer takes it (and the camera) from their batches.
@@ -57,7 +58,8 @@ def _prefix(given: str, with_trainer: bool) -> str:
     return f'{"h" + host if host[0].isdigit() else host}_actor'
 
 
-def _nodes(context):
+def _nodes(context, declared):
+    warn_undeclared(context.argv, declared)
     env = LaunchConfiguration('env').perform(context)
     params_file = LaunchConfiguration('params_file').perform(context) or str(shipped_params_file(env))
     data = load_mapping(params_file, 'params file')  # refused in one line, as the nodes refuse it
@@ -66,18 +68,14 @@ def _nodes(context):
     actors = int(LaunchConfiguration('actors').perform(context))
     if actors < 0:
         raise ValueError(f'actors:={actors} must be 0 or more')
-    with_trainer = LaunchConfiguration('trainer').perform(context).lower()
-    with_expert = LaunchConfiguration('expert').perform(context).lower()
-    for name, value in (('trainer', with_trainer), ('expert', with_expert)):
-        if value not in ('true', 'false'):
-            raise ValueError(f'{name}:={value} is not true or false')
+    with_trainer = 'true' if flag('trainer', LaunchConfiguration('trainer').perform(context)) else 'false'
+    with_expert = 'true' if flag('expert', LaunchConfiguration('expert').perform(context)) else 'false'
 
     offset = int(LaunchConfiguration('actor_offset').perform(context))
     if offset < 0:
         raise ValueError(f'actor_offset:={offset} must be 0 or more')
-    resume = LaunchConfiguration('resume').perform(context).lower()
-    if resume not in ('true', 'false'):
-        raise ValueError(f'resume:={resume} is not true or false')
+    run = {name: flag(name, LaunchConfiguration(name).perform(context)) for name in ('resume', 'overwrite')}
+    output_dir = LaunchConfiguration('output_dir').perform(context)
     prefix = _prefix(LaunchConfiguration('actor_prefix').perform(context), with_trainer == 'true')
     key = {'key_file': LaunchConfiguration('key_file').perform(context)}  # the deployment's shared secret
     # Fast DDS for a lossy link between hosts (docs/performance.md, "Weights over a lossy link").
@@ -109,8 +107,9 @@ def _nodes(context):
         here = [f'/{prefix}{i}/actor' for i in range(offset, offset + actors)]
         if named or here:
             trainer['actors'] = named or here
-        if resume == 'true':
-            trainer['resume'] = True
+        trainer.update({name: True for name, given in run.items() if given})
+        if output_dir:
+            trainer['output_dir'] = output_dir
         nodes.append(node('trainer', trainer, remappings=remaps, output='screen'))
     env_node = env_node_for(data)  # the file's gym_env: or double_integrator_env: section says which
     env_params = {**shared, **_section(data, env_node)}
@@ -129,45 +128,48 @@ def _nodes(context):
 
 
 def generate_launch_description():
-    return LaunchDescription(
-        [
-            DeclareLaunchArgument(
-                'env',
-                default_value='pendulum',
-                description=f'params file name: {", ".join(shipped("params"))}',
-            ),
-            DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
-            DeclareLaunchArgument('actors', default_value='2', description='actors to start, each with env and expert'),
-            DeclareLaunchArgument('trainer', default_value='true', description='start the trainer here'),
-            DeclareLaunchArgument(
-                'expert', default_value='true', description="start each actor's expert (false: your own, per actor)"
-            ),
-            DeclareLaunchArgument(
-                'actor_prefix',
-                default_value='',
-                description="actors' namespace prefix (empty: actor with the trainer here, <hostname>_actor without)",
-            ),
-            DeclareLaunchArgument(
-                'actor_offset', default_value='0', description='index of the first actor here (its seed follows)'
-            ),
-            DeclareLaunchArgument('resume', default_value='false', description="continue the trainer's run"),
-            DeclareLaunchArgument(
-                'trainer_actors',
-                default_value='',
-                description='actors the trainer takes transitions from, comma-separated full names '
-                '(/host_a_actor0/actor,...; default: those started here; with key_file, any that signs)',
-            ),
-            DeclareLaunchArgument(
-                'key_file', default_value='', description="the deployment's shared key: signs weights and batches"
-            ),
-            DeclareLaunchArgument('transitions_topic', default_value='/transitions', description='remap /transitions'),
-            DeclareLaunchArgument('weights_topic', default_value='/weights', description='remap /weights'),
-            DeclareLaunchArgument(
-                'dds_profile',
-                default_value='',
-                description='Fast DDS profile for every node: lossy_link (hosts on Wi-Fi or a lossy link: '
-                'share/eqhrl_ros/config/fastdds_lossy_link.xml), an XML path, or empty (the environment as it is)',
-            ),
-            OpaqueFunction(function=_nodes),
-        ]
-    )
+    arguments = [
+        DeclareLaunchArgument(
+            'env',
+            default_value='pendulum',
+            description=f'params file name: {", ".join(shipped("params"))}',
+        ),
+        DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
+        DeclareLaunchArgument('actors', default_value='2', description='actors to start, each with env and expert'),
+        DeclareLaunchArgument('trainer', default_value='true', description='start the trainer here'),
+        DeclareLaunchArgument(
+            'expert', default_value='true', description="start each actor's expert (false: your own, per actor)"
+        ),
+        DeclareLaunchArgument(
+            'actor_prefix',
+            default_value='',
+            description="actors' namespace prefix (empty: actor with the trainer here, <hostname>_actor without)",
+        ),
+        DeclareLaunchArgument(
+            'actor_offset', default_value='0', description='index of the first actor here (its seed follows)'
+        ),
+        DeclareLaunchArgument('resume', default_value='false', description="continue the trainer's run"),
+        DeclareLaunchArgument('overwrite', default_value='false', description="replace the trainer's run"),
+        DeclareLaunchArgument(
+            'output_dir', default_value='', description="the trainer's output folder (default: the params file's)"
+        ),
+        DeclareLaunchArgument(
+            'trainer_actors',
+            default_value='',
+            description='actors the trainer takes transitions from, comma-separated full names '
+            '(/host_a_actor0/actor,...; default: those started here; with key_file, any that signs)',
+        ),
+        DeclareLaunchArgument(
+            'key_file', default_value='', description="the deployment's shared key: signs weights and batches"
+        ),
+        DeclareLaunchArgument('transitions_topic', default_value='/transitions', description='remap /transitions'),
+        DeclareLaunchArgument('weights_topic', default_value='/weights', description='remap /weights'),
+        DeclareLaunchArgument(
+            'dds_profile',
+            default_value='',
+            description='Fast DDS profile for every node: lossy_link (hosts on Wi-Fi or a lossy link: '
+            'share/eqhrl_ros/config/fastdds_lossy_link.xml), an XML path, or empty (the environment as it is)',
+        ),
+    ]
+    declared = [argument.name for argument in arguments]
+    return LaunchDescription([*arguments, OpaqueFunction(function=_nodes, kwargs={'declared': declared})])

@@ -10,6 +10,8 @@ ros2 launch eqhrl_ros train.launch.py params_file:=/path/to/my.yaml env_node:=no
 ros2 launch eqhrl_ros train.launch.py env:=teleop_pendulum expert:=teleop   (a person advises)
     with expert:=teleop the person's page starts too (advice_console, http://127.0.0.1:8080/);
     console:=false leaves it out (keyboard_teleop or a joystick instead)
+ros2 launch eqhrl_ros train.launch.py env:=pendulum resume:=true   (after Ctrl-C: go on with the run)
+    output_dir:= (default: the params file's), resume:=true, overwrite:=true go to the learner
 """
 
 from launch import LaunchDescription
@@ -21,13 +23,14 @@ from eqhrl_ros.core.algorithm.config import MODES
 from eqhrl_ros.files.paths import params_file as shipped_params_file
 from eqhrl_ros.files.paths import shipped
 from eqhrl_ros.files.yaml_files import load_mapping
-from eqhrl_ros.nodes.launching import env_node_for, fail_launch_on_error
+from eqhrl_ros.nodes.launching import env_node_for, fail_launch_on_error, flag, warn_undeclared
 
 # expert:=... -> the executable it starts (none: your own expert, started apart).
 EXPERT_NODES = {'expert': 'expert', 'teleop': 'teleop_expert', 'none': None}
 
 
-def _nodes(context):
+def _nodes(context, declared):
+    warn_undeclared(context.argv, declared)
     env = LaunchConfiguration('env').perform(context)
     params_file = LaunchConfiguration('params_file').perform(context) or str(shipped_params_file(env))
     mode = LaunchConfiguration('mode').perform(context)
@@ -37,10 +40,11 @@ def _nodes(context):
     expert = LaunchConfiguration('expert').perform(context)
     if expert not in EXPERT_NODES:
         raise ValueError(f'expert:={expert} is not one of {", ".join(EXPERT_NODES)}')
-    console = LaunchConfiguration('console').perform(context).lower()
-    if console not in ('true', 'false'):
-        raise ValueError(f'console:={console} is not true or false')
-    learner_params = [params_file] + ([{'mode': mode}] if mode else [])
+    console = 'true' if flag('console', LaunchConfiguration('console').perform(context)) else 'false'
+    run = {name: flag(name, LaunchConfiguration(name).perform(context)) for name in ('resume', 'overwrite')}
+    output_dir = LaunchConfiguration('output_dir').perform(context)
+    given = {'mode': mode, 'output_dir': output_dir, **run}  # what the launch's arguments set on the learner
+    learner_params = [params_file, {name: value for name, value in given.items() if value}]
     experts = (
         [
             Node(
@@ -86,37 +90,43 @@ def _nodes(context):
 
 
 def generate_launch_description():
-    return LaunchDescription(
-        [
-            DeclareLaunchArgument(
-                'env',
-                default_value='pendulum',
-                description=f'params file name: {", ".join(shipped("params"))}',
-            ),
-            DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
-            DeclareLaunchArgument(
-                'mode',
-                default_value='',
-                description=f'the learning mode, one of {", ".join(MODES)} (overrides the params file)',
-            ),
-            DeclareLaunchArgument(
-                'expert',
-                default_value='expert',
-                description='who advises: expert (the built-in controller or a policy), teleop (a person, '
-                'through teleop_expert; start keyboard_teleop or a joystick apart), or none (your own)',
-            ),
-            DeclareLaunchArgument(
-                'console',
-                default_value='true',
-                description="with expert:=teleop: start advice_console, the person's page in a browser",
-            ),
-            DeclareLaunchArgument(
-                'env_node',
-                default_value='',
-                description='env node to start: gym_env, double_integrator_env (the example env), '
-                'or none (your own, started apart); default: the one the params file has a section for, '
-                'else gym_env',
-            ),
-            OpaqueFunction(function=_nodes),
-        ]
-    )
+    arguments = [
+        DeclareLaunchArgument(
+            'env',
+            default_value='pendulum',
+            description=f'params file name: {", ".join(shipped("params"))}',
+        ),
+        DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
+        DeclareLaunchArgument(
+            'mode',
+            default_value='',
+            description=f'the learning mode, one of {", ".join(MODES)} (overrides the params file)',
+        ),
+        DeclareLaunchArgument(
+            'expert',
+            default_value='expert',
+            description='who advises: expert (the built-in controller or a policy), teleop (a person, '
+            'through teleop_expert; start keyboard_teleop or a joystick apart), or none (your own)',
+        ),
+        DeclareLaunchArgument(
+            'console',
+            default_value='true',
+            description="with expert:=teleop: start advice_console, the person's page in a browser",
+        ),
+        DeclareLaunchArgument(
+            'env_node',
+            default_value='',
+            description='env node to start: gym_env, double_integrator_env (the example env), '
+            'or none (your own, started apart); default: the one the params file has a section for, '
+            'else gym_env',
+        ),
+        DeclareLaunchArgument(
+            'output_dir', default_value='', description="the learner's output folder (default: the params file's)"
+        ),
+        DeclareLaunchArgument(
+            'resume', default_value='false', description='continue the run in the output folder (after Ctrl-C)'
+        ),
+        DeclareLaunchArgument('overwrite', default_value='false', description='replace the run in the output folder'),
+    ]
+    declared = [argument.name for argument in arguments]
+    return LaunchDescription([*arguments, OpaqueFunction(function=_nodes, kwargs={'declared': declared})])

@@ -31,6 +31,37 @@ def fail_launch_on_error(node):
     return RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit))
 
 
+def flag(name: str, value: str) -> bool:
+    """A true/false launch argument ``name:=value``; ValueError naming it otherwise."""
+    if value.lower() not in ('true', 'false'):
+        raise ValueError(f'{name}:={value} is not true or false')
+    return value.lower() == 'true'
+
+
+def undeclared(argv, declared) -> list:
+    """The names of the ``name:=value`` arguments in ``argv`` (ros2 launch's command line) that the
+    launch file does not declare: ros2 launch ignores them without a word."""
+    return sorted({a.split(':=', 1)[0] for a in argv or () if ':=' in a} - set(declared))
+
+
+def warn_undeclared(argv, declared) -> str:
+    """A warning in the launch's log for each argument given that the file does not take (before,
+    `output_dir:=` and `overwrite:=` went unheard, and the learner refused the folder of the last
+    run). A warning, not a refusal: a launch file that includes this one sees its own command line.
+    Returns the line ('' when none)."""
+    unknown = undeclared(argv, declared)
+    if not unknown:
+        return ''
+    from launch.logging import get_logger
+
+    line = (
+        f'ignored: {", ".join(name + ":=" for name in unknown)} (this launch file takes {", ".join(declared)}; '
+        'any other parameter of a node goes in the params file: params_file:=)'
+    )
+    get_logger('launch').warning(line)
+    return line
+
+
 # dds_profile:= of the launch files: a name shipped in share/eqhrl_ros/config, or an XML path.
 DDS_PROFILES = {'lossy_link': 'fastdds_lossy_link.xml'}
 DDS_PROFILE_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'  # what Fast DDS 2.x (ROS 2 Jazzy) reads

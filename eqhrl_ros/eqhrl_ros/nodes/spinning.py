@@ -176,7 +176,25 @@ class StopSignals:
 def init(args=None, name: str = 'node', context=None, saves: bool = True) -> StopSignals:
     """rclpy.init without rclpy's signal handlers, and ours installed (see the module doc)."""
     rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
-    return StopSignals(name, saves).install()
+    stop = StopSignals(name, saves).install()
+    end_with_parent()
+    return stop
+
+
+def end_with_parent() -> None:
+    """A SIGINT, a stop as at Ctrl-C (saved, exit 0), when the process that started this one dies.
+    `ros2 launch` ends at SIGTERM without stopping its nodes (launch's own warning: 'using SIGTERM
+    can result in orphaned processes'), and so did a kill -9 of it or of `ros2 run`: the orphaned
+    learner went on acting, and the next launch's learner made a second publisher on 'action', so
+    the env stepped for neither. Linux's PR_SET_PDEATHSIG; elsewhere, nothing."""
+    if not sys.platform.startswith('linux'):
+        return
+    import ctypes
+
+    parent = os.getppid()
+    ctypes.CDLL(None).prctl(1, int(signal.SIGINT), 0, 0, 0)  # 1: PR_SET_PDEATHSIG
+    if os.getppid() != parent:  # it died before the line above could watch it
+        os.kill(os.getpid(), signal.SIGINT)
 
 
 def spin(node_or_executor, stop: Optional[StopSignals] = None) -> None:

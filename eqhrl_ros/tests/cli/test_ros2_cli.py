@@ -118,6 +118,45 @@ print(' '.join(a.node_executable for a in actions if isinstance(a, Node)))
 """
 
 
+LAUNCH_PARAMETERS = LAUNCH_NODES.replace(
+    'context = LaunchContext()', 'context = LaunchContext(argv=sys.argv[2:])'
+).replace(
+    "print(' '.join(a.node_executable for a in actions if isinstance(a, Node)))",
+    """from launch_ros.utilities import evaluate_parameters
+for a in actions:
+    if isinstance(a, Node) and a.node_executable in ('learner', 'trainer'):
+        dicts = [p for p in evaluate_parameters(context, a._Node__parameters) if isinstance(p, dict)]
+        given = {k: v for p in dicts for k, v in p.items()}
+        print(a.node_executable, sorted((k, v) for k, v in given.items() if k in ('output_dir', 'resume', 'overwrite')))""",
+)
+
+
+@pytest.mark.parametrize('launch_file,node', [('train.launch.py', 'learner'), ('actors.launch.py', 'trainer')])
+def test_the_launch_files_take_the_runs_folder_resume_and_overwrite_and_warn_of_what_they_do_not_take(
+    ros2_env, colcon_install, launch_file, node
+):
+    """From outside: a second `ros2 launch eqhrl_ros train.launch.py env:=pendulum` was refused (the
+    folder holds a run: 'resume it (resume:=true ...) or replace it (overwrite:=true ...)'), and
+    resume:=true, overwrite:=true and output_dir:= given to the launch went unheard, without a word."""
+    path = colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros' / 'launch' / launch_file
+
+    def evaluated(*arguments):
+        command = ['python3', '-c', LAUNCH_PARAMETERS, str(path), 'env:=demo', 'actors:=1', *arguments]
+        return subprocess.run(command, env=ros2_env, capture_output=True, text=True, timeout=60)
+
+    result = evaluated('output_dir:=/tmp/elsewhere', 'resume:=true', 'ouput_dir:=/tmp/typo')
+    line = next((x for x in result.stdout.splitlines() if x.startswith(f'{node} [')), '')
+    assert result.returncode == 0 and "('output_dir', '/tmp/elsewhere')" in line, result.stdout + result.stderr[-2000:]
+    assert "('resume', True)" in line and 'overwrite' not in line, line
+    said = result.stdout + result.stderr  # launch's log: a warning line
+    assert 'ouput_dir:= (this launch file takes env, params_file' in said, said[-2000:]
+    if launch_file == 'train.launch.py':  # actors:= is the other file's: said for this one
+        assert 'ignored: actors:=, ouput_dir:=' in said, said[-2000:]
+    assert "('overwrite', True)]" in evaluated('overwrite:=true').stdout
+    refused = evaluated('resume:=maybe')
+    assert refused.returncode != 0 and 'resume:=maybe is not true or false' in refused.stderr
+
+
 @pytest.mark.parametrize(
     'launch_file,arguments,nodes',
     [

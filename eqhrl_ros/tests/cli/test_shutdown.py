@@ -99,6 +99,37 @@ def test_every_node_exits_0_and_quietly_on_a_signal_and_a_second_one(tmp_path, s
     assert saved in logs['learner'].strip().splitlines()[-1], logs['learner'][-1000:]
 
 
+def test_a_node_whose_starter_dies_stops_as_at_ctrl_c(tmp_path):
+    """From outside: `kill <pid of ros2 launch>` (SIGTERM) ended the launch and left its nodes
+    running (launch's own: 'using SIGTERM can result in orphaned processes'); so did a kill -9 of
+    it or of `ros2 run`. The orphaned learner went on acting beside the next launch's. Now a node
+    stops when the process that started it dies, as at Ctrl-C."""
+    import sys
+
+    log = tmp_path / 'node.log'
+    starter_code = (
+        'import subprocess, sys\n'
+        'with open(sys.argv[1], "w") as log:\n'
+        '    node = subprocess.Popen(sys.argv[2:], stdout=log, stderr=subprocess.STDOUT)\n'
+        '    print(node.pid, flush=True)\n'
+        '    node.wait()\n'
+    )
+    command = [str(BIN / 'double_integrator_env'), '--ros-args', '-r', '__ns:=/orphan']
+    starter = subprocess.Popen(
+        [sys.executable, '-c', starter_code, str(log), *command], stdout=subprocess.PIPE, text=True
+    )
+    node = int(starter.stdout.readline())
+    try:
+        assert wait_for(lambda: 'lock-step' in log.read_text(), 60), log.read_text()
+        starter.kill()  # as a kill -9 of ros2 run, or launch's own end at SIGTERM
+        starter.wait()
+        assert wait_for(lambda: not os.path.exists(f'/proc/{node}') or ' Z ' in open(f'/proc/{node}/stat').read(), 20)
+    finally:
+        if os.path.exists(f'/proc/{node}'):
+            os.kill(node, signal.SIGKILL)
+    assert clean(log.read_text()), log.read_text()[-2000:]
+
+
 @pytest.mark.slow
 def test_a_signal_during_updates_never_saves_half_an_update(tmp_path):
     # Updates take most of each step here, so the signal lands inside one. Each update
