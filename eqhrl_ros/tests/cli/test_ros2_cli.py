@@ -127,7 +127,8 @@ for a in actions:
     if isinstance(a, Node) and a.node_executable in ('learner', 'trainer'):
         dicts = [p for p in evaluate_parameters(context, a._Node__parameters) if isinstance(p, dict)]
         given = {k: v for p in dicts for k, v in p.items()}
-        print(a.node_executable, sorted((k, v) for k, v in given.items() if k in ('output_dir', 'resume', 'overwrite')))""",
+        run = sorted((k, v) for k, v in given.items() if k in ('output_dir', 'resume', 'overwrite'))
+        print(a.node_executable, run)""",
 )
 
 
