@@ -38,14 +38,21 @@ from eqhrl_ros.files.paths import params_file as shipped_params_file
 from eqhrl_ros.files.paths import shipped
 from eqhrl_ros.files.yaml_files import load_mapping
 from eqhrl_ros.nodes.launching import dds_profile_env, env_node_for, fail_launch_on_error, flag, warn_undeclared
-from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, SPACE_PARAMS, TRAINER_PARAMS, learner_section_for
+from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, SPACE_PARAMS, TRAINER_PARAMS, learner_section_for, section_applies
 
 # What a trainer is told of the env; camera actors' trainer takes it (and the camera) from their batches.
 ENV_NAMES = ('env_id', *(p.name for p in SPACE_PARAMS))
 
 
 def _section(data: dict, name: str) -> dict:
-    return dict((data.get(name) or {}).get('ros__parameters') or {})
+    """The parameters of the file's sections for node ``name`` in the root namespace (`name:`,
+    `/name:`, `/**/name:`), or of `/**` itself; the launch passes them to its namespaced nodes."""
+    keys = [k for k in data if k == name or (name != '/**' and str(k).rstrip('/').split('/')[-1] == name)]
+    merged = {}
+    for key in keys:
+        if key == name or section_applies(str(key), f'/{name}'):
+            merged.update((data.get(key) or {}).get('ros__parameters') or {})
+    return merged
 
 
 def _prefix(given: str, with_trainer: bool) -> str:

@@ -94,7 +94,12 @@ def env_node_for(params: dict, given: str = '') -> str:
         if given not in ENV_NODES:
             raise ValueError(f'env node {given!r} is not one of {", ".join(ENV_NODES)}')
         return given
-    sections = [name for name in ENV_NODES[:-1] if name in params or f'/{name}' in params]
+    from ..parameters import section_applies
+
+    def named(key: str, name: str) -> bool:  # a section for that node: `name:`, `/name:`, `/**/name:`
+        return key.rstrip('/').split('/')[-1] == name and section_applies(key, f'/{name}')
+
+    sections = [name for name in ENV_NODES[:-1] if any(named(str(key), name) for key in params)]
     if len(sections) > 1:
         raise ValueError(
             f'the params file has a section for each of {" and ".join(sections)}: say which env node to start '

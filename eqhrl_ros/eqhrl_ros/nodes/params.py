@@ -7,11 +7,13 @@ value out of range or of the wrong type with a message naming the parameter.
 
 from __future__ import annotations
 
+import sys
+
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..parameters import BUILT_IN, Param
+from ..parameters import BUILT_IN, Param, section_applies
 
 
 def descriptor(param: Param) -> ParameterDescriptor:
@@ -93,3 +95,32 @@ def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
             f"unknown parameter(s) for node '{node.get_name()}': {', '.join(unknown)}; "
             f'known: {", ".join(sorted(known))}'
         )
+    warn_unapplied_sections(node)  # a file's section for this node that rcl did not apply: nothing to refuse
+
+
+def warn_unapplied_sections(node: Node, argv=None) -> str:
+    """A warning when a params file on the command line has sections named for this node and none
+    of them reaches it: `learner:` is /learner, so `ros2 run ... --params-file pendulum.yaml -r
+    __ns:=/robot1` set none of the file's learner keys, without a word (the run went on with the
+    defaults: lock-step, budget 30, a 0.3 s wait for a person). Returns the line ('' when none)."""
+    from ..files.yaml_files import load_mapping
+
+    argv = sys.argv if argv is None else argv
+    ros_args = argv[argv.index('--ros-args') :] if '--ros-args' in argv else []
+    files = [ros_args[i + 1] for i, word in enumerate(ros_args[:-1]) if word == '--params-file']
+    full, name = node.get_fully_qualified_name(), node.get_name()
+    for path in files:
+        try:
+            data = load_mapping(path, 'params file')
+        except (OSError, ValueError):
+            continue  # rcl read it already; what it could not read, it refused
+        named = [str(key) for key in data if str(key).rstrip('/').split('/')[-1] == name]
+        if named and not any(section_applies(key, full) for key in named):
+            line = (
+                f"params file {path}: its section {', '.join(named)} is not this node's ({full}), so none of "
+                f'its keys is set here: a section without a leading slash is in the root namespace; write '
+                f'/**/{name}: (any namespace) or {full}:'
+            )
+            node.get_logger().warn(line)
+            return line
+    return ''

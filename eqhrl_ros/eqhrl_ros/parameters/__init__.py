@@ -34,6 +34,7 @@ from .tables import (
     describe,
     file_section,
     params_of,
+    section_applies,
 )
 
 __all__ = [
@@ -60,6 +61,7 @@ __all__ = [
     'default_of',
     'describe',
     'file_section',
+    'section_applies',
     'learner_section_for',
     'params_of',
     'run_params',

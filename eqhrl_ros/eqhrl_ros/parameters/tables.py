@@ -229,6 +229,24 @@ def check_section(node_name: str, values: dict, *tables: tuple[Param, ...]) -> N
             raise ValueError(f"parameter '{name}' of node '{node_name}' is {value!r}; expected one of {param.choices}")
 
 
+def section_applies(key: str, node: str) -> bool:
+    """Whether rcl gives the params file section ``key`` to the node of full name ``node``
+    (e.g. /robot1/learner): a key without a leading slash is rooted (`learner` is /learner, which a
+    node in a namespace is not), `*` matches one name and `**` any number, none included
+    (`/**/learner` is every node named learner)."""
+    want = [t for t in ('/' + key.lstrip('/')).split('/') if t]
+    have = [t for t in node.split('/') if t]
+
+    def match(i: int, j: int) -> bool:
+        if i == len(want):
+            return j == len(have)
+        if want[i] == '**':
+            return any(match(i + 1, k) for k in range(j, len(have) + 1))
+        return j < len(have) and want[i] in ('*', have[j]) and match(i + 1, j + 1)
+
+    return match(0, 0)
+
+
 def file_section(data: dict, node_name: str) -> dict:
     """A node's parameters from a parsed params file, as rcl gives them to the node: its own
     section and the shared `/**` section, applied in the order they appear in the file (a key
@@ -249,7 +267,7 @@ def file_section(data: dict, node_name: str) -> dict:
         )
     merged = {}
     for key in data:  # the file's order (yaml keeps it)
-        if key in ('/**', node_name, f'/{node_name}'):
+        if section_applies(str(key), '/' + node_name.lstrip('/')):
             merged.update(values(key))
     return merged
 

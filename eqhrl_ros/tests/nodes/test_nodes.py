@@ -275,6 +275,40 @@ def test_every_parameter_reads_through_the_nodes_services_and_a_dump_starts_the_
         again.try_shutdown()
 
 
+def test_a_params_files_section_that_misses_a_namespaced_node_is_said_and_read_as_rcl_reads_it(ros_context, tmp_path):
+    """From outside: `ros2 run eqhrl_ros gym_env --ros-args --params-file teleop_pendulum.yaml -r
+    __ns:=/robot1` ran lock-step with the defaults: rcl gives a section `gym_env:` to /gym_env only,
+    and nothing said so (the learner beside it waited 0.3 s for a person, not the file's 5 s)."""
+    from eqhrl_ros.nodes.launching import env_node_for
+    from eqhrl_ros.nodes.params import warn_unapplied_sections
+    from eqhrl_ros.parameters import file_section, section_applies
+
+    assert section_applies('learner', '/learner') and not section_applies('learner', '/robot1/learner')
+    assert section_applies('/**/learner', '/robot1/learner') and section_applies('/**/learner', '/learner')
+    assert section_applies('/*/learner', '/robot1/learner') and not section_applies('/*/learner', '/learner')
+    assert section_applies('/**', '/a/b/c') and not section_applies('/robot2/learner', '/robot1/learner')
+    wildcard = {'/**/gym_env': {'ros__parameters': {'realtime': True}}, '/**': {'ros__parameters': {'env_id': 'X'}}}
+    assert file_section(wildcard, 'gym_env') == {'realtime': True, 'env_id': 'X'}
+    assert env_node_for({'/**/double_integrator_env': {'ros__parameters': {}}}) == 'double_integrator_env'
+    teleop = str(PARAMS_DIR / 'teleop_pendulum.yaml')
+    node = rclpy.create_node('gym_env', namespace='/robot1', context=ros_context)
+    try:
+        said = warn_unapplied_sections(node, ['gym_env', '--ros-args', '--params-file', teleop, '-r', '__ns:=/robot1'])
+        assert "its section gym_env is not this node's (/robot1/gym_env)" in said and '/**/gym_env:' in said
+    finally:
+        node.destroy_node()
+    robots = tmp_path / 'robots.yaml'  # one file for two robots: each node has its own section
+    robots.write_text(
+        '/robot1/learner:\n  ros__parameters: {seed: 1}\n/robot2/learner:\n  ros__parameters: {seed: 2}\n'
+    )
+    for name, namespace, path in (('gym_env', '/', teleop), ('learner', '/robot1', str(robots))):
+        node = rclpy.create_node(name, namespace=namespace, context=ros_context)
+        try:
+            assert warn_unapplied_sections(node, ['x', '--ros-args', '--params-file', path]) == ''
+        finally:
+            node.destroy_node()
+
+
 @pytest.mark.parametrize(
     'override,message',
     [
