@@ -229,7 +229,8 @@ function showRequest() {
     box.innerHTML = r.outcome === 'pending'
       ? `THE LEARNER ASKS YOU TO TAKE THE WHEEL${paused}<br>press the deadman (Shift) and steer: episode ${r.episode}, step ${r.step}` +
         `<div id="countdown">${left.toFixed(1)} s</div><small>the robot drives on its own until you take it</small>`
-      : `YOU HAVE THE WHEEL${paused}<br>${r.steps_driven} steps so far; release the deadman to hand back`;
+      : `YOU HAVE THE WHEEL${paused}<br>` + (paused ? '' : `driving for ${r.waited_s.toFixed(1)} s, at most ${left.toFixed(1)} s left; `) +
+        'release the deadman to hand back';
     box.className = 'wheel';
     box.dataset.outcome = r.outcome;
     if (key !== lastRequestKey) { alertPerson(box); lastRequestKey = key; }
@@ -265,6 +266,9 @@ function showRequest() {
 let audio = null;
 
 function unlockAudio() {
+  // Only a gesture the browser counts: Shift alone (the deadman) is none, and a context made on it
+  // stayed suspended, with the autoplay warning in the console; the next key or click makes it.
+  if (navigator.userActivation && !navigator.userActivation.isActive) return;
   try {
     audio = audio || new (window.AudioContext || window.webkitAudioContext)();
     if (audio.state === 'suspended') audio.resume().then(showSoundState, showSoundState);

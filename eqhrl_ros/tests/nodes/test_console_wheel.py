@@ -107,6 +107,10 @@ def test_a_person_takes_the_wheel_when_asked_and_the_page_tells_the_truth(browse
         wait_for(lambda: len(applied) > at + 15, timeout=5, what='steps while driving')
         assert applied[at + 1 : at + 15] == [-2.0] * 14
         assert 'YOU HAVE THE WHEEL' in text('request')
+        # The seconds driven go on while the person drives (before: '1 steps so far' all along, the
+        # count of the one message that said the wheel was taken).
+        driven = float(text('request').split('driving for ')[1].split(' s')[0])
+        wait_for(lambda: float(text('request').split('driving for ')[1].split(' s')[0]) >= driven + 0.5, what='seconds')
         keys(('up', Keys.SHIFT))
         wait_for(lambda: text('driver') == 'the learner drives', timeout=5, what='the wheel handed back')
         wait_for(
