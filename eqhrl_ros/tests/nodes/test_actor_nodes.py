@@ -374,12 +374,14 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
         'trainer': {p.name for p in (*LEARNER_CONFIG_PARAMS, *TRAINER_PARAMS)} | {'use_sim_time'},
     }
     defaults = dict(actor_prefix='', actor_offset='0', resume='false', transitions_topic='/transitions', key_file='')
+    defaults.update(overwrite='false', output_dir='')
+    context = types.SimpleNamespace(argv=[])  # ros2 launch's command line
     defaults['dds_profile'] = ''
     arguments.update(defaults, weights_topic='/weights', trainer_actors='')
 
     def launched():
         """The nodes, after checking that each has its handler: an error exit stops the launch."""
-        result = launch_file._nodes(None)
+        result = launch_file._nodes(context, declared=[])
         nodes = [n for n in result if isinstance(n, dict)]
         handlers = [h for kind, h in (r for r in result if isinstance(r, tuple))]
         assert [h['target_action'] for h in handlers] == nodes
@@ -437,7 +439,7 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
     assert len(profiles) == 1 and profiles.pop().endswith('config/fastdds_lossy_link.xml')
     arguments.update(dds_profile='lossy')
     with pytest.raises(ValueError, match='dds_profile:=lossy is neither'):
-        launch_file._nodes(None)
+        launch_file._nodes(context, declared=[])
     arguments.update(dds_profile='')
     # A trainer alone, told its actors on other machines by name.
     arguments.update(actors='0', trainer_actors='/host_a_actor0/actor, /host_b_actor0/actor', key_file='')
