@@ -63,7 +63,28 @@ def declare(node: Node, params: tuple[Param, ...]) -> dict:
         if param.choices and value not in param.choices:
             raise ValueError(f"parameter '{param.name}' is {value!r}; expected one of {param.choices}")
         values[param.name] = value
+    _values_as_set(node).update(values)
     return values
+
+
+def _values_as_set(node: Node) -> dict:
+    """The node's parameter values as last set, kept so that each run-time change is logged with the
+    value it replaced: rclpy's parameter services do not say who calls them, so any node on the graph
+    may set one (`ros2 param set`, the page's budget fields), and the node's log is where its person
+    sees that it happened (before: a change was applied without a word)."""
+    known = getattr(node, '_eqhrl_values_as_set', None)
+    if known is None:
+        known = node._eqhrl_values_as_set = {}
+
+        def said(changes) -> None:
+            for change in changes:
+                node.get_logger().info(
+                    f'parameter {change.name} set to {change.value!r} (was {known.get(change.name)!r})'
+                )
+                known[change.name] = change.value
+
+        node.add_post_set_parameters_callback(said)
+    return known
 
 
 def choices_validator(params: tuple[Param, ...]):

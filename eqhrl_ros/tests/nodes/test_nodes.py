@@ -4,6 +4,7 @@ import ast
 import csv
 import dataclasses
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -323,12 +324,18 @@ def test_bad_parameters_are_refused_at_start_up_naming_the_key(ros_context, tmp_
         LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, **override))
 
 
-def test_run_time_parameters_are_range_checked_and_applied(harness, ros_context, tmp_path):
+def test_run_time_parameters_are_range_checked_applied_and_said(harness, ros_context, tmp_path):
+    """Any node may set a run-time parameter (rclpy's services say nothing of the caller): before, a
+    change was applied without a word; now the node logs it with the value it replaced."""
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    said, logger = [], learner.get_logger()
+    learner.get_logger = lambda: SimpleNamespace(info=said.append, warn=logger.warn, error=logger.error)
+    before = learner.get_parameter('advising_budget').value
     results = learner.set_parameters(params(advising_budget=-1))
     assert not results[0].successful
     assert learner.set_parameters(params(advising_budget=7))[0].successful
     assert learner.learner.gates.advising_budget == 7
+    assert said == [f'parameter advising_budget set to 7 (was {before})']
     assert not learner.set_parameters(params(seed=3))[0].successful  # read-only while running
     # A change that a later check refuses is never applied: checks run on-set, changes post-set.
     from rcl_interfaces.msg import SetParametersResult
@@ -336,6 +343,8 @@ def test_run_time_parameters_are_range_checked_and_applied(harness, ros_context,
     learner.add_on_set_parameters_callback(lambda changes: SetParametersResult(successful=False, reason='veto'))
     assert not learner.set_parameters(params(advising_budget=9))[0].successful
     assert learner.learner.gates.advising_budget == 7 and learner.learner.config.advising_budget == 7
+    assert len(said) == 1  # a refused change is not said to be made
+    del learner.get_logger
 
 
 def test_realtime_env_steps_at_its_rate_holding_the_last_action(harness, ros_context):
