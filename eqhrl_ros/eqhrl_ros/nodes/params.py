@@ -78,9 +78,10 @@ def _values_as_set(node: Node) -> dict:
 
         def said(changes) -> None:
             for change in changes:
-                node.get_logger().info(
-                    f'parameter {change.name} set to {change.value!r} (was {known.get(change.name)!r})'
-                )
+                if change.name in known:  # not one being declared now (rclpy calls this for those too)
+                    node.get_logger().info(
+                        f'parameter {change.name} set to {change.value!r} (was {known[change.name]!r})'
+                    )
                 known[change.name] = change.value
 
         node.add_post_set_parameters_callback(said)

@@ -327,9 +327,18 @@ def test_bad_parameters_are_refused_at_start_up_naming_the_key(ros_context, tmp_
 def test_run_time_parameters_are_range_checked_applied_and_said(harness, ros_context, tmp_path):
     """Any node may set a run-time parameter (rclpy's services say nothing of the caller): before, a
     change was applied without a word; now the node logs it with the value it replaced."""
-    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
-    said, logger = [], learner.get_logger()
-    learner.get_logger = lambda: SimpleNamespace(info=said.append, warn=logger.warn, error=logger.error)
+    said = []
+    logger = rclpy.logging.get_logger('learner')
+    quiet = SimpleNamespace(info=said.append, warn=logger.warn, error=logger.error)
+    original = LearnerNode.get_logger
+    LearnerNode.get_logger = lambda self: quiet  # from its first line: declaring says nothing
+    try:
+        learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path)))
+    finally:
+        LearnerNode.get_logger = original
+    assert not [line for line in said if line.startswith('parameter ')], said
+    said.clear()
+    learner.get_logger = lambda: quiet
     before = learner.get_parameter('advising_budget').value
     results = learner.set_parameters(params(advising_budget=-1))
     assert not results[0].successful
