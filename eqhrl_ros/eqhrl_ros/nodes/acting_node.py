@@ -63,7 +63,7 @@ class ActingNode(Node):
     @leaves_nothing_when_refused
     def __init__(self, node_name: str, node_params: tuple, **kwargs):
         super().__init__(node_name, **kwargs)
-        reject_unknown_overrides(self, LEARNER_CONFIG_PARAMS, node_params)
+        reject_unknown_overrides(self, LEARNER_CONFIG_PARAMS, node_params, settings_of='learner')
         values = declare(self, LEARNER_CONFIG_PARAMS)
         self.params = declare(self, node_params)
         # Check in the on-set callback (a later one may still refuse the change), act in the

@@ -104,10 +104,12 @@ def choices_validator(params: tuple[Param, ...]):
     return validate
 
 
-def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
+def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...], settings_of: str = '') -> None:
     """Refuse parameters given for this node that it does not declare (a typo in a params file).
 
-    rclpy would otherwise ignore them silently and the run would use a default.
+    rclpy would otherwise ignore them silently and the run would use a default. ``settings_of``: the
+    node whose section holds this one's settings in the shipped files (the actor's and the trainer's
+    are in learner:, which actors.launch.py hands to them).
     """
     known = {p.name for table in tables for p in table} | set(BUILT_IN)
     # rclpy keeps the overrides from params files and -p arguments here; there is no public accessor.
@@ -117,14 +119,16 @@ def reject_unknown_overrides(node: Node, *tables: tuple[Param, ...]) -> None:
             f"unknown parameter(s) for node '{node.get_name()}': {', '.join(unknown)}; "
             f'known: {", ".join(sorted(known))}'
         )
-    warn_unapplied_sections(node)  # a file's section for this node that rcl did not apply: nothing to refuse
+    warn_unapplied_sections(node, settings_of=settings_of)  # a section rcl did not apply: nothing to refuse
 
 
-def warn_unapplied_sections(node: Node, argv=None) -> str:
+def warn_unapplied_sections(node: Node, argv=None, settings_of: str = '') -> str:
     """A warning when a params file on the command line has sections named for this node and none
     of them reaches it: `learner:` is /learner, so `ros2 run ... --params-file pendulum.yaml -r
     __ns:=/robot1` set none of the file's learner keys, without a word (the run went on with the
-    defaults: lock-step, budget 30, a 0.3 s wait for a person). Returns the line ('' when none)."""
+    defaults: lock-step, budget 30, a 0.3 s wait for a person). A trainer or actor given a file with a
+    learner: section (``settings_of``) and none of its own is told so too: rcl gives it to /learner
+    only, and the trainer ran on Table 1's defaults. Returns the line ('' when none)."""
     from ..files.yaml_files import load_mapping
 
     argv = sys.argv if argv is None else argv
@@ -136,13 +140,23 @@ def warn_unapplied_sections(node: Node, argv=None) -> str:
             data = load_mapping(path, 'params file')
         except (OSError, ValueError):
             continue  # rcl read it already; what it could not read, it refused
-        named = [str(key) for key in data if str(key).rstrip('/').split('/')[-1] == name]
-        if named and not any(section_applies(key, full) for key in named):
+        last = {str(key): str(key).rstrip('/').split('/')[-1] for key in data}
+        own = [key for key, token in last.items() if token == name]
+        theirs = [key for key, token in last.items() if settings_of and token == settings_of != name]
+        if any(section_applies(key, full) for key in own) or not (own or theirs):
+            continue
+        if own:
             line = (
-                f"params file {path}: its section {', '.join(named)} is not this node's ({full}), so none of "
+                f"params file {path}: its section {', '.join(own)} is not this node's ({full}), so none of "
                 f'its keys is set here: a section without a leading slash is in the root namespace; write '
                 f'/**/{name}: (any namespace) or {full}:'
             )
-            node.get_logger().warn(line)
-            return line
+        else:
+            line = (
+                f'params file {path}: its section {", ".join(theirs)} is for a node named {settings_of}, so none '
+                f'of its keys is set on this {name}: ros2 launch eqhrl_ros actors.launch.py params_file:={path} '
+                f'gives them to the trainer and the actors (or write a /**/{name}: section)'
+            )
+        node.get_logger().warn(line)
+        return line
     return ''

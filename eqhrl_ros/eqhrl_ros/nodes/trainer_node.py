@@ -71,7 +71,7 @@ class TrainerNode(RunFiles, Node):
     @leaves_nothing_when_refused
     def __init__(self, **kwargs):
         super().__init__('trainer', **kwargs)
-        reject_unknown_overrides(self, LEARNER_CONFIG_PARAMS, TRAINER_PARAMS)
+        reject_unknown_overrides(self, LEARNER_CONFIG_PARAMS, TRAINER_PARAMS, settings_of='learner')
         values = declare(self, LEARNER_CONFIG_PARAMS)
         self.params = p = declare(self, TRAINER_PARAMS)
         self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))

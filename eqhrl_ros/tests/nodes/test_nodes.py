@@ -298,6 +298,16 @@ def test_a_params_files_section_that_misses_a_namespaced_node_is_said_and_read_a
         assert "its section gym_env is not this node's (/robot1/gym_env)" in said and '/**/gym_env:' in said
     finally:
         node.destroy_node()
+    # A trainer given a shipped file: its settings are in learner:, which rcl gives to /learner only
+    # (before, `ros2 run eqhrl_ros trainer --ros-args --params-file pendulum.yaml` ran on Table 1's defaults).
+    node = rclpy.create_node('trainer', context=ros_context)
+    pendulum = str(PARAMS_DIR / 'pendulum.yaml')
+    try:
+        said = warn_unapplied_sections(node, ['x', '--ros-args', '--params-file', pendulum], settings_of='learner')
+        assert 'its section learner is for a node named learner' in said and 'actors.launch.py' in said
+        assert warn_unapplied_sections(node, ['x', '--ros-args', '--params-file', pendulum]) == ''
+    finally:
+        node.destroy_node()
     robots = tmp_path / 'robots.yaml'  # one file for two robots: each node has its own section
     robots.write_text(
         '/robot1/learner:\n  ros__parameters: {seed: 1}\n/robot2/learner:\n  ros__parameters: {seed: 2}\n'
