@@ -35,9 +35,15 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from eqhrl_ros.files.paths import params_file as shipped_params_file
-from eqhrl_ros.files.paths import shipped
 from eqhrl_ros.files.yaml_files import load_mapping
-from eqhrl_ros.nodes.launching import dds_profile_env, env_node_for, fail_launch_on_error, flag, warn_undeclared
+from eqhrl_ros.nodes.launching import (
+    dds_profile_env,
+    env_node_for,
+    fail_launch_on_error,
+    flag,
+    shared_arguments,
+    warn_undeclared,
+)
 from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, SPACE_PARAMS, TRAINER_PARAMS, learner_section_for, section_applies
 
 # What a trainer is told of the env; camera actors' trainer takes it (and the camera) from their batches.
@@ -136,12 +142,7 @@ def _nodes(context, declared):
 
 def generate_launch_description():
     arguments = [
-        DeclareLaunchArgument(
-            'env',
-            default_value='pendulum',
-            description=f'params file name: {", ".join(shipped("params"))}',
-        ),
-        DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
+        *shared_arguments('trainer'),
         DeclareLaunchArgument('actors', default_value='2', description='actors to start, each with env and expert'),
         DeclareLaunchArgument('trainer', default_value='true', description='start the trainer here'),
         DeclareLaunchArgument(
@@ -154,11 +155,6 @@ def generate_launch_description():
         ),
         DeclareLaunchArgument(
             'actor_offset', default_value='0', description='index of the first actor here (its seed follows)'
-        ),
-        DeclareLaunchArgument('resume', default_value='false', description="continue the trainer's run"),
-        DeclareLaunchArgument('overwrite', default_value='false', description="replace the trainer's run"),
-        DeclareLaunchArgument(
-            'output_dir', default_value='', description="the trainer's output folder (default: the params file's)"
         ),
         DeclareLaunchArgument(
             'trainer_actors',

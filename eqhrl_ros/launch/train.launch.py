@@ -21,9 +21,8 @@ from launch_ros.actions import Node
 
 from eqhrl_ros.core.algorithm.config import MODES
 from eqhrl_ros.files.paths import params_file as shipped_params_file
-from eqhrl_ros.files.paths import shipped
 from eqhrl_ros.files.yaml_files import load_mapping
-from eqhrl_ros.nodes.launching import env_node_for, fail_launch_on_error, flag, warn_undeclared
+from eqhrl_ros.nodes.launching import env_node_for, fail_launch_on_error, flag, shared_arguments, warn_undeclared
 
 # expert:=... -> the executable it starts (none: your own expert, started apart).
 EXPERT_NODES = {'expert': 'expert', 'teleop': 'teleop_expert', 'none': None}
@@ -91,12 +90,7 @@ def _nodes(context, declared):
 
 def generate_launch_description():
     arguments = [
-        DeclareLaunchArgument(
-            'env',
-            default_value='pendulum',
-            description=f'params file name: {", ".join(shipped("params"))}',
-        ),
-        DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
+        *shared_arguments('learner'),
         DeclareLaunchArgument(
             'mode',
             default_value='',
@@ -120,13 +114,6 @@ def generate_launch_description():
             'or none (your own, started apart); default: the one the params file has a section for, '
             'else gym_env',
         ),
-        DeclareLaunchArgument(
-            'output_dir', default_value='', description="the learner's output folder (default: the params file's)"
-        ),
-        DeclareLaunchArgument(
-            'resume', default_value='false', description='continue the run in the output folder (after Ctrl-C)'
-        ),
-        DeclareLaunchArgument('overwrite', default_value='false', description='replace the run in the output folder'),
     ]
     declared = [argument.name for argument in arguments]
     return LaunchDescription([*arguments, OpaqueFunction(function=_nodes, kwargs={'declared': declared})])

@@ -31,6 +31,30 @@ def fail_launch_on_error(node):
     return RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit))
 
 
+def shared_arguments(whose: str) -> list:
+    """The launch arguments both launch files take, declared once: the params file (``env`` by
+    name, or ``params_file``), and the run's folder for the node that saves (``whose``: 'learner' or
+    'trainer'): ``output_dir``, ``resume``, ``overwrite`` (before, given to the launch, these went
+    unheard, and a second launch was refused the folder of the first)."""
+    from launch.actions import DeclareLaunchArgument
+
+    from ..files.paths import shipped
+
+    return [
+        DeclareLaunchArgument(
+            'env', default_value='pendulum', description=f'params file name: {", ".join(shipped("params"))}'
+        ),
+        DeclareLaunchArgument('params_file', default_value='', description='a params file path (overrides env)'),
+        DeclareLaunchArgument(
+            'output_dir', default_value='', description=f"the {whose}'s output folder (default: the params file's)"
+        ),
+        DeclareLaunchArgument(
+            'resume', default_value='false', description=f"continue the {whose}'s run (after Ctrl-C)"
+        ),
+        DeclareLaunchArgument('overwrite', default_value='false', description=f"replace the {whose}'s run"),
+    ]
+
+
 def flag(name: str, value: str) -> bool:
     """A true/false launch argument ``name:=value``; ValueError naming it otherwise."""
     if value.lower() not in ('true', 'false'):

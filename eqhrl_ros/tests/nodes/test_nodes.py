@@ -197,6 +197,15 @@ def test_three_nodes_run_and_resume_from_checkpoint(harness, ros_context, tmp_pa
 # ------------------------------------------------------------------ parameters
 
 
+def end_nodes(nodes, context) -> None:
+    """Nodes made in a context of a test's own: closed (a learner saves), destroyed, the context shut down."""
+    for node in nodes:
+        if isinstance(node, LearnerNode):
+            node.close()
+        node.destroy_node()
+    context.try_shutdown()
+
+
 @pytest.mark.parametrize('name', ['pendulum', 'lunar_lander', 'demo'])
 def test_each_params_file_loads_into_all_three_nodes(name, tmp_path):
     context = rclpy.Context()
@@ -210,11 +219,7 @@ def test_each_params_file_loads_into_all_three_nodes(name, tmp_path):
         assert nodes[2].params['env_id'] == env_id == nodes[1].params['env_id']
         assert nodes[2].config.advising_budget == {'pendulum': 30, 'lunar_lander': 300, 'demo': 20}[name]
     finally:
-        for node in nodes:
-            if isinstance(node, LearnerNode):
-                node.close()
-            node.destroy_node()
-        context.try_shutdown()
+        end_nodes(nodes, context)
 
 
 def test_every_parameter_reads_through_the_nodes_services_and_a_dump_starts_the_node_again(harness, tmp_path):
@@ -254,11 +259,7 @@ def test_every_parameter_reads_through_the_nodes_services_and_a_dump_starts_the_
                 'ros__parameters': {n: parameter_value_to_python(v) for n, v in zip(names, values)}
             }
     finally:
-        for node in nodes:
-            if isinstance(node, LearnerNode):
-                node.close()
-            node.destroy_node()
-        first.try_shutdown()
+        end_nodes(nodes, first)
     assert dumped['/gym_env']['ros__parameters']['env_id'] == 'Pendulum-v1'
     dump = tmp_path / 'dump.yaml'
     dump.write_text(yaml.safe_dump(dumped))
@@ -269,11 +270,7 @@ def test_every_parameter_reads_through_the_nodes_services_and_a_dump_starts_the_
         learner = dumped['/learner']['ros__parameters']
         assert nodes[2].config.advising_budget == learner['advising_budget'] and learner['env_id'] == 'Pendulum-v1'
     finally:
-        for node in nodes:
-            if isinstance(node, LearnerNode):
-                node.close()
-            node.destroy_node()
-        again.try_shutdown()
+        end_nodes(nodes, again)
 
 
 def test_a_params_files_section_that_misses_a_namespaced_node_is_said_and_read_as_rcl_reads_it(ros_context, tmp_path):
