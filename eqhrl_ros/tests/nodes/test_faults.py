@@ -30,7 +30,10 @@ def test_bad_advice_is_counted_by_kind_and_never_used(harness, ros_context, tmp_
     finally:
         expert.close()
     totals = learner.learner.advice_total
-    assert totals.asked > 0 and totals.failed[kind] == totals.asked and totals.given == 0
+    # Each request is refused as its kind; a rare one times out instead (the stub answers from a thread
+    # of this busy process, within advice_timeout_s 0.3 s: once in a cold CI rehearsal, 1 of 26).
+    assert totals.asked > 0 and totals.failed[kind] > totals.failed['timeout']
+    assert totals.failed[kind] + totals.failed['timeout'] == totals.asked and totals.given == 0
     assert len(learner.learner.advice_replay) == 0
 
 
