@@ -14,9 +14,13 @@ update; OpenMP's thread count belongs to the thread that sets it):
 - with every thread: if that thread waited for a CPU (runnable, not running: /proc's schedstat)
   more than CROWDED of the window, another process holds the cores: it drops to one thread;
 - with one thread: once the machine left FREE_CORES idle over a window (/proc/stat), it
-  goes back to every thread. A return that finds the cores taken again within two windows
-  doubles the wait before the next (up to MAX_BACKOFF windows), so that a container whose /proc/stat
-  sees a bigger host does not flip every second.
+  goes back to every thread. A return that finds the cores taken again before it has lasted as
+  long as the wait before it (and at least two windows) doubles the wait before the next (up to
+  MAX_BACKOFF windows), so that a container whose /proc/stat sees a bigger host, or a learner in
+  lock-step with an env beside it, does not flip every second.
+
+Each switch is told in one line, at most one line every REPORT_EVERY_S: switches in between are
+counted and told together in the next line, so the last line always says the count torch has.
 
 It stands down for good where someone else sets torch's thread count (``fix``, for a node's
 torch_threads > 0, via ``for_node``; a script's torch.set_num_threads between updates), where torch has one thread
@@ -37,6 +41,7 @@ WINDOW_S = 0.5  # how often the updates' thread looks
 CROWDED = 0.15  # with every thread: waited for a CPU over this share of the window -> one thread
 FREE_CORES = 0.7  # with one thread: the machine left this many cores idle over the window -> every thread
 MAX_BACKOFF = 64  # windows: the longest wait before trying every thread again
+REPORT_EVERY_S = 30.0  # at most one line per this: a machine that flips gets a count, not a line a second
 
 
 def thread_waited_s() -> float:
@@ -72,6 +77,8 @@ class ThreadGovernor:
         self.report = report  # told of each switch, in one line (a node's logger)
         self.standing_down = '' if most > 1 else 'torch has one thread'
         self.switches = 0
+        self._untold, self._last_why = 0, ''  # switches not yet told (REPORT_EVERY_S), the last one's reason
+        self._told_at: Optional[float] = None
         self._backoff = 1  # windows to wait at one thread before trying every thread again
         self._windows_here = 0  # windows since the last switch
         self._since: Optional[tuple] = None
@@ -93,7 +100,9 @@ class ThreadGovernor:
             self.standing_down = f'torch set to {self._get()} threads by its caller'
             return
         start, waited_before, idle_before = self._since
-        if self._clock() - start < WINDOW_S:
+        clock = self._clock()
+        self._tell(clock)
+        if clock - start < WINDOW_S:
             return
         now = self._read()
         if now is None:
@@ -103,8 +112,9 @@ class ThreadGovernor:
         self._since = now
         self._windows_here += 1
         if self.threads > 1 and waited > CROWDED:
-            # Found crowded right after a return: wait longer before the next one.
-            self._backoff = min(2 * self._backoff, MAX_BACKOFF) if self._windows_here <= 2 and self.switches else 1
+            # Found crowded before the return outlasted the wait before it: wait longer next time.
+            quick = self.switches and self._windows_here <= max(2, self._backoff)
+            self._backoff = min(2 * self._backoff, MAX_BACKOFF) if quick else 1
             self._switch(1, f'the updates waited for a CPU {waited:.0%} of the last {seconds:.1f} s')
         elif self.threads == 1 and idle >= FREE_CORES and self._windows_here >= self._backoff:
             self._switch(self.most, f'the machine left {idle:.1f} cores idle over the last {seconds:.1f} s')
@@ -113,8 +123,22 @@ class ThreadGovernor:
         self._set(threads)
         self.threads, self._windows_here = threads, 0
         self.switches += 1
-        if self.report is not None:
-            self.report(f'torch threads {threads} (of {self.most}): {why}')
+        self._untold, self._last_why = self._untold + 1, why
+        self._tell(self._clock())
+
+    def _tell(self, now: float) -> None:
+        """The switches not yet told, in one line, unless a line went out under REPORT_EVERY_S ago."""
+        if self.report is None or not self._untold:
+            return
+        if self._told_at is not None and now - self._told_at < REPORT_EVERY_S:
+            return
+        head = f'torch threads {self.threads} (of {self.most})'
+        if self._untold == 1:
+            self.report(f'{head}: {self._last_why}')
+        else:
+            since = f' in the last {now - self._told_at:.0f} s' if self._told_at is not None else ''
+            self.report(f'{head}, after {self._untold} switches{since} (the last: {self._last_why})')
+        self._untold, self._told_at = 0, now
 
 
 _governor: Optional[ThreadGovernor] = None

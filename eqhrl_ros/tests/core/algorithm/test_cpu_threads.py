@@ -6,7 +6,14 @@ import pytest
 import torch
 
 from eqhrl_ros.core.algorithm import cpu_threads
-from eqhrl_ros.core.algorithm.cpu_threads import CROWDED, FREE_CORES, MAX_BACKOFF, WINDOW_S, ThreadGovernor
+from eqhrl_ros.core.algorithm.cpu_threads import (
+    CROWDED,
+    FREE_CORES,
+    MAX_BACKOFF,
+    REPORT_EVERY_S,
+    WINDOW_S,
+    ThreadGovernor,
+)
 
 
 class Machine:
@@ -66,17 +73,35 @@ def test_a_crowded_machine_gets_one_thread_and_every_thread_back_once_cores_are_
     assert machine.threads == 2 and governor.switches == 2
 
 
-def test_each_switch_is_told_in_one_line_with_its_reason():
+def test_each_switch_is_told_in_one_line_with_its_reason_and_a_flipping_machine_in_a_count():
+    """A learner in lock-step with an env on 2 cores flipped 15 times a minute, each an info line
+    (2026-12-05). Now at most one line every REPORT_EVERY_S, the last one saying the count it has."""
     lines: list = []
     machine = Machine(2)
     governor = machine.governor(report=lines.append)
     machine.window(0.35, TAKEN)
     governor.tick()
+    assert lines == ['torch threads 1 (of 2): the updates waited for a CPU 35% of the last 0.5 s']
     machine.window(QUIET, 0.9)
+    governor.tick()  # back to every thread one window later: counted, not yet told
+    machine.window(CROWD, TAKEN)
     governor.tick()
-    assert lines == [
-        'torch threads 1 (of 2): the updates waited for a CPU 35% of the last 0.5 s',
-        'torch threads 2 (of 2): the machine left 0.9 cores idle over the last 0.5 s',
+    assert machine.threads == 1 and governor.switches == 3 and len(lines) == 1
+    while machine.now < REPORT_EVERY_S + WINDOW_S:  # one thread, nothing idle: no switch, and then a line
+        machine.window(QUIET, TAKEN)
+        governor.tick()
+    assert lines[1:] == [
+        f'torch threads 1 (of 2), after 2 switches in the last {REPORT_EVERY_S:.0f} s '
+        '(the last: the updates waited for a CPU 35% of the last 0.5 s)'
+    ]
+    told_at = machine.now
+    while machine.now < told_at + REPORT_EVERY_S:
+        machine.window(QUIET, TAKEN)
+        governor.tick()
+    machine.window(QUIET, 0.9)  # a switch long after the last line is told at once
+    governor.tick()
+    assert machine.threads == 2 and lines[2:] == [
+        'torch threads 2 (of 2): the machine left 0.9 cores idle over the last 0.5 s'
     ]
 
 
@@ -111,6 +136,27 @@ def test_a_return_that_finds_the_cores_taken_again_waits_longer_before_the_next(
         governor.tick()
         assert machine.threads == 1
     assert waits[:7] == [1, 2, 4, 8, 16, 32, 64] and waits[7:] == [MAX_BACKOFF, MAX_BACKOFF]
+
+
+def test_a_return_shorter_than_the_wait_before_it_still_grows_the_wait():
+    """A learner in lock-step with an env beside it: each return to every thread lasted a few
+    windows, the waits started over at one window, and the count flipped every few seconds."""
+    machine = Machine(2)
+    governor = machine.governor()
+    waits = []
+    for stay in (1, 1, 1, 5, 5):  # windows at every thread before the crowd comes back
+        machine.window(CROWD, TAKEN)
+        governor.tick()
+        windows = 0
+        while machine.threads == 1:
+            machine.window(QUIET, FREE)
+            governor.tick()
+            windows += 1
+        waits.append(windows)
+        for _ in range(stay - 1):
+            machine.window(QUIET, TAKEN)
+            governor.tick()
+    assert waits == [1, 2, 4, 8, 16]
 
 
 def test_a_crowd_long_after_a_return_starts_the_waits_over():
