@@ -44,6 +44,7 @@ class LearnerNode(RunFiles, ActingNode):
                 self.get_logger().info('prior not loaded: it seeds a fresh start only (a resumed run goes on as saved)')
         elif self.params['prior']:
             self._load_prior(learner)
+        self.run_folder.begin()  # accepted: provenance noted, a run overwritten removed only now
         with self._lock:
             self.record = EpisodeRecord(
                 self.csv_path,

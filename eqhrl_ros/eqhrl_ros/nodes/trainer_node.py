@@ -139,6 +139,7 @@ class TrainerNode(RunFiles, Node):
             extra = load_checkpoint(learner, self.checkpoint_path, self.replay_path)
             self._resumed(learner)
         p = self.params
+        self.run_folder.begin()  # accepted: provenance noted, a run overwritten removed only now
         self.record = EpisodeRecord(
             self.csv_path, TRAINER_CSV_FIELDS, keep_before=learner.episode if p['resume'] else None
         )

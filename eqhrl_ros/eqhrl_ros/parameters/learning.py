@@ -18,8 +18,9 @@ def run_params(output_dir: str) -> tuple:
         Param(
             'overwrite',
             False,
-            'Replace a run already in output_dir (episodes.csv, checkpoint, replay, policy); '
-            'without it (or resume) such a folder is refused, and so is the two together',
+            'Replace a run already in output_dir (episodes.csv, checkpoint, replay, policy), removed once the '
+            'start is accepted (a start refused before, e.g. for its prior, keeps it); without it (or resume) such '
+            'a folder is refused, and so is the two together',
         ),
         Param(
             'max_episodes',

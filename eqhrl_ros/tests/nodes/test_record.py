@@ -118,8 +118,9 @@ def test_a_run_seeded_with_an_earlier_runs_advice_starts_with_it(harness, ros_co
     assert second.learner.total_steps == 0  # prior data, not steps of this run
 
 
-def test_a_prior_from_other_spaces_is_refused_in_one_line(tmp_path):
-    record = McapRecord(tmp_path / 'record.mcap')
+def record_of_other_spaces(path) -> None:
+    """One advised transition of a 2-D observation in [-1, 1] actions, into the MCAP file ``path``."""
+    record = McapRecord(path)
     record.write_fields(
         '/learner/transitions',
         'eqhrl_interfaces/msg/TransitionBatch',
@@ -136,6 +137,10 @@ def test_a_prior_from_other_spaces_is_refused_in_one_line(tmp_path):
         },
     )
     record.close()
+
+
+def test_a_prior_from_other_spaces_is_refused_in_one_line(tmp_path):
+    record_of_other_spaces(tmp_path / 'record.mcap')
     with pytest.raises(RecordError, match='observations of 2 .* this env has 3'):
         load_prior([tmp_path], 3, [-2.0], [2.0])
     with pytest.raises(RecordError, match=r'actions in \[\[-1.0\], \[1.0\]\]'):
@@ -153,6 +158,22 @@ def test_a_prior_from_other_spaces_is_refused_in_one_line(tmp_path):
     cut = tmp_path / 'cut.mcap'  # a record cut short (kill -9) is still one: read up to its last chunk
     cut.write_bytes((tmp_path / 'record.mcap').read_bytes()[:-100])
     assert load_prior([cut], 2, [-1.0], [1.0]).cut_short == [cut]
+
+
+def test_a_start_refused_for_its_prior_keeps_the_run_it_would_overwrite_and_notes_no_start(ros_context, tmp_path):
+    """Before (2026-12-05) the folder's overwrite and its provenance entry came when it was opened,
+    before the prior was read: the refused start had removed the old run and noted a start that
+    never ran."""
+    record_of_other_spaces(tmp_path / 'prior.mcap')
+    run = tmp_path / 'run'
+    run.mkdir()
+    (run / 'episodes.csv').write_text('episode,return\n0,-1.0\n')
+    (run / 'checkpoint.pt').write_bytes(b'the old run')
+    overrides = small_learner_params(run, overwrite=True, prior=[str(tmp_path / 'prior.mcap')])
+    with pytest.raises(ValueError, match='prior: .*observations of 2 .* this env has 3'):
+        LearnerNode(context=ros_context, parameter_overrides=overrides)
+    assert (run / 'checkpoint.pt').read_bytes() == b'the old run' and (run / 'episodes.csv').exists()
+    assert not (run / 'provenance.yaml').exists()
 
 
 def test_a_record_cut_short_reads_up_to_its_last_chunk(tmp_path):

@@ -84,12 +84,21 @@ class RunFolder:
         if resume and not self.checkpoint.exists():
             raise RunFolderError(f"nothing to resume: '{self.checkpoint}' does not exist")
         self.removed_temporaries = remove_stale_temporaries(self.path)
-        self.provenance = note_provenance(self.path)  # what made this start of the run
-        if overwrite:
+        self.overwrite = overwrite
+        self.provenance: Optional[Path] = None
+
+    def begin(self) -> None:
+        """The start is accepted (the learner is built, its checkpoint or prior loaded): note what
+        made it in provenance.yaml and, with overwrite, remove the run it replaces. Until
+        2026-12-05 both happened when the folder was opened, so a start refused later (a prior of
+        another env, a learner that never got its spaces) left an entry for a start that never
+        ran, and with overwrite had already removed the run it did not replace."""
+        if self.overwrite:
             for name in RUN_FILES:
                 (self.path / name).unlink(missing_ok=True)
             for record in self.path.glob(RECORD_FILES):  # the MCAP record (record: true), resumes included
                 record.unlink(missing_ok=True)
+        self.provenance = note_provenance(self.path)  # what made this start of the run
 
 
 class EpisodeRecord:

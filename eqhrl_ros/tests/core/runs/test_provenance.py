@@ -14,8 +14,9 @@ REPO = Path(__file__).resolve().parents[4]
 
 
 def test_each_start_adds_its_commit_version_and_whether_the_tree_was_dirty(tmp_path):
-    RunFolder(tmp_path / 'run')
-    RunFolder(tmp_path / 'run', resume=False, overwrite=True)  # a second start of the same folder
+    RunFolder(tmp_path / 'run').begin()
+    RunFolder(tmp_path / 'run', resume=False, overwrite=True)  # refused later (a prior of another env): no entry
+    RunFolder(tmp_path / 'run', resume=False, overwrite=True).begin()  # a second start of the same folder
     starts = yaml.safe_load((tmp_path / 'run' / 'provenance.yaml').read_text())['starts']
     assert len(starts) == 2
     entry = starts[0]

@@ -133,7 +133,7 @@ def test_a_save_killed_between_its_two_renames_resumes_from_the_previous_pair_wi
         [sys.executable, '-c', KILLED_BETWEEN_THE_RENAMES, str(tmp_path)], capture_output=True, text=True, timeout=120
     )
     assert result.returncode == -9, result.stderr[-2000:]
-    RunFolder(tmp_path, resume=True)  # what a node does first: its stale temporaries go
+    RunFolder(tmp_path, resume=True).begin()  # what a node does: its stale temporaries go, its start noted
     fresh = small_learner(seed=1)
     load_checkpoint(fresh, tmp_path / 'checkpoint.pt', tmp_path / 'replay.pt')
     assert fresh.total_steps == 20 and len(fresh.replay) == 20  # the first save, whole
@@ -279,7 +279,9 @@ def test_a_folder_that_holds_a_run_is_refused_unless_resumed_or_overwritten(tmp_
     (tmp_path / 'episodes.csv').write_text('episode\n0\n')
     with pytest.raises(RunFolderError, match=r'holds a run \(episodes.csv\).*resume.*overwrite'):
         RunFolder(tmp_path)
-    RunFolder(tmp_path, overwrite=True)
+    folder = RunFolder(tmp_path, overwrite=True)
+    assert (tmp_path / 'episodes.csv').exists()  # kept until the start is accepted
+    folder.begin()
     assert not (tmp_path / 'episodes.csv').exists()
     RunFolder(tmp_path)  # now empty: a fresh run may start
 
