@@ -23,13 +23,13 @@ import sys
 from pathlib import Path
 
 from ..reports.run_report import (
-    THRESHOLDS,
     env_of,
     eval_figure,
     figures,
     format_table,
     read_eval,
     read_runs,
+    return_threshold,
     summarize,
 )
 
@@ -46,7 +46,11 @@ def main(argv=None) -> int:
     parser.add_argument(
         '--overwrite', action='store_true', help='replace a table.md already in --output (e.g. committed results)'
     )
-    parser.add_argument('--threshold', type=float, help='return threshold (default: per env)')
+    parser.add_argument(
+        '--threshold',
+        type=float,
+        help="return threshold (default: the env's: THRESHOLDS, else gymnasium's reward_threshold, else 0, said)",
+    )
     args = parser.parse_args(argv)
     output = Path(args.output)
     if (output / 'table.md').exists() and not args.overwrite:
@@ -63,7 +67,9 @@ def main(argv=None) -> int:
         print('eqhrl-report: no finished runs in the given folders', file=sys.stderr)
         return 1
     env_id = env_of(args.folders)
-    threshold = args.threshold if args.threshold is not None else THRESHOLDS.get(env_id, 0.0)
+    threshold = return_threshold(
+        env_id, args.threshold, say=lambda line: print(f'eqhrl-report: {line}', file=sys.stderr)
+    )
     output.mkdir(parents=True, exist_ok=True)
     text = format_table(summarize(runs, threshold), threshold)
     (output / 'table.md').write_text(text + '\n')

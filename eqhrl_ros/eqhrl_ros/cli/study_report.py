@@ -45,7 +45,11 @@ def main(argv=None) -> int:
     parser.add_argument(
         '--overwrite', action='store_true', help='replace a table.md already in --output (e.g. committed results)'
     )
-    parser.add_argument('--threshold', type=float, help="return threshold (default: the env's, report.THRESHOLDS)")
+    parser.add_argument(
+        '--threshold',
+        type=float,
+        help="return threshold (default: the env's: THRESHOLDS, else gymnasium's reward_threshold, else 0, said)",
+    )
     args = parser.parse_args(argv)
     folder, output = Path(args.folder), Path(args.output)
     if (output / 'table.md').exists() and not args.overwrite:

@@ -21,6 +21,27 @@ LABELS, COLORS = MODE_LABELS, MODE_COLORS
 THRESHOLDS = {'LunarLanderContinuous-v3': 200.0, 'Pendulum-v1': -200.0}
 
 
+def return_threshold(env_id: str, given=None, say=None) -> float:
+    """The return "episodes to reach" counts to: ``given`` (--threshold), else THRESHOLDS, else the
+    env's gymnasium ``reward_threshold``, else 0, and then ``say`` (print) is told that 0 is no
+    threshold of the env's (before, 2026-12-05, the double integrator's report used 0 unsaid)."""
+    if given is not None:
+        return float(given)
+    if env_id in THRESHOLDS:
+        return THRESHOLDS[env_id]
+    import gymnasium
+
+    spec = gymnasium.envs.registry.get(env_id)
+    if spec is not None and spec.reward_threshold is not None:
+        return float(spec.reward_threshold)
+    if say is not None:
+        say(
+            f'{env_id or "this env"} has no return threshold of its own: '
+            "'episodes to return ≥ 0' counts to 0 (give --threshold)"
+        )
+    return 0.0
+
+
 def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
     """{(algorithm, seed): {column: values sorted by episode}} from every folder."""
     rows = defaultdict(list)

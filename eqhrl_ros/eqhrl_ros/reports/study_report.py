@@ -4,13 +4,14 @@ holds: eqhrl-study-report's docstring)."""
 from __future__ import annotations
 
 import shutil
+import sys
 from collections import defaultdict
 from pathlib import Path
 
 from ..experiments.settings import learner_config
 from ..experiments.study_plan import arm_settings, budget_of, load_plan
 from ..files.yaml_files import load_mapping
-from .run_report import THRESHOLDS
+from .run_report import return_threshold
 from .study_figures import plot_curves, plot_effort, plot_frontier, plot_gates, plot_profile
 from .study_scores import RAW_FILES, first_update_episode, prior_size, read_arms, score_runs
 from .study_tables import (
@@ -33,7 +34,9 @@ def write_report(folder: Path, output: Path, threshold=None) -> None:
     loaded = load_plan(str(folder / 'plan.yaml'))
     settings = {arm.name: arm_settings(loaded, arm) for arm in loaded.arms}
     env_id = next(iter(settings.values())).env_id
-    threshold = threshold if threshold is not None else THRESHOLDS.get(env_id, 0.0)
+    threshold = return_threshold(
+        env_id, threshold, say=lambda line: print(f'eqhrl-study-report: {line}', file=sys.stderr)
+    )
     budget = {name: budget_of(s) for name, s in settings.items()}
     configs = {arm.name: learner_config(settings[arm.name], arm.mode, 0) for arm in loaded.arms}
     # The first episode with updates, run by run (LunarLander's episodes end at other steps).

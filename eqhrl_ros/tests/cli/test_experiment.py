@@ -129,6 +129,24 @@ def test_report_command_writes_table_and_figures(tmp_path):
     assert not (tmp_path / 'out' / 'eval_returns.png').exists()  # no eval.csv, no figure
 
 
+def test_the_return_to_reach_is_the_envs_own_or_said_to_be_none(tmp_path, capsys):
+    """Before (2026-12-05) a report of the double integrator counted episodes to a return of 0,
+    unsaid: 0 is no threshold of that env's."""
+    said: list = []
+    assert run_report.return_threshold('Pendulum-v1', say=said.append) == -200.0
+    assert run_report.return_threshold('MountainCarContinuous-v0', say=said.append) == 90.0  # gymnasium's own
+    assert run_report.return_threshold('double_integrator_env', -5.0, say=said.append) == -5.0 and said == []
+    assert run_report.return_threshold('double_integrator_env', say=said.append) == 0.0
+    assert said == [
+        "double_integrator_env has no return threshold of its own: 'episodes to return ≥ 0' counts to 0 "
+        '(give --threshold)'
+    ]
+    write_synthetic(tmp_path / 'runs')
+    (tmp_path / 'runs' / 'settings.yaml').write_text('env_id: double_integrator_env\n')
+    assert report.main([str(tmp_path / 'runs'), '--output', str(tmp_path / 'out')]) == 0
+    assert 'double_integrator_env has no return threshold of its own' in capsys.readouterr().err
+
+
 def test_report_reads_the_advice_free_evaluation(tmp_path):
     write_synthetic(tmp_path / 'runs')
     with open(tmp_path / 'runs' / 'eval.csv', 'w', newline='') as f:
