@@ -72,7 +72,7 @@ def _prefix(given: str, with_trainer: bool) -> str:
 
 
 def _nodes(context, declared):
-    warn_undeclared(context.argv, declared)
+    warn_undeclared(context.argv, declared, own_file=__file__)
     env = LaunchConfiguration('env').perform(context)
     params_file = LaunchConfiguration('params_file').perform(context) or str(shipped_params_file(env))
     data = load_mapping(params_file, 'params file')  # refused in one line, as the nodes refuse it

@@ -22,20 +22,34 @@ from launch_ros.actions import Node
 from eqhrl_ros.core.algorithm.config import MODES
 from eqhrl_ros.files.paths import params_file as shipped_params_file
 from eqhrl_ros.files.yaml_files import load_mapping
-from eqhrl_ros.nodes.launching import env_node_for, fail_launch_on_error, flag, shared_arguments, warn_undeclared
+from eqhrl_ros.nodes.launching import (
+    env_node_for,
+    fail_launch_on_error,
+    flag,
+    node_parameters,
+    shared_arguments,
+    warn_undeclared,
+)
 
 # expert:=... -> the executable it starts (none: your own expert, started apart).
 EXPERT_NODES = {'expert': 'expert', 'teleop': 'teleop_expert', 'none': None}
 
 
 def _nodes(context, declared):
-    warn_undeclared(context.argv, declared)
+    warn_undeclared(context.argv, declared, own_file=__file__)
     env = LaunchConfiguration('env').perform(context)
     params_file = LaunchConfiguration('params_file').perform(context) or str(shipped_params_file(env))
     mode = LaunchConfiguration('mode').perform(context)
     if mode and mode not in MODES:
         raise ValueError(f'mode:={mode} is not one of {", ".join(MODES)}')
-    env_node = env_node_for(load_mapping(params_file, 'params file'), LaunchConfiguration('env_node').perform(context))
+    data = load_mapping(params_file, 'params file')
+    env_node = env_node_for(data, LaunchConfiguration('env_node').perform(context))
+    # Included under another launch file's PushRosNamespace: each node gets its sections as a mapping.
+    namespace = context.launch_configurations.get('ros_namespace', '')
+
+    def parameters(name):
+        return node_parameters(params_file, data, name, namespace)
+
     expert = LaunchConfiguration('expert').perform(context)
     if expert not in EXPERT_NODES:
         raise ValueError(f'expert:={expert} is not one of {", ".join(EXPERT_NODES)}')
@@ -43,14 +57,14 @@ def _nodes(context, declared):
     run = {name: flag(name, LaunchConfiguration(name).perform(context)) for name in ('resume', 'overwrite')}
     output_dir = LaunchConfiguration('output_dir').perform(context)
     given = {'mode': mode, 'output_dir': output_dir, **run}  # what the launch's arguments set on the learner
-    learner_params = [params_file, {name: value for name, value in given.items() if value}]
+    learner_params = [*parameters('learner'), {name: value for name, value in given.items() if value}]
     experts = (
         [
             Node(
                 package='eqhrl_ros',
                 executable=EXPERT_NODES[expert],
                 name=EXPERT_NODES[expert],
-                parameters=[params_file],
+                parameters=parameters(EXPERT_NODES[expert]),
                 output='screen',
             )
         ]
@@ -63,12 +77,20 @@ def _nodes(context, declared):
                 package='eqhrl_ros',
                 executable='advice_console',
                 name='advice_console',
-                parameters=[params_file],
+                parameters=parameters('advice_console'),
                 output='screen',
             )
         )
     env = (
-        [Node(package='eqhrl_ros', executable=env_node, name=env_node, parameters=[params_file], output='screen')]
+        [
+            Node(
+                package='eqhrl_ros',
+                executable=env_node,
+                name=env_node,
+                parameters=parameters(env_node),
+                output='screen',
+            )
+        ]
         if env_node != 'none'
         else []  # your own env node, started apart: the others take the spaces from its env_info
     )

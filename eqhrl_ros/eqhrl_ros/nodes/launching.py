@@ -8,6 +8,8 @@ the launch shut everything down and exit non-zero, with the reason in its log.
 
 from __future__ import annotations
 
+import sys
+
 
 def refusal_reason(process_name: str, returncode) -> str:
     """Why the launch stops, or '' when ``returncode`` is a normal end (0) or a signal (negative:
@@ -68,13 +70,26 @@ def undeclared(argv, declared) -> list:
     return sorted({a.split(':=', 1)[0] for a in argv or () if ':=' in a} - set(declared))
 
 
-def warn_undeclared(argv, declared) -> str:
+def named_on_command_line(own_file, argv=None) -> bool:
+    """Whether the launch file ``own_file`` is the one `ros2 launch` was given (True too where launch
+    runs in-process, not from ros2 launch): False when it is included by another launch file,
+    whose command line it sees."""
+    from pathlib import Path
+
+    argv = sys.argv if argv is None else argv
+    if 'launch' not in argv[1:3]:
+        return True
+    words = [a for a in argv[argv.index('launch') + 1 :] if not a.startswith('-') and ':=' not in a]
+    return Path(own_file).name in {Path(word).name for word in words}
+
+
+def warn_undeclared(argv, declared, own_file='') -> str:
     """A warning in the launch's log for each argument given that the file does not take (before,
     `output_dir:=` and `overwrite:=` went unheard, and the learner refused the folder of the last
-    run). A warning, not a refusal: a launch file that includes this one sees its own command line.
-    Returns the line ('' when none)."""
+    run). None where ``own_file`` is included by another launch file: the command line's arguments
+    are that file's (before, each was called ignored). Returns the line ('' when none)."""
     unknown = undeclared(argv, declared)
-    if not unknown:
+    if not unknown or (own_file and not named_on_command_line(own_file)):
         return ''
     from launch.logging import get_logger
 
@@ -84,6 +99,17 @@ def warn_undeclared(argv, declared) -> str:
     )
     get_logger('launch').warning(line)
     return line
+
+
+def node_parameters(params_file: str, data: dict, name: str, namespace: str) -> list:
+    """What a launch file passes as ``parameters`` to its node ``name``: the params file itself in
+    the root namespace; in a namespace that a launch file including this one pushed
+    (PushRosNamespace), the file's sections for the node as one mapping, its bare `name:` section
+    included. rcl reads `learner:` as /learner: included under /robot1, every node ran on its
+    defaults (2026-12-05)."""
+    from ..parameters import file_section
+
+    return [file_section(data, name, namespace)] if namespace.strip('/') else [params_file]
 
 
 # dds_profile:= of the launch files: a name shipped in share/eqhrl_ros/config, or an XML path.

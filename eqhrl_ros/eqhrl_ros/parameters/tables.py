@@ -247,10 +247,12 @@ def section_applies(key: str, node: str) -> bool:
     return match(0, 0)
 
 
-def file_section(data: dict, node_name: str) -> dict:
+def file_section(data: dict, node_name: str, namespace: str = '') -> dict:
     """A node's parameters from a parsed params file, as rcl gives them to the node: its own
     section and the shared `/**` section, applied in the order they appear in the file (a key
-    in both takes the value of the later one)."""
+    in both takes the value of the later one). With ``namespace`` (a launch file's nodes in a
+    namespace another launch file pushed), the node is ``namespace``/``node_name`` and a bare
+    `node_name:` section is its own too: the file was given for the nodes the launch starts."""
 
     def values(key):
         section = data.get(key) or {}
@@ -265,9 +267,11 @@ def file_section(data: dict, node_name: str) -> dict:
             f"the shared '/**' section holds {', '.join(unknown)}, which not every node accepts; "
             f"shared keys: {', '.join(SHARED_PARAM_NAMES)} (put the others in the node's own section)"
         )
+    ns, name = namespace.strip('/'), node_name.strip('/')
+    full = f'/{ns}/{name}' if ns else f'/{name}'
     merged = {}
     for key in data:  # the file's order (yaml keeps it)
-        if section_applies(str(key), '/' + node_name.lstrip('/')):
+        if section_applies(str(key), full) or str(key) == node_name:
             merged.update(values(key))
     return merged
 

@@ -158,6 +158,62 @@ def test_the_launch_files_take_the_runs_folder_resume_and_overwrite_and_warn_of_
     assert refused.returncode != 0 and 'resume:=maybe is not true or false' in refused.stderr
 
 
+LAUNCH_IN_NAMESPACE = """
+import sys
+from launch import LaunchContext
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.launch_description_sources import get_launch_description_from_python_launch_file
+from launch_ros.actions import Node
+from launch_ros.utilities import evaluate_parameters
+
+path, command_line, given = sys.argv[1], sys.argv[2].split(), dict(a.split(':=', 1) for a in sys.argv[3:])
+sys.argv = ['ros2', 'launch', *command_line]  # what ros2 launch was given: the including file
+description = get_launch_description_from_python_launch_file(path)
+context = LaunchContext(argv=[a for a in command_line if ':=' in a])
+context.launch_configurations['ros_namespace'] = '/robot1'  # the including file's PushRosNamespace
+for entity in description.entities:
+    if isinstance(entity, DeclareLaunchArgument):
+        default = entity.default_value[0].perform(context) if entity.default_value else ''
+        context.launch_configurations[entity.name] = given.get(entity.name, default)
+actions = [a for e in description.entities if isinstance(e, OpaqueFunction) for a in e.execute(context)]
+for a in actions:
+    if isinstance(a, Node):
+        dicts = [p for p in evaluate_parameters(context, a._Node__parameters) if isinstance(p, dict)]
+        print(a.node_executable, sorted((k, v) for p in dicts for k, v in p.items()))
+"""
+
+
+def test_a_launch_file_included_under_a_namespace_gives_its_nodes_their_sections(ros2_env, colcon_install, tmp_path):
+    """From outside: train.launch.py included by a launch file of several robots, each under its
+    PushRosNamespace. rcl reads the file's `learner:` as /learner, so /robot1/learner and the others
+    ran on their defaults (each node warned so), and the including file's own arguments were each
+    said to be ignored."""
+    path = colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros' / 'launch' / 'train.launch.py'
+    params = tmp_path / 'mine.yaml'
+    params.write_text(
+        "'/**':\n  ros__parameters: {use_sim_time: false}\n"
+        'double_integrator_env:\n  ros__parameters: {max_episode_steps: 33}\n'
+        'expert:\n  ros__parameters: {backend: heuristic}\n'
+        'learner:\n  ros__parameters: {mode: qasac, learning_starts: 123}\n'
+        '/robot2/learner:\n  ros__parameters: {learning_starts: 999}\n'
+    )
+
+    def evaluated(command_line):
+        command = ['python3', '-c', LAUNCH_IN_NAMESPACE, str(path), command_line, f'params_file:={params}']
+        result = subprocess.run(command, env=ros2_env, capture_output=True, text=True, timeout=60)
+        assert result.returncode == 0, result.stdout + result.stderr[-2000:]
+        return result
+
+    result = evaluated('/tmp/robots.launch.py fleet:=b')
+    lines = dict(line.split(' ', 1) for line in result.stdout.splitlines())
+    shared = "('use_sim_time', False)"
+    assert lines['double_integrator_env'] == f"[('max_episode_steps', 33), {shared}]", lines
+    assert lines['learner'] == f"[('learning_starts', 123), ('mode', 'qasac'), {shared}]", lines
+    assert lines['expert'] == f"[('backend', 'heuristic'), {shared}]", lines
+    assert 'ignored' not in result.stderr + result.stdout  # fleet:= is the including file's
+    assert 'ignored: fleet:=' in (lambda r: r.stdout + r.stderr)(evaluated('eqhrl_ros train.launch.py fleet:=b'))
+
+
 @pytest.mark.parametrize(
     'launch_file,arguments,nodes',
     [
