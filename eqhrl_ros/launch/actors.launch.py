@@ -10,7 +10,9 @@ Actor i runs in namespace /<actor_prefix><actor_offset + i>: e.g. /actor0/gym_en
 machine), and to `<hostname>_actor` where it does not (a robot machine: two robots launched
 alike never share a name). actor_offset shifts the indices and the seeds alike.
 All actors send to /transitions and take /weights (transitions_topic:=, weights_topic:= remap
-both sides, for several trainers in one domain); resume:=true continues the trainer's run,
+both sides, for several trainers in one domain; included by a launch file under a namespace,
+/<namespace>/transitions and /<namespace>/weights, and the actors are /<namespace>/actor0/actor,
+...); resume:=true continues the trainer's run,
 overwrite:=true replaces it, output_dir:= moves it (default: the params file's learner output_dir);
 dds_profile:=lossy_link gives every node the Fast DDS profile for hosts on a lossy link.
 The trainer takes transitions only from actors it knows: those started here, the full names in
@@ -41,6 +43,8 @@ from eqhrl_ros.nodes.launching import (
     env_node_for,
     fail_launch_on_error,
     flag,
+    in_namespace,
+    namespace_of,
     shared_arguments,
     warn_undeclared,
 )
@@ -93,9 +97,13 @@ def _nodes(context, declared):
     key = {'key_file': LaunchConfiguration('key_file').perform(context)}  # the deployment's shared secret
     # Fast DDS for a lossy link between hosts (docs/performance.md, "Weights over a lossy link").
     dds = dds_profile_env(LaunchConfiguration('dds_profile').perform(context), get_package_share_directory('eqhrl_ros'))
+    # Included under another launch file's PushRosNamespace (one fleet per robot group): the actors'
+    # full names and the default topics are in it (before, the trainer refused every batch of
+    # /robot1/actor0/actor, which was not its /actor0/actor).
+    pushed = namespace_of(context)
     remaps = [
-        ('/transitions', LaunchConfiguration('transitions_topic').perform(context)),
-        ('/weights', LaunchConfiguration('weights_topic').perform(context)),
+        (f'/{topic}', in_namespace(LaunchConfiguration(f'{topic}_topic').perform(context), f'/{topic}', pushed))
+        for topic in ('transitions', 'weights')
     ]
 
     def node(executable: str, parameters: dict, **options):
@@ -117,7 +125,7 @@ def _nodes(context, declared):
         # Whom the trainer hears: the actors named, else those started here (with a key_file, also
         # any actor that signs with it). Neither, and no key: it refuses to start, and says why.
         named = [a.strip() for a in LaunchConfiguration('trainer_actors').perform(context).split(',') if a.strip()]
-        here = [f'/{prefix}{i}/actor' for i in range(offset, offset + actors)]
+        here = [f'{pushed}/{prefix}{i}/actor' for i in range(offset, offset + actors)]
         if named or here:
             trainer['actors'] = named or here
         trainer.update({name: True for name, given in run.items() if given})

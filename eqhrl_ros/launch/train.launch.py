@@ -26,6 +26,7 @@ from eqhrl_ros.nodes.launching import (
     env_node_for,
     fail_launch_on_error,
     flag,
+    namespace_of,
     node_parameters,
     shared_arguments,
     warn_undeclared,
@@ -45,7 +46,7 @@ def _nodes(context, declared):
     data = load_mapping(params_file, 'params file')
     env_node = env_node_for(data, LaunchConfiguration('env_node').perform(context))
     # Included under another launch file's PushRosNamespace: each node gets its sections as a mapping.
-    namespace = context.launch_configurations.get('ros_namespace', '')
+    namespace = namespace_of(context)
 
     def parameters(name):
         return node_parameters(params_file, data, name, namespace)

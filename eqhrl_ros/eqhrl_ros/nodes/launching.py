@@ -101,6 +101,17 @@ def warn_undeclared(argv, declared, own_file='') -> str:
     return line
 
 
+def namespace_of(context) -> str:
+    """The namespace a launch file including this one pushed (PushRosNamespace), as /robot1, or ''."""
+    namespace = context.launch_configurations.get('ros_namespace', '').strip('/')
+    return f'/{namespace}' if namespace else ''
+
+
+def in_namespace(topic: str, default: str, pushed: str) -> str:
+    """A launch argument's topic: the default moved into the pushed namespace, one given kept."""
+    return pushed + default if topic == default and pushed else topic
+
+
 def node_parameters(params_file: str, data: dict, name: str, namespace: str) -> list:
     """What a launch file passes as ``parameters`` to its node ``name``: the params file itself in
     the root namespace; in a namespace that a launch file including this one pushed

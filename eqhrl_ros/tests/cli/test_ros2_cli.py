@@ -164,6 +164,7 @@ from launch import LaunchContext
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.launch_description_sources import get_launch_description_from_python_launch_file
 from launch_ros.actions import Node
+from launch.utilities import perform_substitutions
 from launch_ros.utilities import evaluate_parameters
 
 path, command_line, given = sys.argv[1], sys.argv[2].split(), dict(a.split(':=', 1) for a in sys.argv[3:])
@@ -179,11 +180,14 @@ actions = [a for e in description.entities if isinstance(e, OpaqueFunction) for 
 for a in actions:
     if isinstance(a, Node):
         dicts = [p for p in evaluate_parameters(context, a._Node__parameters) if isinstance(p, dict)]
-        print(a.node_executable, sorted((k, v) for p in dicts for k, v in p.items()))
+        remaps = [tuple(perform_substitutions(context, x) for x in rule) for rule in a._Node__remappings]
+        print(a.node_executable, sorted((k, v) for p in dicts for k, v in p.items()), remaps)
 """
 
 
-def test_a_launch_file_included_under_a_namespace_gives_its_nodes_their_sections(ros2_env, colcon_install, tmp_path):
+def test_the_launch_files_included_under_a_namespace_give_their_nodes_their_sections_names_and_topics(
+    ros2_env, colcon_install, tmp_path
+):
     """From outside: train.launch.py included by a launch file of several robots, each under its
     PushRosNamespace. rcl reads the file's `learner:` as /learner, so /robot1/learner and the others
     ran on their defaults (each node warned so), and the including file's own arguments were each
@@ -198,8 +202,11 @@ def test_a_launch_file_included_under_a_namespace_gives_its_nodes_their_sections
         '/robot2/learner:\n  ros__parameters: {learning_starts: 999}\n'
     )
 
-    def evaluated(command_line):
-        command = ['python3', '-c', LAUNCH_IN_NAMESPACE, str(path), command_line, f'params_file:={params}']
+    def evaluated(command_line, launch_file='train.launch.py', *arguments):
+        command = [
+            *('python3', '-c', LAUNCH_IN_NAMESPACE, str(path.with_name(launch_file)), command_line),
+            *(f'params_file:={params}', *arguments),
+        ]
         result = subprocess.run(command, env=ros2_env, capture_output=True, text=True, timeout=60)
         assert result.returncode == 0, result.stdout + result.stderr[-2000:]
         return result
@@ -207,11 +214,20 @@ def test_a_launch_file_included_under_a_namespace_gives_its_nodes_their_sections
     result = evaluated('/tmp/robots.launch.py fleet:=b')
     lines = dict(line.split(' ', 1) for line in result.stdout.splitlines())
     shared = "('use_sim_time', False)"
-    assert lines['double_integrator_env'] == f"[('max_episode_steps', 33), {shared}]", lines
-    assert lines['learner'] == f"[('learning_starts', 123), ('mode', 'qasac'), {shared}]", lines
-    assert lines['expert'] == f"[('backend', 'heuristic'), {shared}]", lines
+    assert lines['double_integrator_env'] == f"[('max_episode_steps', 33), {shared}] []", lines
+    assert lines['learner'] == f"[('learning_starts', 123), ('mode', 'qasac'), {shared}] []", lines
+    assert lines['expert'] == f"[('backend', 'heuristic'), {shared}] []", lines
     assert 'ignored' not in result.stderr + result.stdout  # fleet:= is the including file's
     assert 'ignored: fleet:=' in (lambda r: r.stdout + r.stderr)(evaluated('eqhrl_ros train.launch.py fleet:=b'))
+    # actors.launch.py: before, its trainer took batches only from /actor0/actor and refused every
+    # one of /robot1/actor0/actor; and every fleet so included shared /transitions and /weights.
+    result = evaluated('/tmp/robots.launch.py', 'actors.launch.py', 'actors:=1')
+    lines = dict(line.split(' ', 1) for line in result.stdout.splitlines())
+    topics = "[('/transitions', '/robot1/transitions'), ('/weights', '/robot1/weights')]"
+    assert "('actors', ('/robot1/actor0/actor',))" in lines['trainer'] and lines['trainer'].endswith(topics), lines
+    assert lines['actor'].endswith(topics) and "('learning_starts', 123)" in lines['actor'], lines
+    given = evaluated('/tmp/robots.launch.py', 'actors.launch.py', 'actors:=1', 'transitions_topic:=/fleet/t')
+    assert "('/transitions', '/fleet/t'), ('/weights', '/robot1/weights')" in given.stdout, given.stdout
 
 
 @pytest.mark.parametrize(
