@@ -59,6 +59,7 @@ setup(
             'actor = eqhrl_ros.cli.node_programs:actor',
             'trainer = eqhrl_ros.cli.node_programs:trainer',
             'expert = eqhrl_ros.cli.node_programs:expert',
+            'policy_driver = eqhrl_ros.cli.node_programs:policy_driver',
             'teleop_expert = eqhrl_ros.cli.node_programs:teleop_expert',
             'keyboard_teleop = eqhrl_ros.cli.node_programs:keyboard_teleop',
             'advice_console = eqhrl_ros.cli.node_programs:advice_console',

@@ -46,6 +46,11 @@ NODES = {
         ('LEARNER_CONFIG_PARAMS', 'TRAINER_PARAMS'),
         'Learns from the transitions of any number of actor nodes and publishes their weights.',
     ),
+    'policy_driver': NodeProgram(
+        'policy_driver_node',
+        ('POLICY_DRIVER_PARAMS',),
+        'Drives the env with a policy a learner exported (policy.pt): deterministic, learning and asking nothing.',
+    ),
     'expert': NodeProgram(
         'expert_node',
         ('EXPERT_PARAMS',),
@@ -186,3 +191,7 @@ def advice_console() -> int:
 
 def double_integrator_env() -> int:
     return run('double_integrator_env')
+
+
+def policy_driver() -> int:
+    return run('policy_driver')

@@ -10,7 +10,7 @@ Each node is a ``*_node.py``; what a node does besides its wiring sits beside it
 - advice_console_node.py (the ROS side) and console_server.py (the page's web server and its
   guards, with connection_guard.py);
 - gym_env_node.py, double_integrator_env_node.py, expert_node.py, teleop_expert_node.py,
-  keyboard_teleop_node.py.
+  keyboard_teleop_node.py, policy_driver_node.py (a trained policy drives the env).
 Shared: messages.py and advise_msgs.py (message layouts), params.py (declaring parameters),
 env_info.py, graph_trust.py, health.py, recording.py, run_files.py, spinning.py, launching.py
 (what the launch files share).

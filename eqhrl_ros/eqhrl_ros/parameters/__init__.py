@@ -17,7 +17,14 @@ from .env_and_people import (
     KEYBOARD_PARAMS,
     TELEOP_EXPERT_PARAMS,
 )
-from .learning import ACTOR_NODE_PARAMS, LEARNER_NODE_PARAMS, TRAINER_PARAMS, learner_section_for, run_params
+from .learning import (
+    ACTOR_NODE_PARAMS,
+    LEARNER_NODE_PARAMS,
+    POLICY_DRIVER_PARAMS,
+    TRAINER_PARAMS,
+    learner_section_for,
+    run_params,
+)
 from .tables import (
     ACTING_PARAMS,
     BUILT_IN,
@@ -51,6 +58,7 @@ __all__ = [
     'KEY_STEP',
     'LEARNER_CONFIG_PARAMS',
     'LEARNER_NODE_PARAMS',
+    'POLICY_DRIVER_PARAMS',
     'SHARED_PARAM_NAMES',
     'SPACE_PARAMS',
     'TELEOP_EXPERT_PARAMS',

@@ -84,6 +84,18 @@ LEARNER_NODE_PARAMS = (
     ),
 )
 
+# policy_driver (nodes/policy_driver_node.py): a trained policy drives the env, learning nothing.
+POLICY_DRIVER_PARAMS = (
+    *ENV_PARAMS,
+    Param('policy_path', '', "The policy file a learner or trainer exported (its run folder's policy.pt); required"),
+    Param(
+        'max_episodes',
+        0,
+        'Drive this many episodes, then stop (0: never): the node says their mean return and exits 0',
+        (0, INT_MAX),
+    ),
+)
+
 ACTOR_NODE_PARAMS = (
     *ACTING_PARAMS,
     *CAMERA_PARAMS,
