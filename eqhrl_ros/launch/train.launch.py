@@ -12,6 +12,9 @@ ros2 launch eqhrl_ros train.launch.py env:=teleop_pendulum expert:=teleop   (a p
     console:=false leaves it out (keyboard_teleop or a joystick instead)
 ros2 launch eqhrl_ros train.launch.py env:=pendulum resume:=true   (after Ctrl-C: go on with the run)
     output_dir:= (default: the params file's), resume:=true, overwrite:=true go to the learner
+Included by your launch file under a PushRosNamespace (one group per robot), each node gets the
+params file's sections for it, a bare learner: section included (rcl alone would give it to
+/learner only).
 """
 
 from launch import LaunchDescription
