@@ -84,8 +84,9 @@ class PolicyDriverNode(Node):
             return
         key = (step.episode, step.step)
         if self._last is not None and key == self._last[0]:
-            self.action_pub.publish(messages.action_msg(self._last[1], *key))  # the env did not get it
-            return
+            if self._last[1] is not None:  # the env did not get our action: the same again
+                self.action_pub.publish(messages.action_msg(self._last[1], *key))
+            return  # (a final observation sent again wants none)
         if step.step > 0:  # the step our last action made
             self.episode_return += step.reward
             self.episode_length += 1

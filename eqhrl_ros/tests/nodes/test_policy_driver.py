@@ -55,6 +55,25 @@ def test_the_policy_drives_each_step_with_its_deterministic_action_and_stops_aft
     assert not any(done and key in seen['action'] for key, (_, done) in seen['observation'].items())
 
 
+def test_an_observation_sent_again_gets_the_same_action_and_a_final_one_none(ros_context, tmp_path):
+    driver = PolicyDriverNode(
+        context=ros_context,
+        parameter_overrides=params(policy_path=str(exported(tmp_path / 'p.pt')), env_id='Pendulum-v1'),
+    )
+    sent = []
+    driver.action_pub.publish = sent.append
+    obs = np.array([0.1, 0.2, 0.3], dtype=np.float32)
+    driver.observation_source.admits = lambda logger, what: True  # one env, as the graph would say
+    for msg in [messages.observation_msg(obs, 0.0, False, False, 0, 0)] * 2:
+        driver._on_observation(msg)
+    assert len(sent) == 2 and sent[0].data.tolist() == sent[1].data.tolist()
+    final = messages.observation_msg(obs, -1.5, True, False, 0, 1)
+    driver._on_observation(final)
+    driver._on_observation(final)  # before: the re-sent final observation raised inside the callback
+    assert len(sent) == 2 and driver.returns == [-1.5]
+    driver.destroy_node()
+
+
 def test_a_policy_of_other_spaces_or_none_is_refused_in_one_line(harness, ros_context, tmp_path):
     with pytest.raises(ValueError, match='policy_path is required'):
         PolicyDriverNode(context=ros_context)
