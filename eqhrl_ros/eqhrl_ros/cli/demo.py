@@ -44,11 +44,32 @@ def main(argv=None) -> int:
     )
     print(f'  plot: {png}')
     print(f'  csv:  {output / "episodes.csv"}; checkpoint and policy in {output}')
+    print(drive_with(args.params, output))
     print('=' * 64)
     from ..nodes.spinning import end_process
 
     end_process(0)  # at once only while a compile_update compile still runs (nodes/spinning.py)
     return 0
+
+
+def drive_with(params: str, output: Path) -> str:
+    """How to drive the env with what the demo learned (policy_driver), in two commands."""
+    from ..files.paths import params_file
+    from ..files.yaml_files import load_mapping
+    from ..nodes.launching import env_node_for
+
+    path = params_file(params)
+    # The node programs lie beside this one: .venv/bin, or a colcon install's lib/eqhrl_ros.
+    here = Path(sys.argv[0]).parent
+
+    def program(name: str) -> str:
+        return str(here / name) if (here / name).exists() else f'ros2 run eqhrl_ros {name}'
+
+    return (
+        '  drive with what it learned, no advice, no updates (two terminals):\n'
+        f'    {program(env_node_for(load_mapping(path, "params file")))} --ros-args --params-file {path}\n'
+        f'    {program("policy_driver")} --ros-args -p policy_path:={output / "policy.pt"} -p max_episodes:=5'
+    )
 
 
 if __name__ == '__main__':

@@ -3,8 +3,10 @@
 What a trained run is for: the robot driven by what it learned, with no advice, no updates and no
 exploration. For each observation the node publishes the policy's deterministic action
 tanh(mean), in the env's units, tagged with the step it answers; an observation the env sends
-again (its action was lost) gets the same action again. It logs each episode's return and
-length, and with max_episodes stops after that many, saying their mean return.
+again (its action was lost) gets the same action again. It logs each episode's return, length
+and success (the env's verdict where its observation carries one, else the env's success rule,
+as the learner judges it), and with max_episodes stops after that many, saying their mean return
+and success rate.
 
 The spaces come from the env's env_info (or env_id, or the spaces parameters) and must be the
 policy's: another observation size or other action bounds stop the node with one line. Like the
@@ -66,6 +68,8 @@ class PolicyDriverNode(Node):
                 + '; '.join(differences)
             )
         self.spec = spec
+        self.success = spec.success_criterion()  # the env's verdict, where its observation carries one, wins
+        self.successes = 0
         self.get_logger().info(
             f'driving {shown(spec.name)} with {self.params["policy_path"]} (deterministic; nothing learned, '
             'nothing asked)'
@@ -87,9 +91,12 @@ class PolicyDriverNode(Node):
             if self._last[1] is not None:  # the env did not get our action: the same again
                 self.action_pub.publish(messages.action_msg(self._last[1], *key))
             return  # (a final observation sent again wants none)
-        if step.step > 0:  # the step our last action made
+        if step.step == 0:
+            self.success.reset()
+        else:  # the step our last action made
             self.episode_return += step.reward
             self.episode_length += 1
+            self.success.update(step.obs, step.reward)
         if step.done:
             self._episode_ends(step)
             self._last = (key, None)
@@ -100,16 +107,18 @@ class PolicyDriverNode(Node):
 
     def _episode_ends(self, step: messages.EnvStep) -> None:
         self.returns.append(self.episode_return)
-        success = '' if step.success is None else f'  success {int(step.success)}'
+        success = self.success.success(self.episode_return) if step.success is None else step.success
+        self.successes += int(success)
         self.get_logger().info(
-            f'episode {step.episode:4d}  return {self.episode_return:9.2f}  len {self.episode_length:4d}{success}'
+            f'episode {step.episode:4d}  return {self.episode_return:9.2f}  len {self.episode_length:4d}  '
+            f'success {int(success)}'
         )
         self.episode_return, self.episode_length = 0.0, 0
         limit = self.params['max_episodes']
         if limit and len(self.returns) >= limit:
             self.get_logger().info(
                 f'drove {limit} episodes: mean return {np.mean(self.returns):.2f} (min {min(self.returns):.2f}, '
-                f'max {max(self.returns):.2f}); stopping'
+                f'max {max(self.returns):.2f}), success {self.successes / limit:.0%}; stopping'
             )
             self.context.try_shutdown()
 

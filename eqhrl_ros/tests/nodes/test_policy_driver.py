@@ -71,6 +71,10 @@ def test_an_observation_sent_again_gets_the_same_action_and_a_final_one_none(ros
     driver._on_observation(final)
     driver._on_observation(final)  # before: the re-sent final observation raised inside the callback
     assert len(sent) == 2 and driver.returns == [-1.5]
+    assert driver.successes == 0  # Pendulum's rule: upright for the last steps; one step is not that
+    driver._on_observation(messages.observation_msg(obs, 0.0, False, False, 1, 0))
+    driver._on_observation(messages.observation_msg(obs, -0.5, True, False, 1, 1, success=True))
+    assert driver.returns == [-1.5, -0.5] and driver.successes == 1  # the env's own verdict
     driver.destroy_node()
 
 
