@@ -114,13 +114,22 @@ class PolicyDriverNode(Node):
             f'success {int(success)}'
         )
         self.episode_return, self.episode_length = 0.0, 0
-        limit = self.params['max_episodes']
-        if limit and len(self.returns) >= limit:
-            self.get_logger().info(
-                f'drove {limit} episodes: mean return {np.mean(self.returns):.2f} (min {min(self.returns):.2f}, '
-                f'max {max(self.returns):.2f}), success {self.successes / limit:.0%}; stopping'
-            )
+        if self.done:
+            self.get_logger().info(f'{self.summary()}; stopping')
             self.context.try_shutdown()
+
+    def summary(self) -> str:
+        n = len(self.returns)
+        return (
+            f'drove {n} episodes: mean return {np.mean(self.returns):.2f} (min {min(self.returns):.2f}, '
+            f'max {max(self.returns):.2f}), success {self.successes / n:.0%}'
+        )
+
+    def destroy_node(self) -> None:
+        """At Ctrl-C or SIGTERM (run_node destroys the node), the episodes driven so far, in one line."""
+        if self.returns and not self.done:
+            self.get_logger().info(self.summary())
+        super().destroy_node()
 
     @property
     def done(self) -> bool:
