@@ -47,6 +47,7 @@ from .frame_msgs import announced_frame
 from .graph_trust import OnePublisher
 from .health import OK, WARN, Check
 from .messages import EnvStep
+from .spinning import steady_clock
 
 FRAME_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -86,7 +87,7 @@ class CameraInput:
         self.stale_frames = 0
         self.frameless_observations = 0
         node.create_subscription(CompressedImage if compressed else Image, self.topic, self._on_frame, FRAME_QOS)
-        node.create_timer(max(0.01, self.wait_s / 4), self._check_wait)
+        node.create_timer(max(0.01, self.wait_s / 4), self._check_wait, clock=steady_clock())
 
     def _trusted(self) -> bool:
         refusal = self.guard.refusal()

@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float32MultiArray, MultiArrayDimension, MultiArrayLayout
@@ -137,10 +138,13 @@ class DoubleIntegratorEnv(Node):
             )
         )
         self._reset()
+        # The steady clock: this node is the simulator, so its pace must not wait on ROS time
+        # (use_sim_time with a /clock that stops or never starts would stop it for good).
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.realtime:
-            self.create_timer(1.0 / self.rate_hz, self._tick)
+            self.create_timer(1.0 / self.rate_hz, self._tick, clock=steady)
         else:
-            self.create_timer(self.republish_period_s / 2, self._republish_if_idle)
+            self.create_timer(self.republish_period_s / 2, self._republish_if_idle, clock=steady)
         self.get_logger().info(f'{NAME}: {"real-time at %g Hz" % self.rate_hz if self.realtime else "lock-step"}')
 
     def _publish(self, obs, reward: float, terminated: bool, truncated: bool, success: bool) -> None:

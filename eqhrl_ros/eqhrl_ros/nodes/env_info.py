@@ -21,7 +21,7 @@ from eqhrl_interfaces.msg import CameraPart, EnvInfo
 
 from ..core.envs.spec import EnvCamera, EnvSpec, spec_from_parameters
 from .graph_trust import publishers
-from .spinning import start_up_errors, stop_with_error
+from .spinning import start_up_errors, steady_clock, stop_with_error
 
 TOPIC = 'env_info'
 # Latched: one message, kept for late joiners. A subscriber must ask for transient-local too.
@@ -154,7 +154,7 @@ class EnvInfoWatcher:
         self.untrusted = 0
         # (time.monotonic() it came, EnvInfo, the nodes publishing env_info then: one of them sent it)
         self._held: deque = deque(maxlen=HELD_MESSAGES)
-        self._recheck = node.create_timer(0.5, self._on_recheck)
+        self._recheck = node.create_timer(0.5, self._on_recheck, clock=steady_clock())
         self._subscribed_at = time.monotonic()
         self.resubscribed = 0
         if configured is not None:

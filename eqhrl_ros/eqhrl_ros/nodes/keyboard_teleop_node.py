@@ -31,7 +31,7 @@ from . import messages
 from .env_info import EnvInfoWatcher, configured_spec
 from .graph_trust import subscribe_from_one
 from .params import declare, reject_unknown_overrides
-from .spinning import run_node
+from .spinning import run_node, steady_clock
 
 KEYS = {'a': (0, -1), 'd': (0, +1), 'w': (1, +1), 's': (1, -1)}
 AXIS_KEYS = ('a/d', 'w/s')  # one pair of keys per action dimension
@@ -64,9 +64,10 @@ class KeyboardTeleop(Node):
             self, AdviceRequest, 'learner/advice_request', self._on_request, messages.LATCHED_QOS
         )
         self.env_info = EnvInfoWatcher(self, configured_spec(self.params), self._on_env)
-        self.create_timer(1.0 / self.params['rate_hz'], self._publish)
-        self.create_timer(0.02, self._read_keys)
-        self.create_timer(0.2, self.draw)
+        steady = steady_clock()  # keys are read and sent whatever ROS time does (use_sim_time)
+        self.create_timer(1.0 / self.params['rate_hz'], self._publish, clock=steady)
+        self.create_timer(0.02, self._read_keys, clock=steady)
+        self.create_timer(0.2, self.draw, clock=steady)
         self.draw()
 
     def _on_env(self, spec: EnvSpec) -> None:

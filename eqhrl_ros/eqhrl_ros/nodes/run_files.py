@@ -7,7 +7,7 @@ from ..core.data.errors import CheckpointWriteError
 from ..core.experts.policy import export_policy
 from ..core.runs.checkpoint import check_checkpoint_file, save_checkpoint
 from ..core.runs.records import RunFolder
-from .spinning import ExitError
+from .spinning import ExitError, steady_clock
 
 
 class RunFiles:
@@ -56,7 +56,7 @@ class RunFiles:
                 '(resume with a larger max_episodes to go on)'
             )
             if self.params['shutdown_when_done']:  # once spinning: the node may still be under construction
-                self._shutdown_timer = self.create_timer(0.01, self._shut_down_when_done)
+                self._shutdown_timer = self.create_timer(0.01, self._shut_down_when_done, clock=steady_clock())
 
     def _shut_down_when_done(self) -> None:
         self._shutdown_timer.cancel()

@@ -2,18 +2,27 @@
 
 import csv
 import gc
+import io
+import os
 import signal
 import subprocess
 import time
 
 import numpy as np
 import pytest
+import rclpy
 import torch
+from rclpy.clock import ClockType
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Float32MultiArray, MultiArrayLayout
 
-from eqhrl_ros.nodes import messages
+from eqhrl_interfaces.msg import EnvInfo
+from eqhrl_ros.core.envs.spec import EnvSpec
+from eqhrl_ros.nodes import env_info, messages
+from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegratorEnv
+from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
+from eqhrl_ros.nodes.keyboard_teleop_node import KeyboardTeleop
 from eqhrl_ros.nodes.learner_node import OBSERVATION_QOS, LearnerNode
 
 from process_helpers import BIN, episodes_in_csv, learner_args, start, stop, wait_for
@@ -335,6 +344,42 @@ def test_advice_timeout_and_stall_warning_do_not_depend_on_ros_time(harness, ros
         expert.close()
     totals = learner.learner.advice_total
     assert totals.asked > 0 and totals.failed['timeout'] == totals.asked and totals.given == 0
+
+
+def test_no_node_waits_on_ros_time_so_a_stopped_clock_wedges_none(harness, ros_context, tmp_path):
+    """use_sim_time with a /clock that stops or never starts (a simulator started paused): a timer
+    on ROS time never fires. Before, the expert held the env's env_info for ever (its recheck was
+    such a timer: a launch with use_sim_time:=true served no advice), keyboard_teleop sent no
+    command, and the example env in real time never stepped."""
+    sim = params(use_sim_time=True)
+    expert = harness.add(ExpertNode(context=ros_context, parameter_overrides=sim))
+    env = harness.add(rclpy.create_node('gym_env', context=ros_context))
+    spec = EnvSpec('Pendulum-v1', 3, [-2.0], [2.0])
+    env.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(
+        env_info.env_info_msg(spec, publisher='/gym_env')
+    )
+    # The env's own env_info, come before the graph shows the env publishing observations: held.
+    assert harness.spin_until(lambda: expert.env_info.untrusted >= 1)
+    env.create_publisher(Float32MultiArray, 'observation', 10)
+    assert harness.spin_until(lambda: expert.env_info.ready, timeout=5)  # rechecked, and taken
+    read_end, write_end = os.pipe()
+    try:
+        others = [
+            KeyboardTeleop(read_end, io.StringIO(), context=ros_context, parameter_overrides=sim),
+            DoubleIntegratorEnv(
+                context=ros_context, namespace='/rt', parameter_overrides=params(use_sim_time=True, realtime=True)
+            ),
+            DoubleIntegratorEnv(context=ros_context, namespace='/ls', parameter_overrides=sim),
+            GymEnvNode(
+                context=ros_context, namespace='/g', parameter_overrides=params(use_sim_time=True, realtime=True)
+            ),
+        ]
+        for node in [expert, *map(harness.add, others)]:
+            on_ros_time = [t.callback for t in node.timers if t.clock.clock_type == ClockType.ROS_TIME]
+            assert not on_ros_time, (node.get_name(), on_ros_time)
+    finally:
+        os.close(read_end)
+        os.close(write_end)
 
 
 def test_a_relabelled_message_is_refused_not_read_by_position(harness, ros_context, tmp_path):
