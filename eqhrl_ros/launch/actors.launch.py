@@ -54,13 +54,14 @@ from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, SPACE_PARAMS, TRAINER_PARAMS
 ENV_NAMES = ('env_id', *(p.name for p in SPACE_PARAMS))
 
 
-def _section(data: dict, name: str) -> dict:
-    """The parameters of the file's sections for node ``name`` in the root namespace (`name:`,
-    `/name:`, `/**/name:`), or of `/**` itself; the launch passes them to its namespaced nodes."""
+def _section(data: dict, name: str, pushed: str = '') -> dict:
+    """The parameters of the file's sections for node ``name`` in the namespace this launch was
+    included in (`name:`, `/name:`, `/**/name:`; under a pushed `/robot1`, also `/robot1/name:`),
+    or of `/**` itself; the launch passes them to its namespaced nodes."""
     keys = [k for k in data if k == name or (name != '/**' and str(k).rstrip('/').split('/')[-1] == name)]
     merged = {}
     for key in keys:
-        if key == name or section_applies(str(key), f'/{name}'):
+        if key == name or section_applies(str(key), f'{pushed}/{name}'):
             merged.update((data.get(key) or {}).get('ros__parameters') or {})
     return merged
 
@@ -80,8 +81,12 @@ def _nodes(context, declared):
     env = LaunchConfiguration('env').perform(context)
     params_file = LaunchConfiguration('params_file').perform(context) or str(shipped_params_file(env))
     data = load_mapping(params_file, 'params file')  # refused in one line, as the nodes refuse it
+    # Included under another launch file's PushRosNamespace (one fleet per robot group): the actors'
+    # full names and the default topics are in it (before, the trainer refused every batch of
+    # /robot1/actor0/actor, which was not its /actor0/actor), and so are the file's sections.
+    pushed = namespace_of(context)
     shared = _section(data, '/**')
-    learner = _section(data, 'learner')
+    learner = _section(data, 'learner', pushed)
     actors = int(LaunchConfiguration('actors').perform(context))
     if actors < 0:
         raise ValueError(f'actors:={actors} must be 0 or more')
@@ -97,10 +102,6 @@ def _nodes(context, declared):
     key = {'key_file': LaunchConfiguration('key_file').perform(context)}  # the deployment's shared secret
     # Fast DDS for a lossy link between hosts (docs/performance.md, "Weights over a lossy link").
     dds = dds_profile_env(LaunchConfiguration('dds_profile').perform(context), get_package_share_directory('eqhrl_ros'))
-    # Included under another launch file's PushRosNamespace (one fleet per robot group): the actors'
-    # full names and the default topics are in it (before, the trainer refused every batch of
-    # /robot1/actor0/actor, which was not its /actor0/actor).
-    pushed = namespace_of(context)
     remaps = [
         (f'/{topic}', in_namespace(LaunchConfiguration(f'{topic}_topic').perform(context), f'/{topic}', pushed))
         for topic in ('transitions', 'weights')
@@ -133,7 +134,7 @@ def _nodes(context, declared):
             trainer['output_dir'] = output_dir
         nodes.append(node('trainer', trainer, remappings=remaps, output='screen'))
     env_node = env_node_for(data)  # the file's gym_env: or double_integrator_env: section says which
-    env_params = {**shared, **_section(data, env_node)}
+    env_params = {**shared, **_section(data, env_node, pushed)}
     actor_params = {**shared, **learner_section_for(learner, ACTOR_NODE_PARAMS)}
     for i in range(offset, offset + actors):
         ns = f'{prefix}{i}'
@@ -141,7 +142,7 @@ def _nodes(context, declared):
         actor_i = {**actor_params, 'seed': int(actor_params.get('seed', 42)) + i, **key}
         nodes.append(node(env_node, env_i, namespace=ns))
         if with_expert == 'true':
-            expert = {**shared, **_section(data, 'expert')}
+            expert = {**shared, **_section(data, 'expert', pushed)}
             nodes.append(node('expert', expert, namespace=ns))
         nodes.append(node('actor', actor_i, namespace=ns, remappings=remaps, output='screen'))
     # A node that refuses to start (or fails later) stops the launch, which then exits non-zero.

@@ -200,6 +200,7 @@ def test_the_launch_files_included_under_a_namespace_give_their_nodes_their_sect
         'expert:\n  ros__parameters: {backend: heuristic}\n'
         'learner:\n  ros__parameters: {mode: qasac, learning_starts: 123}\n'
         '/robot2/learner:\n  ros__parameters: {learning_starts: 999}\n'
+        '/robot1/learner:\n  ros__parameters: {batch_size: 64}\n'
     )
 
     def evaluated(command_line, launch_file='train.launch.py', *arguments):
@@ -215,7 +216,7 @@ def test_the_launch_files_included_under_a_namespace_give_their_nodes_their_sect
     lines = dict(line.split(' ', 1) for line in result.stdout.splitlines())
     shared = "('use_sim_time', False)"
     assert lines['double_integrator_env'] == f"[('max_episode_steps', 33), {shared}] []", lines
-    assert lines['learner'] == f"[('learning_starts', 123), ('mode', 'qasac'), {shared}] []", lines
+    assert lines['learner'] == f"[('batch_size', 64), ('learning_starts', 123), ('mode', 'qasac'), {shared}] []", lines
     assert lines['expert'] == f"[('backend', 'heuristic'), {shared}] []", lines
     assert 'ignored' not in result.stderr + result.stdout  # fleet:= is the including file's
     assert 'ignored: fleet:=' in (lambda r: r.stdout + r.stderr)(evaluated('eqhrl_ros train.launch.py fleet:=b'))
@@ -226,6 +227,8 @@ def test_the_launch_files_included_under_a_namespace_give_their_nodes_their_sect
     topics = "[('/transitions', '/robot1/transitions'), ('/weights', '/robot1/weights')]"
     assert "('actors', ('/robot1/actor0/actor',))" in lines['trainer'] and lines['trainer'].endswith(topics), lines
     assert lines['actor'].endswith(topics) and "('learning_starts', 123)" in lines['actor'], lines
+    # The robot's own section too (before, only train.launch.py read it), and not another robot's.
+    assert all("('batch_size', 64)" in lines[n] and '999' not in lines[n] for n in ('actor', 'trainer')), lines
     given = evaluated('/tmp/robots.launch.py', 'actors.launch.py', 'actors:=1', 'transitions_topic:=/fleet/t')
     assert "('/transitions', '/fleet/t'), ('/weights', '/robot1/weights')" in given.stdout, given.stdout
 
