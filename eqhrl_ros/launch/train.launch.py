@@ -52,7 +52,7 @@ def _nodes(context, declared):
     namespace = namespace_of(context)
 
     def parameters(name):
-        return node_parameters(params_file, data, name, namespace)
+        return node_parameters(data, name, namespace)
 
     expert = LaunchConfiguration('expert').perform(context)
     if expert not in EXPERT_NODES:

@@ -193,15 +193,28 @@ class EnvInfoWatcher:
         which = f"'{self.env_node}'" if self.env_node else f'the publisher of {self.observation_topic}'
         claimed = getattr(msg, 'publisher', '') if msg is not None else ''
         if claimed:
-            if claimed in speakers and claimed in allowed:
-                return ''
-            return f'{self.topic} names its publisher {shown(claimed)}, which does not publish it and is not {which}'
+            if claimed not in speakers:
+                return f'{self.topic} names its publisher {shown(claimed)}, which does not publish it'
+            if claimed not in allowed:
+                return f'{self.topic} names its publisher {shown(claimed)}, which is not {which}' + (
+                    '' if self.env_node else self._remap_hint(shown(claimed))
+                )
+            return ''
         strangers = sorted(speakers - allowed)
         if strangers:
             return f'{self.topic} is published by {strangers}, which is not {which}'
         if not speakers:  # its publisher has left: nobody vouches for it
             return f'{self.topic} has no publisher now'
         return ''
+
+    def _remap_hint(self, env: str) -> str:
+        """What to do when the env publishes its observations on a topic this node has another
+        name for: most often the learner's and the env's `observation` are remapped, not this
+        node's, which reads no observation (an expert, a person's page)."""
+        return (
+            f" (if {env} is your env and its observations go elsewhere, remap this node's observation there too, "
+            f'-r observation:=<that topic>, or name the env: -p env_node:={env})'
+        )
 
     def _vouched(self) -> set:
         """The nodes that may speak for the env now: env_node, else the publishers of observation."""

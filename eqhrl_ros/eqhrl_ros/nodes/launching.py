@@ -112,15 +112,19 @@ def in_namespace(topic: str, default: str, pushed: str) -> str:
     return pushed + default if topic == default and pushed else topic
 
 
-def node_parameters(params_file: str, data: dict, name: str, namespace: str) -> list:
-    """What a launch file passes as ``parameters`` to its node ``name``: the params file itself in
-    the root namespace; in a namespace that a launch file including this one pushed
-    (PushRosNamespace), the file's sections for the node as one mapping, its bare `name:` section
-    included. rcl reads `learner:` as /learner: included under /robot1, every node ran on its
-    defaults (2026-12-05)."""
+def node_parameters(data: dict, name: str, namespace: str) -> list:
+    """What a launch file passes as ``parameters`` to its node ``name``: the params file's sections
+    for the node as one mapping, read as rcl reads them; in a namespace that a launch file
+    including this one pushed (PushRosNamespace), its bare `name:` section included.
+
+    Never the file itself. rcl reads `learner:` as /learner: included under /robot1, every node
+    ran on its defaults. And rcl applies a node's own section after every `/**` value, in the
+    order each name first came: under an including file's SetParameter (launch_ros puts it first,
+    as `-p`, in `/**`), the file's `learner:` section beat the launch's own output_dir:= and mode:=,
+    which launch_ros passes in `/**` too (2026-12-05)."""
     from ..parameters import file_section
 
-    return [file_section(data, name, namespace)] if namespace.strip('/') else [params_file]
+    return [file_section(data, name, namespace)]
 
 
 # dds_profile:= of the launch files: a name shipped in share/eqhrl_ros/config, or an XML path.

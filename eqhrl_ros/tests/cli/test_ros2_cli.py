@@ -233,6 +233,56 @@ def test_the_launch_files_included_under_a_namespace_give_their_nodes_their_sect
     assert "('/transitions', '/fleet/t'), ('/weights', '/robot1/weights')" in given.stdout, given.stdout
 
 
+LAUNCH_UNDER_SET_PARAMETER = """
+import sys
+import rclpy
+from rclpy.context import Context
+from launch import LaunchContext
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.launch_description_sources import get_launch_description_from_python_launch_file
+from launch_ros.actions import Node
+
+path, given = sys.argv[1], dict(a.split(':=', 1) for a in sys.argv[2:])
+for namespace in ('', '/robot1'):
+    context = LaunchContext()
+    context.launch_configurations['global_params'] = [('use_sim_time', True)]  # the including file's SetParameter
+    if namespace:  # none pushed: launch_ros passes a node's mappings in `/**`, as in a real launch
+        context.launch_configurations['ros_namespace'] = namespace
+    description = get_launch_description_from_python_launch_file(path)
+    for entity in description.entities:
+        if isinstance(entity, DeclareLaunchArgument):
+            default = entity.default_value[0].perform(context) if entity.default_value else ''
+            context.launch_configurations[entity.name] = given.get(entity.name, default)
+    actions = [a for e in description.entities if isinstance(e, OpaqueFunction) for a in e.execute(context)]
+    learner = next(a for a in actions if isinstance(a, Node) and a.node_executable == 'learner')
+    learner._perform_substitutions(context)
+    arguments = ['-p', 'use_sim_time:=true']  # launch_ros puts SetParameter's values first, so
+    for value, is_file in learner._Node__expanded_parameter_arguments:
+        arguments += ['--params-file', value] if is_file else ['-p', value]
+    ros = Context()
+    rclpy.init(args=['--ros-args', *arguments], context=ros)  # and rcl reads them as the node would
+    node = rclpy.create_node(
+        'learner', namespace=namespace or '/', context=ros, automatically_declare_parameters_from_overrides=True
+    )
+    print(namespace or '/', sorted((n, node.get_parameter(n).value) for n in ('mode', 'output_dir', 'use_sim_time')))
+    node.destroy_node()
+    rclpy.shutdown(context=ros)
+"""
+
+
+def test_the_launchs_own_arguments_win_under_an_including_files_set_parameter(ros2_env, colcon_install):
+    """From outside: my launch file set use_sim_time for all (launch_ros's SetParameter, as with a
+    simulator) and included train.launch.py with output_dir and mode. The learner ran eqsac and saved
+    in the params file's runs/pendulum: rcl applies the file's `learner:` section after every `/**`
+    value, and SetParameter's came first. rcl itself reads what the launch passes here."""
+    path = colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros' / 'launch' / 'train.launch.py'
+    command = ['python3', '-c', LAUNCH_UNDER_SET_PARAMETER, str(path), 'output_dir:=/tmp/mine', 'mode:=sac']
+    result = subprocess.run(command, env=ros2_env, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr[-2000:]
+    expected = "[('mode', 'sac'), ('output_dir', '/tmp/mine'), ('use_sim_time', True)]"
+    assert result.stdout.splitlines() == [f'/ {expected}', f'/robot1 {expected}'], result.stdout
+
+
 @pytest.mark.parametrize(
     'launch_file,arguments,nodes',
     [

@@ -386,6 +386,26 @@ def test_an_env_info_from_a_node_that_is_not_the_env_is_held_not_obeyed(harness,
     assert waiting.learner.scaler.high.tolist() == [2.0] and env is not None
 
 
+def test_an_expert_beside_an_env_on_remapped_topics_says_to_remap_its_observation_and_then_takes_it(
+    harness, ros_context
+):
+    """From outside: the env's and the learner's `observation` remapped to the robot's topic, the
+    expert's not (it reads no observation). The expert held the env's env_info for ever, saying
+    the env "does not publish it" (it did), and every request failed as unavailable."""
+    robot = ['--ros-args', '-r', 'observation:=/robot/obs', '-r', 'action:=/robot/cmd']
+    harness.add(DoubleIntegratorEnv(context=ros_context, cli_args=robot))
+    plain = harness.add(ExpertNode(context=ros_context))
+    remapped = harness.add(ExpertNode(context=ros_context, cli_args=[*robot[:3], '-r', '__node:=expert_b']))
+    assert harness.spin_until(lambda: remapped.env_info.ready, timeout=10)  # remapped as the hint says: taken
+    assert not plain.env_info.ready
+    said = plain.env_info.refusal(env_info.env_info_msg(remapped.env_info.spec, publisher='/double_integrator_env'))
+    assert said == (
+        '/env_info names its publisher /double_integrator_env, which is not the publisher of /observation (if '
+        "/double_integrator_env is your env and its observations go elsewhere, remap this node's observation there "
+        'too, -r observation:=<that topic>, or name the env: -p env_node:=/double_integrator_env)'
+    )
+
+
 def test_a_learner_holding_a_strangers_env_info_takes_the_real_envs_though_the_stranger_stays(
     harness, ros_context, tmp_path, monkeypatch
 ):
@@ -409,10 +429,7 @@ def test_a_learner_holding_a_strangers_env_info_takes_the_real_envs_though_the_s
     assert harness.spin_until(lambda: waiting.env_info.untrusted >= 1)
     # Held: most often the graph only lags a starting env, so an info line, not yet a warning.
     assert any(line.startswith('env_info held, not obeyed yet') for line in lines['info']) and not lines['warn']
-    refused = (
-        'env_info not obeyed: /env_info names its publisher /gym_env, which does not publish it and is not the '
-        'publisher of /observation'
-    )
+    refused = 'env_info not obeyed: /env_info names its publisher /gym_env, which does not publish it'
     # Dropped, and still an info line: the node subscribes anew, and a slow graph's env is taken then.
     assert harness.spin_until(lambda: any(line.startswith(refused) for line in lines['info']), timeout=5)
     assert not lines['warn']
