@@ -27,6 +27,7 @@ camera: in the learner: section (and the camera in gym_env:), the actors read it
 trainer is given no env_id: it takes its spaces and camera from the actors' first batch.
 """
 
+import os
 import re
 import socket
 
@@ -79,7 +80,10 @@ def _prefix(given: str, with_trainer: bool) -> str:
 def _nodes(context, declared):
     warn_undeclared(context.argv, declared, own_file=__file__)
     env = LaunchConfiguration('env').perform(context)
-    params_file = LaunchConfiguration('params_file').perform(context) or str(shipped_params_file(env))
+    # params_file:=~/mine.yaml: no shell expands a ~ inside an argument
+    params_file = os.path.expanduser(LaunchConfiguration('params_file').perform(context)) or str(
+        shipped_params_file(env)
+    )
     data = load_mapping(params_file, 'params file')  # refused in one line, as the nodes refuse it
     # Included under another launch file's PushRosNamespace (one fleet per robot group): the actors'
     # full names and the default topics are in it (before, the trainer refused every batch of

@@ -17,6 +17,8 @@ params file's sections for it, a bare learner: section included (rcl alone would
 /learner only).
 """
 
+import os
+
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
@@ -42,7 +44,10 @@ EXPERT_NODES = {'expert': 'expert', 'teleop': 'teleop_expert', 'none': None}
 def _nodes(context, declared):
     warn_undeclared(context.argv, declared, own_file=__file__)
     env = LaunchConfiguration('env').perform(context)
-    params_file = LaunchConfiguration('params_file').perform(context) or str(shipped_params_file(env))
+    # params_file:=~/mine.yaml: no shell expands a ~ inside an argument
+    params_file = os.path.expanduser(LaunchConfiguration('params_file').perform(context)) or str(
+        shipped_params_file(env)
+    )
     mode = LaunchConfiguration('mode').perform(context)
     if mode and mode not in MODES:
         raise ValueError(f'mode:={mode} is not one of {", ".join(MODES)}')

@@ -7,6 +7,7 @@ value out of range or of the wrong type with a message naming the parameter.
 
 from __future__ import annotations
 
+import os
 import sys
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -60,6 +61,8 @@ def declare(node: Node, params: tuple[Param, ...]) -> dict:
             value = [int(v) for v in value]
         if param.kind == 'string_array' and value is not None:
             value = [str(v) for v in value]
+        if param.path and value is not None:
+            value = [os.path.expanduser(v) for v in value] if isinstance(value, list) else os.path.expanduser(value)
         if param.choices and value not in param.choices:
             raise ValueError(f"parameter '{param.name}' is {value!r}; expected one of {param.choices}")
         values[param.name] = value

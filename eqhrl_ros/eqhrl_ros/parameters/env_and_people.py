@@ -66,7 +66,7 @@ EXPERT_PARAMS = (
         'double_integrator (empty: the name in env_info)',
     ),
     *SPACE_PARAMS,
-    Param('policy_path', '', 'Policy file exported by a learner (backend policy)'),
+    Param('policy_path', '', 'Policy file exported by a learner (backend policy)', path=True),
     Param(
         'response_delay_s',
         0.0,

@@ -9,7 +9,7 @@ from .tables import ACTING_PARAMS, ENV_PARAMS, KEY_FILE, LEARNER_CONFIG_PARAMS, 
 def run_params(output_dir: str) -> tuple:
     """A learning run's folder, saves and end (the learner and the trainer nodes)."""
     return (
-        Param('output_dir', output_dir, 'Folder for episodes.csv, checkpoints and the exported policy'),
+        Param('output_dir', output_dir, 'Folder for episodes.csv, checkpoints and the exported policy', path=True),
         Param(
             'checkpoint_every_episodes', 10, 'Save a checkpoint every N episodes (0: only on shutdown)', (0, INT_MAX)
         ),
@@ -81,13 +81,19 @@ LEARNER_NODE_PARAMS = (
         'Records of earlier runs (run folders or .mcap files) whose advised and person-initiated transitions '
         'go into D and D_advising before the first step (a fresh start only; spaces must match)',
         kind='string_array',
+        path=True,
     ),
 )
 
 # policy_driver (nodes/policy_driver_node.py): a trained policy drives the env, learning nothing.
 POLICY_DRIVER_PARAMS = (
     *ENV_PARAMS,
-    Param('policy_path', '', "The policy file a learner or trainer exported (its run folder's policy.pt); required"),
+    Param(
+        'policy_path',
+        '',
+        "The policy file a learner or trainer exported (its run folder's policy.pt); required",
+        path=True,
+    ),
     Param(
         'max_episodes',
         0,

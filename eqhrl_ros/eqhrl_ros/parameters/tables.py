@@ -28,6 +28,10 @@ class Param:
     # declared only when a params file or -p gives it (nodes/params.py says why); its value is
     # None until then.
     kind: Optional[str] = None
+    # A file or folder (or a list of them): a leading ~ is the home of the user the node runs as.
+    # ROS does not expand it, nor does a shell inside `-p output_dir:=~/runs` (before, that made a
+    # folder named ~ in the working directory).
+    path: bool = False
 
 
 def params_of(declared) -> tuple[Param, ...]:
@@ -146,6 +150,7 @@ KEY_FILE = Param(
     '',
     "A file holding this deployment's shared secret: what this node sends is signed with it, and what it "
     'receives unsigned or signed otherwise is refused (HMAC-SHA256; integrity, no secrecy). Empty: no key',
+    path=True,
 )
 
 

@@ -13,7 +13,9 @@ import rclpy.executors
 import yaml
 from std_msgs.msg import Float32MultiArray
 
+from eqhrl_ros.core import EQSACLearner, LearnerConfig
 from eqhrl_ros.core.data.summary import EpisodeSummary
+from eqhrl_ros.core.experts.policy import PolicyExpert, export_policy
 from eqhrl_ros.nodes import messages
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
@@ -329,6 +331,30 @@ def test_a_params_files_section_that_misses_a_namespaced_node_is_said_and_read_a
 def test_bad_parameters_are_refused_at_start_up_naming_the_key(ros_context, tmp_path, override, message):
     with pytest.raises(start_up_errors(), match=message):
         LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, **override))
+
+
+def test_a_path_parameter_that_starts_with_a_tilde_is_in_the_home_folder(harness, ros_context, tmp_path, monkeypatch):
+    """From outside: `ros2 run eqhrl_ros learner --ros-args -p output_dir:=~/runs/p` (no shell expands
+    a ~ inside an argument, nor does ROS) made a folder named ~ in the working directory, and the
+    expert's `policy_path:=~/policy.pt` was not found."""
+    home = tmp_path / 'home'
+    monkeypatch.setenv('HOME', str(home))
+    monkeypatch.chdir(tmp_path)
+    home.mkdir()
+    export_policy(EQSACLearner(3, [-2.0], [2.0], LearnerConfig(hidden=(16, 16), seed=3)), home / 'policy.pt')
+    expert = harness.add(
+        ExpertNode(context=ros_context, parameter_overrides=params(backend='policy', policy_path='~/policy.pt'))
+    )
+    learner = harness.add(
+        LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, output_dir='~/runs/p'))
+    )
+    assert learner.params['output_dir'] == str(home / 'runs' / 'p')
+    with pytest.raises(start_up_errors(), match=f'prior: {home}/runs/old: no such file or folder'):
+        LearnerNode(context=ros_context, parameter_overrides=small_learner_params(tmp_path, prior=['~/runs/old']))
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=20)))
+    assert harness.spin_until(lambda: expert.backend is not None, timeout=10)
+    assert isinstance(expert.backend, PolicyExpert)
+    assert not (tmp_path / '~').exists()
 
 
 def test_run_time_parameters_are_range_checked_applied_and_said(harness, ros_context, tmp_path):
