@@ -3,6 +3,7 @@ scaling lives in env_spec.py, without gymnasium)."""
 
 from __future__ import annotations
 
+import os
 from typing import cast
 
 import gymnasium as gym
@@ -27,6 +28,11 @@ def make_env(env_id: str, max_episode_steps: int | None = None, render_mode: str
     LunarLanderContinuous-v3 is an alias of LunarLander-v3 with continuous=True.
     """
     steps = max_episode_steps or PAPER_MAX_EPISODE_STEPS.get(env_id)
+    if render_mode == 'rgb_array':
+        # Frames drawn off screen need no window: SDL's dummy video driver draws the same frames, and
+        # SDL's default one printed "error: XDG_RUNTIME_DIR is invalid" in every container
+        # (pygame.init() of the box2d envs). A driver the user chose is kept.
+        os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')
     env = gym.make(env_id, max_episode_steps=steps, render_mode=render_mode)
     if not isinstance(env.action_space, gym.spaces.Box):
         env.close()
