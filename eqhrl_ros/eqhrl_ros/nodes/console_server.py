@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import errno
 import hmac
 import ipaddress
 import json
@@ -150,7 +151,15 @@ class ConsoleServer:
         self._thread.start()
         self._server_ready.wait(10.0)
         if self._server_error is not None:
-            raise OSError(f'cannot serve on {self.params["host"]}:{self.params["port"]}: {self._server_error}')
+            taken = getattr(self._server_error, 'errno', None) == errno.EADDRINUSE
+            raise OSError(
+                f'cannot serve on {self.params["host"]}:{self.params["port"]}: {self._server_error}'
+                + (
+                    " (a second robot's page? give each its own: -p port:=8081, or port:=0 for any free one)"
+                    if taken
+                    else ''
+                )
+            )
 
     def _serve(self) -> None:
         asyncio.set_event_loop(self._loop)

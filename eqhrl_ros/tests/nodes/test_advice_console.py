@@ -7,6 +7,7 @@ gamepad. The nodes spin in a thread of this process, so the test reads the learn
 
 import os
 import re
+import socket
 import threading
 import time
 from pathlib import Path
@@ -18,6 +19,7 @@ from eqhrl_ros.core.data.advice import SKIPPED
 from eqhrl_ros.nodes.advice_console_node import AdviceConsole, is_loopback
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
+from eqhrl_ros.nodes.spinning import start_up_errors
 from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
 
 from ros_helpers import params, small_learner_params
@@ -590,3 +592,18 @@ def test_the_page_shows_the_learners_camera_live_at_its_size(browser, ros_contex
         wait_for(lambda: 'frames refused' in browser.execute_script(caption), what='the refusals said on the page')
     finally:
         graph.close()
+
+
+def test_a_port_taken_by_another_page_is_refused_with_how_to_give_each_its_own(ros_context):
+    """From outside: a second robot's page (train.launch.py included twice, expert:=teleop) could
+    only say `address already in use`."""
+    taken = socket.socket()
+    taken.bind(('127.0.0.1', 0))
+    taken.listen()
+    try:
+        port = taken.getsockname()[1]
+        with pytest.raises(start_up_errors(), match=r'port:=8081, or port:=0 for any free one\)$') as refused:
+            AdviceConsole(context=ros_context, parameter_overrides=params(port=port, env_id='Pendulum-v1'))
+        assert f'cannot serve on 127.0.0.1:{port}' in str(refused.value)
+    finally:
+        taken.close()
