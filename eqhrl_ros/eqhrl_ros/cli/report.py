@@ -2,12 +2,14 @@
 
     eqhrl-report runs/pendulum_paper --output docs/results/pendulum
     eqhrl-report runs/a runs/b --output report --threshold -200
+    eqhrl-report runs/sac_seed1 runs/eqsac_seed1 --output report   # runs of eqhrl-train, ros2 launch
 
 Reads <folder>/episodes.csv written by eqhrl-experiment (columns: algorithm, seed,
 episode, return, length, advice_asked, advice_given, success) from one or more
-folders and writes table.md, returns.png, advice.png, success.png and
-advice_heatmap.png into --output; where the folders hold an eval.csv (the advice-free
-evaluation of eqhrl-experiment), also eval_returns.png.
+folders, or a single run's episodes.csv (eqhrl-train, the learner node; its algorithm, seed
+and env from the run's provenance.yaml, where the learner notes them), and writes table.md,
+returns.png, advice.png, success.png and advice_heatmap.png into --output; where the folders
+hold an eval.csv (the advice-free evaluation of eqhrl-experiment), also eval_returns.png.
 
 Per algorithm, mean ± std over seeds of: total advice given (and asked), final
 return (mean of the last 10% of episodes), success rate (last 10% and all
@@ -41,7 +43,7 @@ def main(argv=None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=__doc__,
     )
-    parser.add_argument('folders', nargs='+', help='eqhrl-experiment output folders')
+    parser.add_argument('folders', nargs='+', help="eqhrl-experiment output folders or single runs' folders")
     parser.add_argument('--output', required=True, help='folder for table.md and the PNGs')
     parser.add_argument(
         '--overwrite', action='store_true', help='replace a table.md already in --output (e.g. committed results)'
@@ -60,7 +62,7 @@ def main(argv=None) -> int:
         return 2
     try:
         runs = read_runs(args.folders)
-    except FileNotFoundError as error:
+    except (FileNotFoundError, ValueError) as error:
         print(f'eqhrl-report: {error}', file=sys.stderr)
         return 1
     if not runs:

@@ -171,7 +171,7 @@ class ActingNode(Node):
             camera and camera.spec(self.params['camera_stack']),
         )
         learner.log = self.get_logger()  # compile_update's one line
-        self._prepare(learner)
+        self._prepare(learner, spec)
         wheel = PersonWheel(
             learner,
             self.config.takeover_threshold,
@@ -225,8 +225,9 @@ class ActingNode(Node):
         configured = self.config.advice_protocol
         return configured if configured != 'auto' else 'auto (the wheel in real time, one answer in lock-step)'
 
-    def _prepare(self, learner: EQSACLearner) -> None:
-        """The subclass's use of a new learner before it acts (a checkpoint to load, a record)."""
+    def _prepare(self, learner: EQSACLearner, spec: EnvSpec) -> None:
+        """The subclass's use of a new learner for the env ``spec`` before it acts (a checkpoint to
+        load, a record)."""
 
     def _describe(self) -> str:
         """The end of the start-up log line."""

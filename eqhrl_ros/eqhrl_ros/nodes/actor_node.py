@@ -33,6 +33,7 @@ from ..core.algorithm.learner import EpisodeSummary, EQSACLearner
 from ..core.data.signing import signer_from
 from ..core.data.transitions import ACK_WAIT_S, MAX_MISSING, Outbox
 from ..core.data.weights import TrainerPin, WeightsError, apply_weights
+from ..core.envs.spec import EnvSpec
 from ..parameters import ACTOR_NODE_PARAMS
 from . import trainer_msgs
 from .acting_node import ActingNode
@@ -96,7 +97,7 @@ class ActorNode(ActingNode):
         period = min(self.params['flush_period_s'] / 2, 0.1)
         self.create_timer(period, self._flush_if_due, clock=self._steady)
 
-    def _prepare(self, learner: EQSACLearner) -> None:
+    def _prepare(self, learner: EQSACLearner, spec: EnvSpec) -> None:
         p = self.params
         self.outbox = Outbox(
             p['actor_name'] or self.get_fully_qualified_name(),

@@ -13,6 +13,7 @@ import numpy as np
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner
 from ..core.algorithm.learner_state import resumed_settings
 from ..core.data.advice import ACTION_SOURCES
+from ..core.envs.spec import EnvSpec
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
 from ..parameters import LEARNER_NODE_PARAMS
@@ -33,7 +34,7 @@ class LearnerNode(RunFiles, ActingNode):
     def _before_start(self) -> None:
         self._open_run_folder()
 
-    def _prepare(self, learner: EQSACLearner) -> None:
+    def _prepare(self, learner: EQSACLearner, spec: EnvSpec) -> None:
         if self.params['resume']:
             # A bad checkpoint stops start-up with CheckpointError: silently starting
             # from scratch would overwrite the run the person asked to continue.
@@ -44,7 +45,8 @@ class LearnerNode(RunFiles, ActingNode):
                 self.get_logger().info('prior not loaded: it seeds a fresh start only (a resumed run goes on as saved)')
         elif self.params['prior']:
             self._load_prior(learner)
-        self.run_folder.begin()  # accepted: provenance noted, a run overwritten removed only now
+        # Accepted: provenance noted (with what eqhrl-report needs of a single run), a run overwritten removed only now.
+        self.run_folder.begin(env=spec.name, mode=self.config.mode, seed=self.config.seed)
         with self._lock:
             self.record = EpisodeRecord(
                 self.csv_path,

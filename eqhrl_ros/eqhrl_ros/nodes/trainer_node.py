@@ -139,7 +139,9 @@ class TrainerNode(RunFiles, Node):
             extra = load_checkpoint(learner, self.checkpoint_path, self.replay_path)
             self._resumed(learner)
         p = self.params
-        self.run_folder.begin()  # accepted: provenance noted, a run overwritten removed only now
+        # Accepted: provenance noted (what the run is, for eqhrl-report), a run overwritten removed only now.
+        env = {'env': p['env_id']} if p.get('env_id') else {}  # else the actors' batches gave the spaces
+        self.run_folder.begin(**env, mode=self.config.mode, seed=self.config.seed)
         self.record = EpisodeRecord(
             self.csv_path, TRAINER_CSV_FIELDS, keep_before=learner.episode if p['resume'] else None
         )

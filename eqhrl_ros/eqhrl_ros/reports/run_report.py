@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.algorithm.config import MODE_COLORS, MODE_LABELS, MODES
+from ..core.runs.provenance import PROVENANCE_FILE
 from ..files.yaml_files import load_mapping
 from .plots import smooth
 
@@ -42,16 +43,41 @@ def return_threshold(env_id: str, given=None, say=None) -> float:
     return 0.0
 
 
+def last_start(folder) -> dict:
+    """The latest entry of a run folder's provenance.yaml (the learner notes its env, mode and seed
+    there); {} where there is none or it cannot be read."""
+    path = Path(folder) / PROVENANCE_FILE
+    try:
+        starts = load_mapping(path, 'provenance file').get('starts') if path.exists() else None
+    except ValueError:
+        return {}
+    return starts[-1] if isinstance(starts, list) and starts and isinstance(starts[-1], dict) else {}
+
+
 def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
-    """{(algorithm, seed): {column: values sorted by episode}} from every folder."""
-    rows = defaultdict(list)
+    """{(algorithm, seed): {column: values sorted by episode}} from every folder: an eqhrl-experiment
+    output (its episodes.csv names each row's algorithm and seed), or a single run's folder
+    (eqhrl-train, ros2 launch: its mode and seed from provenance.yaml; a run from before they were
+    noted there is named by its folder, seed 0). Before, a single run's folder raised KeyError."""
+    rows, where = defaultdict(list), {}
     for folder in folders:
         path = Path(folder) / 'episodes.csv'
         if not path.exists():
-            raise FileNotFoundError(f'{path}: no episodes.csv (run eqhrl-experiment first)')
+            raise FileNotFoundError(f'{path}: no episodes.csv (an eqhrl-experiment output or a run folder)')
         with path.open(newline='') as f:
-            for row in csv.DictReader(f):
-                rows[(row['algorithm'], int(row['seed']))].append(row)
+            reader = csv.DictReader(f)
+            single = not {'algorithm', 'seed'} <= set(reader.fieldnames or ())
+            if single:
+                start = last_start(folder)
+                key = (str(start.get('mode') or Path(folder).resolve().name), int(start.get('seed', 0)))
+                if key in where:
+                    raise ValueError(
+                        f'{where[key]} and {folder} are both {key[0]} seed {key[1]}: give one of them, or '
+                        'an eqhrl-experiment output that holds both'
+                    )
+                where[key] = folder
+            for row in reader:
+                rows[key if single else (row['algorithm'], int(row['seed']))].append(row)
     runs = {}
     for key, items in rows.items():
         items.sort(key=lambda r: int(r['episode']))
@@ -63,10 +89,13 @@ def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
 
 
 def env_of(folders) -> str:
+    """The env of the runs: an eqhrl-experiment output's settings.yaml, else a run's provenance."""
     for folder in folders:
         settings = Path(folder) / 'settings.yaml'
         if settings.exists():
             return load_mapping(settings, 'settings file').get('env_id', '')
+        if last_start(folder).get('env'):
+            return str(last_start(folder)['env'])
     return ''
 
 

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 from eqhrl_ros.cli import experiment, report
+from eqhrl_ros.core.data.summary import EpisodeSummary
+from eqhrl_ros.core.runs.records import EpisodeRecord, RunFolder
 from eqhrl_ros.experiments import gather, seed_runs
 from eqhrl_ros.experiments.settings import load_settings
 from eqhrl_ros.reports import run_report
@@ -145,6 +147,34 @@ def test_the_return_to_reach_is_the_envs_own_or_said_to_be_none(tmp_path, capsys
     (tmp_path / 'runs' / 'settings.yaml').write_text('env_id: double_integrator_env\n')
     assert report.main([str(tmp_path / 'runs'), '--output', str(tmp_path / 'out')]) == 0
     assert 'double_integrator_env has no return threshold of its own' in capsys.readouterr().err
+
+
+def test_report_reads_single_runs_by_the_mode_seed_and_env_their_learner_noted(tmp_path, capsys):
+    """From outside: `eqhrl-report runs/pendulum` on a run of eqhrl-train or ros2 launch (no
+    algorithm and seed columns) ended in a KeyError traceback."""
+
+    def single_run(folder, returns, **about):
+        RunFolder(folder).begin(**about)
+        record = EpisodeRecord(folder / 'episodes.csv', EpisodeSummary.CSV_FIELDS)
+        for episode, value in enumerate(returns):
+            row = dict.fromkeys(EpisodeSummary.CSV_FIELDS, 0)
+            record.append([{**row, 'episode': episode, 'return': value, 'length': 100}[k] for k in row])
+        return folder
+
+    runs = [
+        single_run(tmp_path / 'a', [-900.0, -100.0], env='Pendulum-v1', mode='sac', seed=1),
+        single_run(tmp_path / 'b', [-800.0, -300.0], env='Pendulum-v1', mode='sac', seed=2),
+        single_run(tmp_path / 'c', [-700.0, -50.0], env='Pendulum-v1', mode='eqsac', seed=1),
+        single_run(tmp_path / 'older', [-600.0, -600.0]),  # before the learner noted its mode
+    ]
+    assert sorted(run_report.read_runs(runs)) == [('eqsac', 1), ('older', 0), ('sac', 1), ('sac', 2)]
+    assert report.main([*map(str, runs), '--output', str(tmp_path / 'out')]) == 0
+    table = (tmp_path / 'out' / 'table.md').read_text()
+    assert '| SAC | 2 | 2 |' in table and '| EQSAC | 1 | 2 |' in table and '| older | 1 | 2 |' in table
+    assert 'episodes to return ≥ -200' in table  # Pendulum's, from the runs' provenance
+    twin = single_run(tmp_path / 'again', [-1.0], env='Pendulum-v1', mode='sac', seed=1)
+    assert report.main([str(runs[0]), str(twin), '--output', str(tmp_path / 'out2')]) == 1
+    assert f'{runs[0]} and {twin} are both sac seed 1' in capsys.readouterr().err
 
 
 def test_report_reads_the_advice_free_evaluation(tmp_path):

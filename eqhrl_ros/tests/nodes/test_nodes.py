@@ -132,6 +132,9 @@ def test_sac_mode_never_calls_the_service(harness, ros_context, tmp_path):
     finally:
         expert.close()
     assert expert.requests == [] and learner.learner.advice_total.asked == 0
+    # What eqhrl-report reads of a single run: noted with the start.
+    start = yaml.safe_load((tmp_path / 'provenance.yaml').read_text())['starts'][-1]
+    assert (start['env'], start['mode'], start['seed']) == ('Pendulum-v1', 'sac', 42)
 
 
 @pytest.mark.parametrize(

@@ -68,8 +68,9 @@ def provenance() -> dict:
     }
 
 
-def note_provenance(folder) -> Optional[Path]:
-    """Add this start's entry to ``folder``/provenance.yaml (made if absent); returns its path.
+def note_provenance(folder, about: Optional[dict] = None) -> Optional[Path]:
+    """Add this start's entry to ``folder``/provenance.yaml (made if absent), with ``about`` (what
+    the run is: env, mode, seed) after it; returns its path.
     A file that cannot be read is kept aside as provenance.yaml.unreadable, never lost. A note
     that cannot be written (a full disk) costs the note, not the run: None."""
     import yaml  # here, not above: setup.py reads git_state() from this file while building
@@ -82,7 +83,7 @@ def note_provenance(folder) -> Optional[Path]:
             entries = list(loaded.get('starts', [])) if isinstance(loaded, dict) else []
         except (OSError, yaml.YAMLError):
             path.replace(path.with_name(PROVENANCE_FILE + '.unreadable'))
-    entries.append(provenance())
+    entries.append({**provenance(), **(about or {})})
     tmp = path.with_name(f'.{PROVENANCE_FILE}.tmp')
     try:
         tmp.write_text(yaml.safe_dump({'starts': entries}, sort_keys=False))

@@ -87,9 +87,10 @@ class RunFolder:
         self.overwrite = overwrite
         self.provenance: Optional[Path] = None
 
-    def begin(self) -> None:
+    def begin(self, **about) -> None:
         """The start is accepted (the learner is built, its checkpoint or prior loaded): note what
-        made it in provenance.yaml and, with overwrite, remove the run it replaces. Until
+        made it in provenance.yaml, with ``about`` (the env, mode and seed: eqhrl-report reads a
+        single run's by them), and, with overwrite, remove the run it replaces. Until
         2026-12-05 both happened when the folder was opened, so a start refused later (a prior of
         another env, a learner that never got its spaces) left an entry for a start that never
         ran, and with overwrite had already removed the run it did not replace."""
@@ -98,7 +99,7 @@ class RunFolder:
                 (self.path / name).unlink(missing_ok=True)
             for record in self.path.glob(RECORD_FILES):  # the MCAP record (record: true), resumes included
                 record.unlink(missing_ok=True)
-        self.provenance = note_provenance(self.path)  # what made this start of the run
+        self.provenance = note_provenance(self.path, about)  # what made this start of the run
 
 
 class EpisodeRecord:
