@@ -5,6 +5,7 @@ from pathlib import Path
 import pytest
 
 from eqhrl_ros.cli.node_programs import NODES, node_tables
+from eqhrl_ros.core.data.signing import CommandSeal, Signer
 from eqhrl_ros.experiments import seed_runs
 from eqhrl_ros.nodes import messages
 
@@ -38,6 +39,13 @@ def test_the_example_env_parameters_have_their_table():
 def test_message_fields_are_documented():
     for field in (*messages.OBS_TAIL, messages.OBS_SUCCESS, *messages.ACTION_TAIL):
         assert f'`{field}`' in README, field
+    # Every field a person's UI may send on teleop_command, in its row of the layouts table (before,
+    # take_over was in none: a UI written from the README could not take over).
+    row = next(line for line in README.splitlines() if line.startswith('| `teleop_command` | `command`'))
+    seal = CommandSeal(Signer(b'a key of this test, 32 bytes long!'))
+    full = messages.command_msg([0.0], True, False, False, seal, request=(1, 2), take_over=True)
+    for dim in full.layout.dim:
+        assert f'`{dim.label}`: {dim.size if dim.label != "command" else "k"}' in row, dim.label
 
 
 INTERFACES = Path(__file__).resolve().parents[2] / 'eqhrl_interfaces'
