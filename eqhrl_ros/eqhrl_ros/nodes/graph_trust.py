@@ -57,6 +57,11 @@ class OnePublisher:
             self._checked_at, self._verdict = now, self._judge()
         return self._verdict
 
+    @property
+    def publishing(self) -> frozenset:
+        """The nodes that published the topic when it was last judged."""
+        return self._names
+
     def heard_from(self) -> bool:
         """Whether one node the topic may be taken from publishes it now (refusal() is '' and the
         graph names a publisher): a request that only it can answer has someone to reach."""

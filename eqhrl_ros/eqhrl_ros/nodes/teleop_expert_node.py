@@ -169,8 +169,16 @@ class TeleopExpertNode(Node):
         refusal = self.source_guard.refusal()
         if refusal:
             self.rejected_commands += 1
-            self.get_logger().error(f'commands refused: {refusal}', throttle_duration_sec=5.0)
+            self.get_logger().error(f'commands refused: {refusal}{self._own_ui_hint()}', throttle_duration_sec=5.0)
         return not refusal
+
+    def _own_ui_hint(self) -> str:
+        """A UI of the person's own on teleop_command is refused until it is named: say how (before,
+        the refusal named only the shipped drivers it expected)."""
+        strangers = sorted(self.source_guard.publishing - set(self.source_guard.expected))
+        if self.params['command_publisher'] or len(strangers) != 1:
+            return ''
+        return f' (your own UI? take its commands: -p command_publisher:={strangers[0]})'
 
     def _on_joy(self, msg: Joy) -> None:
         if not self._trusted():

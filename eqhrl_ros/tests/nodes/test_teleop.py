@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -461,6 +462,49 @@ def test_a_second_command_publisher_answers_nothing_for_the_person(harness, ros_
     rogue_pub.publish(command(-1.0))
     harness.spin_until(lambda: teleop.rejected_commands > rejected, timeout=5)
     assert teleop.rejected_commands > rejected
+
+
+def test_a_ui_of_ones_own_is_refused_with_how_to_name_it_and_then_taken(harness, ros_context):
+    """From outside: a person's UI written from the README (labelled teleop_command, take_over held)
+    was refused with only `not by /advice_console or /keyboard_teleop`; command_publisher was unsaid."""
+    said = []
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(source='array', axes=[0], scales=[2.0], offsets=[0.0], stale_after_s=5.0),
+        )
+    )
+    logger = teleop.get_logger()
+    teleop.get_logger = lambda: SimpleNamespace(
+        info=logger.info, warn=logger.warn, error=lambda line, **k: said.append(line)
+    )
+    ui = harness.add(rclpy.create_node('my_ui', context=ros_context))
+    pub = ui.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    assert harness.spin_until(lambda: pub.get_subscription_count() > 0)
+    harness.spin_until(lambda: False, timeout=0.6)  # past the graph cache
+    pub.publish(messages.command_msg([0.5], True, False, False, take_over=True))
+    assert harness.spin_until(lambda: said, timeout=5)
+    assert said[0] == (
+        "commands refused: '/teleop_command' is published by ['/my_ui'], not by /advice_console or /keyboard_teleop "
+        '(your own UI? take its commands: -p command_publisher:=/my_ui)'
+    )
+    named = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            namespace='/named',
+            parameter_overrides=params(
+                source='array', axes=[0], scales=[2.0], offsets=[0.0], command_publisher='/my_ui'
+            ),
+        )
+    )
+    taken, take = [], named._take
+    named._take = lambda command: (taken.append(command), take(command))
+    named_pub = ui.create_publisher(Float32MultiArray, '/named/teleop_command', 10)
+    assert harness.spin_until(lambda: named_pub.get_subscription_count() > 0)
+    harness.spin_until(lambda: False, timeout=0.6)
+    named_pub.publish(messages.command_msg([0.5], True, False, False, take_over=True))
+    assert harness.spin_until(lambda: taken, timeout=5)
+    assert named.rejected_commands == 0 and taken[0].take_over and taken[0].values.tolist() == [1.0]
 
 
 def test_a_strangers_word_on_learner_advice_request_ends_no_request_of_the_person(harness, ros_context):
