@@ -58,7 +58,8 @@ def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
     """{(algorithm, seed): {column: values sorted by episode}} from every folder: an eqhrl-experiment
     output (its episodes.csv names each row's algorithm and seed), or a single run's folder
     (eqhrl-train, ros2 launch: its mode and seed from provenance.yaml; a run from before they were
-    noted there is named by its folder, seed 0). Before, a single run's folder raised KeyError."""
+    noted there is named by its folder, seed 0). Before, a single run's folder raised KeyError.
+    One algorithm and seed in two folders is refused (its rows would mix into one run)."""
     rows, where = defaultdict(list), {}
     for folder in folders:
         path = Path(folder) / 'episodes.csv'
@@ -69,15 +70,15 @@ def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
             single = not {'algorithm', 'seed'} <= set(reader.fieldnames or ())
             if single:
                 start = last_start(folder)
-                key = (str(start.get('mode') or Path(folder).resolve().name), int(start.get('seed', 0)))
-                if key in where:
+                run = (str(start.get('mode') or Path(folder).resolve().name), int(start.get('seed', 0)))
+            for row in reader:
+                key = run if single else (row['algorithm'], int(row['seed']))
+                if where.setdefault(key, folder) != folder:
                     raise ValueError(
-                        f'{where[key]} and {folder} are both {key[0]} seed {key[1]}: give one of them, or '
+                        f'{where[key]} and {folder} both hold {key[0]} seed {key[1]}: give one of them, or '
                         'an eqhrl-experiment output that holds both'
                     )
-                where[key] = folder
-            for row in reader:
-                rows[key if single else (row['algorithm'], int(row['seed']))].append(row)
+                rows[key].append(row)
     runs = {}
     for key, items in rows.items():
         items.sort(key=lambda r: int(r['episode']))

@@ -174,7 +174,7 @@ def test_report_reads_single_runs_by_the_mode_seed_and_env_their_learner_noted(t
     assert 'episodes to return ≥ -200' in table  # Pendulum's, from the runs' provenance
     twin = single_run(tmp_path / 'again', [-1.0], env='Pendulum-v1', mode='sac', seed=1)
     assert report.main([str(runs[0]), str(twin), '--output', str(tmp_path / 'out2')]) == 1
-    assert f'{runs[0]} and {twin} are both sac seed 1' in capsys.readouterr().err
+    assert f'{runs[0]} and {twin} both hold sac seed 1' in capsys.readouterr().err
 
 
 def test_report_reads_the_advice_free_evaluation(tmp_path):
