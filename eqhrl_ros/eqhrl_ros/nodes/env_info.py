@@ -194,7 +194,10 @@ class EnvInfoWatcher:
         claimed = getattr(msg, 'publisher', '') if msg is not None else ''
         if claimed:
             if claimed not in speakers:
-                return f'{self.topic} names its publisher {shown(claimed)}, which does not publish it'
+                relative = (
+                    '' if claimed.startswith('/') else ' (a full node name starts with /: get_fully_qualified_name())'
+                )
+                return f'{self.topic} names its publisher {shown(claimed)}, which does not publish it{relative}'
             if claimed not in allowed:
                 return f'{self.topic} names its publisher {shown(claimed)}, which is not {which}' + (
                     '' if self.env_node else self._remap_hint(shown(claimed))

@@ -404,6 +404,9 @@ def test_an_expert_beside_an_env_on_remapped_topics_says_to_remap_its_observatio
         "/double_integrator_env is your env and its observations go elsewhere, remap this node's observation there "
         'too, -r observation:=<that topic>, or name the env: -p env_node:=/double_integrator_env)'
     )
+    # A name written without its namespace (the README asks for get_fully_qualified_name()): said so.
+    said = remapped.env_info.refusal(env_info.env_info_msg(remapped.env_info.spec, publisher='double_integrator_env'))
+    assert said.endswith('which does not publish it (a full node name starts with /: get_fully_qualified_name())')
 
 
 def test_a_learner_holding_a_strangers_env_info_takes_the_real_envs_though_the_stranger_stays(
