@@ -197,7 +197,8 @@ class EnvInfoWatcher:
                 relative = (
                     '' if claimed.startswith('/') else ' (a full node name starts with /: get_fully_qualified_name())'
                 )
-                return f'{self.topic} names its publisher {shown(claimed)}, which does not publish it{relative}'
+                unseen = 'which the graph does not show publishing it'  # a forged name, or the graph lags
+                return f'{self.topic} names its publisher {shown(claimed)}, {unseen}{relative}'
             if claimed not in allowed:
                 return f'{self.topic} names its publisher {shown(claimed)}, which is not {which}' + (
                     '' if self.env_node else self._remap_hint(shown(claimed))

@@ -406,7 +406,9 @@ def test_an_expert_beside_an_env_on_remapped_topics_says_to_remap_its_observatio
     )
     # A name written without its namespace (the README asks for get_fully_qualified_name()): said so.
     said = remapped.env_info.refusal(env_info.env_info_msg(remapped.env_info.spec, publisher='double_integrator_env'))
-    assert said.endswith('which does not publish it (a full node name starts with /: get_fully_qualified_name())')
+    assert said.endswith(
+        'which the graph does not show publishing it (a full node name starts with /: get_fully_qualified_name())'
+    )
 
 
 def test_a_learner_holding_a_strangers_env_info_takes_the_real_envs_though_the_stranger_stays(
@@ -432,7 +434,7 @@ def test_a_learner_holding_a_strangers_env_info_takes_the_real_envs_though_the_s
     assert harness.spin_until(lambda: waiting.env_info.untrusted >= 1)
     # Held: most often the graph only lags a starting env, so an info line, not yet a warning.
     assert any(line.startswith('env_info held, not obeyed yet') for line in lines['info']) and not lines['warn']
-    refused = 'env_info not obeyed: /env_info names its publisher /gym_env, which does not publish it'
+    refused = 'env_info not obeyed: /env_info names its publisher /gym_env, which the graph does not show publishing it'
     # Dropped, and still an info line: the node subscribes anew, and a slow graph's env is taken then.
     assert harness.spin_until(lambda: any(line.startswith(refused) for line in lines['info']), timeout=5)
     assert not lines['warn']
