@@ -49,7 +49,14 @@ from eqhrl_ros.nodes.launching import (
     shared_arguments,
     warn_undeclared,
 )
-from eqhrl_ros.parameters import ACTOR_NODE_PARAMS, SPACE_PARAMS, TRAINER_PARAMS, learner_section_for, section_applies
+from eqhrl_ros.parameters import (
+    ACTOR_NODE_PARAMS,
+    SPACE_PARAMS,
+    TRAINER_PARAMS,
+    flat_sections,
+    learner_section_for,
+    section_applies,
+)
 
 # What a trainer is told of the env; camera actors' trainer takes it (and the camera) from their batches.
 ENV_NAMES = ('env_id', *(p.name for p in SPACE_PARAMS))
@@ -59,6 +66,7 @@ def _section(data: dict, name: str, pushed: str = '') -> dict:
     """The parameters of the file's sections for node ``name`` in the namespace this launch was
     included in (`name:`, `/name:`, `/**/name:`; under a pushed `/robot1`, also `/robot1/name:`),
     or of `/**` itself; the launch passes them to its namespaced nodes."""
+    data = flat_sections(data)  # the nested form too, as rcl reads it
     keys = [k for k in data if k == name or (name != '/**' and str(k).rstrip('/').split('/')[-1] == name)]
     merged = {}
     for key in keys:

@@ -159,7 +159,9 @@ def env_node_for(params: dict, given: str = '') -> str:
         if given not in ENV_NODES:
             raise ValueError(f'env node {given!r} is not one of {", ".join(ENV_NODES)}')
         return given
-    from ..parameters import section_applies
+    from ..parameters import flat_sections, section_applies
+
+    params = flat_sections(params)  # the nested form too, as rcl reads it
 
     def named(key: str, name: str) -> bool:  # a section for that node: `name:`, `/name:`, `/**/name:`
         return key.rstrip('/').split('/')[-1] == name and section_applies(key, f'/{name}')

@@ -14,7 +14,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..parameters import BUILT_IN, Param, section_applies
+from ..parameters import BUILT_IN, Param, flat_sections, section_applies
 
 
 def descriptor(param: Param) -> ParameterDescriptor:
@@ -140,7 +140,7 @@ def warn_unapplied_sections(node: Node, argv=None, settings_of: str = '') -> str
     full, name = node.get_fully_qualified_name(), node.get_name()
     for path in files:
         try:
-            data = load_mapping(path, 'params file')
+            data = flat_sections(load_mapping(path, 'params file'))
         except (OSError, ValueError):
             continue  # rcl read it already; what it could not read, it refused
         last = {str(key): str(key).rstrip('/').split('/')[-1] for key in data}

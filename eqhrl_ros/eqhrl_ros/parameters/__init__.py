@@ -40,6 +40,7 @@ from .tables import (
     default_of,
     describe,
     file_section,
+    flat_sections,
     params_of,
     section_applies,
 )
@@ -69,6 +70,7 @@ __all__ = [
     'default_of',
     'describe',
     'file_section',
+    'flat_sections',
     'section_applies',
     'learner_section_for',
     'params_of',

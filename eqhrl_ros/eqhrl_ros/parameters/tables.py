@@ -252,12 +252,33 @@ def section_applies(key: str, node: str) -> bool:
     return match(0, 0)
 
 
+def flat_sections(data: dict) -> dict:
+    """A parsed params file with each section under its full key, in the file's order: rcl also
+    reads the nested form, a namespace holding its nodes (`robot1: {learner: {ros__parameters:
+    …}}` is `robot1/learner`). Before, the package's readers saw no section there, and the launch
+    files (which pass each node its sections) ran such a file's nodes on their defaults."""
+    flat: dict = {}
+
+    def walk(prefix: str, mapping: dict) -> None:
+        for key, value in mapping.items():
+            name = f'{prefix.rstrip("/")}/{str(key).strip("/")}' if prefix else str(key)
+            nested = isinstance(value, dict) and value and 'ros__parameters' not in value
+            if nested and all(isinstance(v, dict) for v in value.values()):
+                walk(name, value)
+            else:
+                flat[name] = value
+
+    walk('', data)
+    return flat
+
+
 def file_section(data: dict, node_name: str, namespace: str = '') -> dict:
     """A node's parameters from a parsed params file, as rcl gives them to the node: its own
     section and the shared `/**` section, applied in the order they appear in the file (a key
     in both takes the value of the later one). With ``namespace`` (a launch file's nodes in a
     namespace another launch file pushed), the node is ``namespace``/``node_name`` and a bare
     `node_name:` section is its own too: the file was given for the nodes the launch starts."""
+    data = flat_sections(data)
 
     def values(key):
         section = data.get(key) or {}

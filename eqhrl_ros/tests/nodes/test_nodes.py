@@ -322,6 +322,38 @@ def test_a_params_files_section_that_misses_a_namespaced_node_is_said_and_read_a
             node.destroy_node()
 
 
+def test_a_params_file_in_rcls_nested_form_is_read_as_rcl_reads_it(ros_context, tmp_path):
+    """From outside: rcl reads a namespace that holds its nodes (`robot1: {learner: {ros__parameters:
+    …}}`); the package's readers saw no section there, so the launch files, which hand each node its
+    sections, ran such a file's nodes on their defaults, without a word. rcl itself is the oracle."""
+    from eqhrl_ros.nodes.launching import env_node_for
+    from eqhrl_ros.parameters import BUILT_IN, file_section
+
+    nested = tmp_path / 'nested.yaml'
+    nested.write_text(
+        'robot1:\n  learner:\n    ros__parameters: {batch_size: 64}\n'
+        '  double_integrator_env:\n    ros__parameters: {seed: 3}\n'
+        'fleet:\n  robot2:\n    learner:\n      ros__parameters: {batch_size: 32}\n'
+        "'/**':\n  ros__parameters: {env_id: Pendulum-v1}\n"
+    )
+    data = yaml.safe_load(nested.read_text())
+    for namespace in ('/robot1', '/fleet/robot2', '/'):
+        context = rclpy.Context()
+        rclpy.init(args=['--ros-args', '--params-file', str(nested)], context=context)
+        try:
+            node = rclpy.create_node(
+                'learner', namespace=namespace, context=context, automatically_declare_parameters_from_overrides=True
+            )
+            rcl = {k: p.value for k, p in node.get_parameters_by_prefix('').items() if k not in BUILT_IN}
+            node.destroy_node()
+        finally:
+            rclpy.shutdown(context=context)
+        assert file_section(data, 'learner', namespace) == rcl, namespace
+    assert file_section(data, 'learner', '/robot1') == {'batch_size': 64, 'env_id': 'Pendulum-v1'}
+    assert env_node_for(data) == 'gym_env'  # robot1's env section is no root node's
+    assert env_node_for({'/**': {'double_integrator_env': {'ros__parameters': {}}}}) == 'double_integrator_env'
+
+
 @pytest.mark.parametrize(
     'override,message',
     [
