@@ -40,6 +40,7 @@ from launch_ros.actions import Node
 from eqhrl_ros.files.paths import params_file as shipped_params_file
 from eqhrl_ros.files.yaml_files import load_mapping
 from eqhrl_ros.nodes.launching import (
+    count,
     dds_profile_env,
     env_node_for,
     fail_launch_on_error,
@@ -99,15 +100,11 @@ def _nodes(context, declared):
     pushed = namespace_of(context)
     shared = _section(data, '/**')
     learner = _section(data, 'learner', pushed)
-    actors = int(LaunchConfiguration('actors').perform(context))
-    if actors < 0:
-        raise ValueError(f'actors:={actors} must be 0 or more')
+    actors = count('actors', LaunchConfiguration('actors').perform(context))
     with_trainer = 'true' if flag('trainer', LaunchConfiguration('trainer').perform(context)) else 'false'
     with_expert = 'true' if flag('expert', LaunchConfiguration('expert').perform(context)) else 'false'
 
-    offset = int(LaunchConfiguration('actor_offset').perform(context))
-    if offset < 0:
-        raise ValueError(f'actor_offset:={offset} must be 0 or more')
+    offset = count('actor_offset', LaunchConfiguration('actor_offset').perform(context))
     run = {name: flag(name, LaunchConfiguration(name).perform(context)) for name in ('resume', 'overwrite')}
     output_dir = LaunchConfiguration('output_dir').perform(context)
     prefix = _prefix(LaunchConfiguration('actor_prefix').perform(context), with_trainer == 'true')

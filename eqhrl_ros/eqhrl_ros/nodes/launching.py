@@ -57,6 +57,18 @@ def shared_arguments(whose: str) -> list:
     ]
 
 
+def count(name: str, value: str) -> int:
+    """A launch argument ``name:=value`` that counts something (0 or more); ValueError naming it
+    otherwise (before, `actors:=abc` said only "invalid literal for int() with base 10")."""
+    try:
+        number = int(value)
+    except ValueError:
+        number = -1
+    if number < 0:
+        raise ValueError(f'{name}:={value} is not a whole number, 0 or more')
+    return number
+
+
 def flag(name: str, value: str) -> bool:
     """A true/false launch argument ``name:=value``; ValueError naming it otherwise."""
     if value.lower() not in ('true', 'false'):

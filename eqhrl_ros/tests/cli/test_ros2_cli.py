@@ -156,6 +156,9 @@ def test_the_launch_files_take_the_runs_folder_resume_and_overwrite_and_warn_of_
     assert "('overwrite', True)]" in evaluated('overwrite:=true').stdout
     refused = evaluated('resume:=maybe')
     assert refused.returncode != 0 and 'resume:=maybe is not true or false' in refused.stderr
+    if launch_file == 'actors.launch.py':  # before: "invalid literal for int() with base 10: 'abc'"
+        refused = evaluated('actor_offset:=abc')
+        assert refused.returncode != 0 and 'actor_offset:=abc is not a whole number, 0 or more' in refused.stderr
 
 
 LAUNCH_IN_NAMESPACE = """
