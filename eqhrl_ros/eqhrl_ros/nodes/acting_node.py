@@ -201,6 +201,8 @@ class ActingNode(Node):
             f'action {spec.action_size}, success {spec.success_rule}, advice protocol {self._protocol_said()}, '
             f'budget {self.config.advising_budget} episodes{self._describe()}'
         )
+        if self.config.never_asks():  # e.g. mode:=random on a file whose rate is 0
+            self.get_logger().warn(f'{self.config.never_asks()} (give it a chance: -p random_ask_rate:=0.05)')
 
     @property
     def pace(self) -> Optional[EnvSpec]:

@@ -323,6 +323,16 @@ class LearnerConfig:
         values.update(overrides)
         return cls(**values)
 
+    def never_asks(self) -> str:
+        """Why this configuration can never ask ('' when it can): a random mode with no chance and
+        no schedule (`mode:=random` on a shipped params file, whose rate is 0) is SAC, unsaid. Not
+        refused: a study's random arm matched to an arm that asked nothing has rate 0 on purpose."""
+        if self.mode == 'random' and not (self.random_ask_rate or self.random_ask_schedule or self.random_ask_steps):
+            return 'mode random with random_ask_rate 0 and no random_ask_schedule asks nothing: this run is SAC'
+        if self.mode == 'ask_random' and not self.random_ask_rate:
+            return 'mode ask_random with random_ask_rate 0 asks nothing: this run is SAC'
+        return ''
+
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}  # YAML and JSON know lists

@@ -86,3 +86,18 @@ def test_every_mode_has_a_label_and_a_colour():
 
     assert set(MODE_LABELS) == set(MODES) == set(MODE_COLORS)
     assert len(set(MODE_COLORS.values())) == len(MODES)
+
+
+def test_a_random_mode_that_can_never_ask_is_said_to_be_sac():
+    """From outside: `ros2 launch eqhrl_ros train.launch.py mode:=random` (the README's advice for a
+    person) on a shipped params file, whose random_ask_rate is 0, asked nothing, unsaid."""
+    assert LearnerConfig(mode='random').never_asks().startswith('mode random with random_ask_rate 0')
+    assert LearnerConfig(mode='ask_random').never_asks().endswith('asks nothing: this run is SAC')
+    for asks in (
+        LearnerConfig(mode='random', random_ask_rate=0.05),
+        LearnerConfig(mode='random', random_ask_schedule=(2, 0)),
+        LearnerConfig(mode='ask_random', random_ask_rate=0.5),
+        LearnerConfig(mode='eqsac'),
+        LearnerConfig(mode='sac'),  # asks nothing by its nature: nothing to say
+    ):
+        assert asks.never_asks() == '', asks.mode
