@@ -202,7 +202,9 @@ class ActingNode(Node):
             f'budget {self.config.advising_budget} episodes{self._describe()}'
         )
         if self.config.never_asks():  # e.g. mode:=random on a file whose rate is 0
-            self.get_logger().warn(f'{self.config.never_asks()} (give it a chance: -p random_ask_rate:=0.05)')
+            self.get_logger().warn(
+                f'{self.config.never_asks()} (set random_ask_rate, the chance of asking at each step: 0.05, say)'
+            )
 
     @property
     def pace(self) -> Optional[EnvSpec]:
