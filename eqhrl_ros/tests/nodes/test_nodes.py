@@ -145,7 +145,9 @@ def test_sac_mode_never_calls_the_service(harness, ros_context, tmp_path):
 def test_declining_slow_or_absent_expert_leaves_training_going(harness, ros_context, tmp_path, answer, delay, kind):
     expert = StubExpert(ros_context, answer, delay) if answer else None
     try:
-        learner, probe = run_learner(harness, ros_context, tmp_path, episodes=3, mode='qasac')
+        # A slow expert's requests end at the learner's timeout: 0.1 s each, not 0.3 (the suite's time).
+        wait = dict(advice_timeout_s=0.1) if kind == 'timeout' else {}
+        learner, probe = run_learner(harness, ros_context, tmp_path, episodes=3, mode='qasac', **wait)
     finally:
         if expert:
             expert.close()
