@@ -35,13 +35,12 @@ from ..core.envs.spec import EnvSpec
 from ..parameters import LEARNER_CONFIG_PARAMS
 from . import messages
 from .acting_health import acting_checks
-from .advice_client import AdviceClient, PendingAdvice
+from .advice_client import AdviceClient, PendingAdvice, say_unused_answer
 from .camera_input import CameraInput
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .episode_tracking import EpisodeTracking, episode_line
 from .graph_trust import OnePublisher, subscribe_stop
 from .health import WARN, Check, Health
-from .messages import printable_name
 from .params import choices_validator, declare, reject_unknown_overrides
 from .person_wheel import PersonWheel
 from .recording import NodeRecord
@@ -417,9 +416,7 @@ class ActingNode(Node):
         """A request ended (advice_client.py): count the outcome, tell the person's UI, and act."""
         resolution = self.learner.resolve_advice(pending.proposal, advice, failure)
         human = advice is not None and advice.human
-        if resolution.outcome == 'declined' and resolution.detail:
-            # A person's "why not" is worth seeing (a declining controller says why too).
-            self.get_logger().info(f'advice declined: {printable_name(resolution.detail)}', throttle_duration_sec=2.0)
+        say_unused_answer(self.get_logger(), resolution, advice, self.learner.scaler)
         self._publish_recorded(
             self.request_pub,
             messages.advice_request_msg(

@@ -16,10 +16,28 @@ from typing import Callable, Optional
 
 from eqhrl_interfaces.srv import Advise
 
+from ..core.algorithm.advice_outcomes import Resolution
 from ..core.algorithm.learner import Proposal
+from ..core.data.advice import Advice, refused_action_words
 from . import advise_msgs
 from .messages import EXPERT_NAMES_KEPT, printable_name
 from .recording import introspect
+
+
+def say_unused_answer(logger, resolution: Resolution, advice: Optional[Advice], scaler) -> None:
+    """Say why an answer came and was not used: a decline's reason (a person's "why not" is worth
+    seeing; a declining controller says why too), or what was wrong with an action that the
+    learner refused, so that whoever wrote the expert can fix it (the episode's line counts them)."""
+    if resolution.outcome == 'declined' and resolution.detail:
+        logger.info(f'advice declined: {printable_name(resolution.detail)}', throttle_duration_sec=2.0)
+    elif resolution.outcome == 'failed' and advice is not None:
+        words = refused_action_words(advice.action, scaler.low, scaler.high)
+        if words:
+            logger.warn(
+                f"advice from '{advice.expert_name}' refused ({resolution.detail}): its action {words}; "
+                'the learner took its own action',
+                throttle_duration_sec=5.0,
+            )
 
 
 @dataclass

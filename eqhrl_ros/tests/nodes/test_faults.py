@@ -13,6 +13,7 @@ import pytest
 import rclpy
 import torch
 from rclpy.clock import ClockType
+from rclpy.impl.rcutils_logger import RcutilsLogger
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Float32MultiArray, MultiArrayLayout
 
@@ -32,12 +33,20 @@ from ros_helpers import Probe, StubExpert, observation_publisher, params, run_le
 @pytest.mark.parametrize(
     'answer,kind', [([0.5, 0.5], 'wrong_size'), ([float('nan')], 'non_finite'), ([7.0], 'out_of_bounds')]
 )
-def test_bad_advice_is_counted_by_kind_and_never_used(harness, ros_context, tmp_path, answer, kind):
+def test_bad_advice_is_counted_by_kind_and_never_used(harness, ros_context, tmp_path, monkeypatch, answer, kind):
+    warned = []
+    monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append((logger.name, line)))
     expert = StubExpert(ros_context, answer)
     try:
         learner, _ = run_learner(harness, ros_context, tmp_path, episodes=2, mode='qasac')
     finally:
         expert.close()
+    # Said, with what was wrong (before: only the episode line's count by kind, so whoever wrote the
+    # expert could not tell an action of 0.5 from one outside the bounds).
+    words = {'wrong_size': '2 values where the env takes 1', 'non_finite': '[nan] is not finite'}
+    words['out_of_bounds'] = '[7.] is outside the bounds [-2.] … [2.]'
+    said = f"advice from 'stub' refused ({kind}): its action {words[kind]}"
+    assert any(name == 'learner' and line.startswith(said) for name, line in warned), warned
     totals = learner.learner.advice_total
     # Each request is refused as its kind; a rare one times out instead (the stub answers from a thread
     # of this busy process, within advice_timeout_s 0.3 s: once in a cold CI rehearsal, 1 of 26).

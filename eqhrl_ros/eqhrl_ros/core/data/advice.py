@@ -97,3 +97,19 @@ def check_advised_action(
     if (action < low - tolerance).any() or (action > high + tolerance).any():
         return None, 'out_of_bounds'
     return np.clip(action, low, high), ''
+
+
+def refused_action_words(action, low: np.ndarray, high: np.ndarray) -> str:
+    """What is wrong with an advised action that check_advised_action refuses, in the words a
+    person fixing their expert needs ('' for one it takes)."""
+    action = np.asarray(action, dtype=np.float32).reshape(-1)
+    kind = check_advised_action(action, low, high)[1]
+    shown = np.array2string(action[:8], precision=4, separator=', ') + (' …' if action.shape[0] > 8 else '')
+    if kind == 'wrong_size':
+        return f'{action.shape[0]} values where the env takes {low.shape[0]}'
+    if kind == 'non_finite':
+        return f'{shown} is not finite'
+    if kind == 'out_of_bounds':
+        bounds = f'{np.array2string(low, separator=", ")} … {np.array2string(high, separator=", ")}'
+        return f'{shown} is outside the bounds {bounds} (env units, as Advise.action_low/high give them)'
+    return ''
