@@ -14,7 +14,8 @@ both sides, for several trainers in one domain; included by a launch file under 
 /<namespace>/transitions and /<namespace>/weights, and the actors are /<namespace>/actor0/actor,
 ...); resume:=true continues the trainer's run,
 overwrite:=true replaces it, output_dir:= moves it (default: the params file's learner output_dir);
-dds_profile:=lossy_link gives every node the Fast DDS profile for hosts on a lossy link.
+dds_profile:=lossy_link gives every node the Fast DDS profile for hosts on a lossy link;
+use_sim_time:=true puts every node on /clock's time.
 The trainer takes transitions only from actors it knows: those started here, the full names in
 trainer_actors:= (actors on other machines), or any that signs with key_file:=. A node that exits
 with an error (a trainer refusing to start) stops the launch, which exits non-zero.
@@ -48,6 +49,7 @@ from eqhrl_ros.nodes.launching import (
     in_namespace,
     namespace_of,
     shared_arguments,
+    sim_time,
     warn_undeclared,
 )
 from eqhrl_ros.parameters import (
@@ -111,6 +113,7 @@ def _nodes(context, declared):
     key = {'key_file': LaunchConfiguration('key_file').perform(context)}  # the deployment's shared secret
     # Fast DDS for a lossy link between hosts (docs/performance.md, "Weights over a lossy link").
     dds = dds_profile_env(LaunchConfiguration('dds_profile').perform(context), get_package_share_directory('eqhrl_ros'))
+    clock = sim_time(context)  # use_sim_time:=, on every node
     remaps = [
         (f'/{topic}', in_namespace(LaunchConfiguration(f'{topic}_topic').perform(context), f'/{topic}', pushed))
         for topic in ('transitions', 'weights')
@@ -122,7 +125,7 @@ def _nodes(context, declared):
             package='eqhrl_ros',
             executable=executable,
             name=executable,
-            parameters=[parameters],
+            parameters=[{**parameters, **clock}],
             additional_env=dds,
             **options,
         )

@@ -12,6 +12,7 @@ ros2 launch eqhrl_ros train.launch.py env:=teleop_pendulum expert:=teleop   (a p
     console:=false leaves it out (keyboard_teleop or a joystick instead)
 ros2 launch eqhrl_ros train.launch.py env:=pendulum resume:=true   (after Ctrl-C: go on with the run)
     output_dir:= (default: the params file's), resume:=true, overwrite:=true go to the learner
+ros2 launch eqhrl_ros train.launch.py env:=pendulum use_sim_time:=true   (every node on /clock's time)
 Included by your launch file under a PushRosNamespace (one group per robot), each node gets the
 params file's sections for it, a bare learner: section included (rcl alone would give it to
 /learner only).
@@ -34,6 +35,7 @@ from eqhrl_ros.nodes.launching import (
     namespace_of,
     node_parameters,
     shared_arguments,
+    sim_time,
     warn_undeclared,
 )
 
@@ -55,9 +57,10 @@ def _nodes(context, declared):
     env_node = env_node_for(data, LaunchConfiguration('env_node').perform(context))
     # Included under another launch file's PushRosNamespace: each node gets its sections as a mapping.
     namespace = namespace_of(context)
+    clock = sim_time(context)  # use_sim_time:=, on every node
 
     def parameters(name):
-        return node_parameters(data, name, namespace)
+        return [*node_parameters(data, name, namespace), *([clock] if clock else [])]
 
     expert = LaunchConfiguration('expert').perform(context)
     if expert not in EXPERT_NODES:

@@ -54,7 +54,23 @@ def shared_arguments(whose: str) -> list:
             'resume', default_value='false', description=f"continue the {whose}'s run (after Ctrl-C)"
         ),
         DeclareLaunchArgument('overwrite', default_value='false', description=f"replace the {whose}'s run"),
+        DeclareLaunchArgument(
+            'use_sim_time',
+            default_value='',
+            description='true: every node takes its ROS time from /clock (a simulator); false: from the '
+            "system; empty: as the params file or an including launch file's SetParameter says",
+        ),
     ]
+
+
+def sim_time(context) -> dict:
+    """What ``use_sim_time:=`` sets on every node the launch starts: {} when not given, so that
+    the params file (or an including file's SetParameter) decides. Given, it outranks both, as the
+    launch's own output_dir:= and mode:= do."""
+    from launch.substitutions import LaunchConfiguration
+
+    value = LaunchConfiguration('use_sim_time').perform(context)
+    return {'use_sim_time': flag('use_sim_time', value)} if value else {}
 
 
 def count(name: str, value: str) -> int:

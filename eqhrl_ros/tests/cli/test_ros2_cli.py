@@ -286,6 +286,67 @@ def test_the_launchs_own_arguments_win_under_an_including_files_set_parameter(ro
     assert result.stdout.splitlines() == [f'/ {expected}', f'/robot1 {expected}'], result.stdout
 
 
+LAUNCH_AS_RCL_READS = """
+import sys
+import rclpy
+from rclpy.context import Context
+from launch import LaunchContext
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.launch_description_sources import get_launch_description_from_python_launch_file
+from launch_ros.actions import Node
+
+path, set_parameter, given = sys.argv[1], sys.argv[2], dict(a.split(':=', 1) for a in sys.argv[3:])
+context = LaunchContext(argv=sys.argv[3:])
+first = []
+if set_parameter != '-':  # an including file's SetParameter: launch_ros passes it first, as -p
+    name, value = set_parameter.split('=')
+    context.launch_configurations['global_params'] = [(name, value == 'true')]
+    first = ['-p', f'{name}:={value}']
+description = get_launch_description_from_python_launch_file(path)
+for entity in description.entities:
+    if isinstance(entity, DeclareLaunchArgument):
+        default = entity.default_value[0].perform(context) if entity.default_value else ''
+        context.launch_configurations[entity.name] = given.get(entity.name, default)
+actions = [a for e in description.entities if isinstance(e, OpaqueFunction) for a in e.execute(context)]
+for node in (a for a in actions if isinstance(a, Node)):
+    node._perform_substitutions(context)
+    arguments = list(first)
+    for value, is_file in node._Node__expanded_parameter_arguments:
+        arguments += ['--params-file', value] if is_file else ['-p', value]
+    ros = Context()
+    rclpy.init(args=['--ros-args', *arguments], context=ros)  # rcl reads them as the node would
+    namespace = node.expanded_node_namespace if node.expanded_node_namespace.startswith('/') else '/'
+    made = rclpy.create_node(node.node_executable, namespace=namespace, context=ros)
+    print('NODE', node.node_executable, made.get_parameter('use_sim_time').value)
+    made.destroy_node()
+    rclpy.shutdown(context=ros)
+"""
+
+
+@pytest.mark.parametrize('launch_file', ['train.launch.py', 'actors.launch.py'])
+def test_use_sim_time_given_to_the_launch_puts_every_node_on_it(ros2_env, colcon_install, launch_file):
+    """From outside, as with a simulator: `ros2 launch eqhrl_ros train.launch.py use_sim_time:=true`
+    was said to be ignored, and every node ran on the system's time. Given, it outranks an
+    including file's SetParameter, as output_dir:= does; not given, that SetParameter decides.
+    rcl itself reads what the launch passes each node."""
+    path = colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros' / 'launch' / launch_file
+
+    def read(set_parameter, *arguments):
+        command = ['python3', '-c', LAUNCH_AS_RCL_READS, str(path), set_parameter, 'env:=demo', 'actors:=1', *arguments]
+        result = subprocess.run(command, env=ros2_env, capture_output=True, text=True, timeout=60)
+        assert result.returncode == 0, result.stdout + result.stderr[-2000:]
+        return [line.split()[1:] for line in result.stdout.splitlines() if line.startswith('NODE ')]
+
+    nodes = (
+        ['gym_env', 'expert', 'learner']
+        if launch_file == 'train.launch.py'
+        else ['trainer', 'gym_env', 'expert', 'actor']
+    )
+    assert read('-', 'use_sim_time:=true') == [[node, 'True'] for node in nodes]
+    assert read('use_sim_time=true', 'use_sim_time:=false') == [[node, 'False'] for node in nodes]
+    assert read('use_sim_time=true') == [[node, 'True'] for node in nodes]
+
+
 @pytest.mark.parametrize(
     'launch_file,arguments,nodes',
     [
