@@ -43,6 +43,8 @@ def _seed_run(settings: Settings, algorithm: str, seed: int, directory: Path, pr
     # gates of episodes 0..E-1 are kept; later rows are made again.
     keep = learner.episode if resumed else None
     record = EpisodeRecord(directory / 'episodes.csv', EpisodeSummary.CSV_FIELDS, keep)  # the learner node's record
+    if record.gap_warning:
+        print(record.gap_warning, flush=True)
     evaluation, eval_record = None, None
     if settings.eval_every:
         eval_record = EpisodeRecord(directory / 'eval.csv', EVAL_FIELDS, None if keep is None else keep + 1)

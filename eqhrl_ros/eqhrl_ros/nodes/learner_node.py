@@ -53,6 +53,8 @@ class LearnerNode(RunFiles, ActingNode):
                 EpisodeSummary.CSV_FIELDS,
                 keep_before=learner.episode if self.params['resume'] else None,
             )
+            if self.record.gap_warning:
+                self.get_logger().warn(self.record.gap_warning)
             if self.params['record']:
                 self._open_recording(learner)
 

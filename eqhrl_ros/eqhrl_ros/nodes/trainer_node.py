@@ -145,6 +145,8 @@ class TrainerNode(RunFiles, Node):
         self.record = EpisodeRecord(
             self.csv_path, TRAINER_CSV_FIELDS, keep_before=learner.episode if p['resume'] else None
         )
+        if self.record.gap_warning:
+            self.get_logger().warn(self.record.gap_warning)
         if p['record']:
             from ..files.mcap_record import record_path
             from .recording import NodeRecord

@@ -110,8 +110,11 @@ class EpisodeRecord:
         later episodes (to be run again) are dropped first; None: a fresh record."""
         self.path = Path(path)
         self.fields = tuple(fields)
+        # Episodes before the resume point whose rows the file lacks (torn by a kill mid-write, or
+        # lost with the disk): said by gap_warning, since the record cannot be made whole again.
+        self.missing: list[int] = []
         if keep_before is not None:
-            _truncate_to(self.path, keep_before, self.fields)
+            self.missing = _truncate_to(self.path, keep_before, self.fields)
         else:
             _start_with_header(self.path, self.fields)
         self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
@@ -148,6 +151,17 @@ class EpisodeRecord:
     def closed(self) -> bool:
         return self._fd < 0
 
+    @property
+    def gap_warning(self) -> str:
+        """One line for the log when the resumed record lacks rows ('' when it is whole)."""
+        if not self.missing:
+            return ''
+        shown = ', '.join(map(str, self.missing[:10])) + (f' and {len(self.missing) - 10} more' if len(self.missing) > 10 else '')
+        return (
+            f'{self.path}: no whole row for episode(s) {shown} (a row torn by a kill during its write, or '
+            'lost with the disk); they stay missing from the record, the run goes on'
+        )
+
 
 def _encode(row: Sequence) -> bytes:
     text = io.StringIO()
@@ -175,18 +189,22 @@ def _start_with_header(path: Path, fields: Sequence[str]) -> None:
         path.unlink(missing_ok=True)
 
 
-def _truncate_to(path: Path, episode: int, fields: Sequence[str]) -> None:
-    """Keep only whole rows of episodes < ``episode`` (a resumed learner redoes the others)."""
+def _truncate_to(path: Path, episode: int, fields: Sequence[str]) -> list[int]:
+    """Keep only whole rows of episodes < ``episode`` (a resumed learner redoes the others);
+    returns those episodes that have no whole row."""
     if not path.exists():
         _start_with_header(path, fields)
-        return
-    with path.open(newline='') as f:
-        rows = list(csv.reader(f))
+        return list(range(episode))
+    raw = path.read_bytes()
+    rows = list(csv.reader(io.StringIO(raw.decode(errors='replace'), newline='')))
+    if rows and not raw.endswith(b'\n') and len(rows) > 1:
+        rows.pop()  # rows are appended whole, each with its line end: one without was torn mid-write
     if not rows:
         _start_with_header(path, fields)
-        return
+        return list(range(episode))
     width = len(rows[0])
     body = [r for r in rows[1:] if len(r) == width and r[0].lstrip('-').isdigit() and int(r[0]) < episode]
+    missing = sorted(set(range(episode)) - {int(r[0]) for r in body})
     header = rows[0]
     if tuple(header) != tuple(fields):
         # An older record (fewer columns): keep its rows, padded with empty new columns.
@@ -196,3 +214,4 @@ def _truncate_to(path: Path, episode: int, fields: Sequence[str]) -> None:
     with tmp.open('w', newline='') as f:
         csv.writer(f).writerows([header, *body])
     os.replace(tmp, path)
+    return missing

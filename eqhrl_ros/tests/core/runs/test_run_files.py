@@ -350,3 +350,16 @@ def test_resume_keeps_rows_before_the_checkpoint_and_drops_torn_ones(tmp_path):
     record.append([3, '-9'])
     record.close()
     assert path.read_text().split() == ['episode,return', '0,-1', '1,-2', '2,-3', '3,-9']
+    assert record.missing == [] and record.gap_warning == ''  # a torn row of an episode redone is no loss
+
+
+def test_a_resume_says_which_episodes_have_no_whole_row_before_the_checkpoint(tmp_path):
+    """A row torn by a kill during its write (or lost with the disk) before the resume point was
+    dropped without a word, leaving a gap in the record that no one was told of."""
+    path = tmp_path / 'episodes.csv'
+    path.write_text('episode,return\n0,-1\n1\n3,-4\n4,-')  # episode 4's row torn inside its last value
+    record = EpisodeRecord(path, ('episode', 'return'), keep_before=5)
+    record.close()
+    assert path.read_text().split() == ['episode,return', '0,-1', '3,-4']
+    assert record.missing == [1, 2, 4]
+    assert record.gap_warning.startswith(f'{path}: no whole row for episode(s) 1, 2, 4 (a row torn by a kill')
