@@ -33,7 +33,15 @@ from ..core.data.advice import SKIPPED, Advice
 from ..core.data.camera_frames import FrameError
 from ..core.data.signing import CommandCheck, signer_from
 from ..core.envs.spec import EnvSpec
-from ..core.experts.teleop import TWIST_FIELDS, Command, TeleopExpert, array_command, joy_command, twist_command
+from ..core.experts.teleop import (
+    TWIST_FIELDS,
+    Command,
+    TeleopExpert,
+    array_command,
+    joy_command,
+    joy_misfit,
+    twist_command,
+)
 from ..parameters import TELEOP_EXPERT_PARAMS
 from . import messages
 from .advise_msgs import answer, fill_response, frames_refused, request_from_msg, request_refusal
@@ -200,6 +208,12 @@ class TeleopExpertNode(Node):
             self.rejected_commands += 1
             self.get_logger().error(f"'joy': {error}", throttle_duration_sec=5.0)
             return
+        buttons = {name: p[name] for name in ('enable_button', 'answer_button', 'skip_button')}
+        if not p['require_enable_button']:
+            del buttons['enable_button']
+        misfit = joy_misfit(len(msg.axes), len(msg.buttons), p['axes'], buttons)
+        if misfit:
+            self.get_logger().warn(misfit, throttle_duration_sec=10.0)
         self._take(command)
 
     def _on_twist(self, msg: Twist) -> None:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import rclpy
 from geometry_msgs.msg import Twist
+from rclpy.impl.rcutils_logger import RcutilsLogger
 from sensor_msgs.msg import Image, Joy
 from std_msgs.msg import Float32MultiArray
 
@@ -119,7 +120,9 @@ def call_advise(harness, client, low=(-2.0,), high=(2.0,)):
     return future.result()
 
 
-def test_teleop_expert_node_follows_joy_with_deadman_and_staleness(harness, ros_context):
+def test_teleop_expert_node_follows_joy_with_deadman_and_staleness(harness, ros_context, monkeypatch):
+    warned = []
+    monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append(line))
     harness.add(
         TeleopExpertNode(
             context=ros_context,
@@ -158,6 +161,12 @@ def test_teleop_expert_node_follows_joy_with_deadman_and_staleness(harness, ros_
     harness.spin_until(lambda: False, timeout=0.5)  # no new command: stale
     response = call_advise(harness, client)
     assert not response.advised and 'old' in response.reason
+    assert not [line for line in warned if "'joy' has" in line]  # the mapping fits this joystick
+    # A joystick with fewer axes and buttons than mapped: before, its axis read as 0 and its deadman
+    # was never held, and the person saw nothing move, without a word of why.
+    send([0.4], [1])
+    said = "'joy' has 1 axes and 1 buttons, but axes[0] is 1, enable_button is 2, answer_button is 1, skip_button is 2"
+    assert any(line.startswith(said) for line in warned), warned
 
 
 def test_teleop_expert_node_follows_twist(harness, ros_context):

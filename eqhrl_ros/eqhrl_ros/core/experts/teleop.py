@@ -77,6 +77,21 @@ def joy_command(
     return Command(values, True, '', answer, skip)
 
 
+def joy_misfit(n_axes: int, n_buttons: int, axis_indices: Sequence[int], buttons: dict) -> str:
+    """What of a joy mapping the joystick cannot give ('' when it all fits): an axis it lacks reads
+    as 0 and a button it lacks is never held (joy_command), so the person would steer or press
+    and see nothing happen. ``buttons``: a button's parameter name -> its index (-1: none)."""
+    problems = [f'axes[{i}] is {a}' for i, a in enumerate(axis_indices) if not 0 <= a < n_axes]
+    problems += [f'{name} is {b}' for name, b in buttons.items() if b >= n_buttons]
+    if not problems:
+        return ''
+    return (
+        f"'joy' has {n_axes} axes and {n_buttons} buttons, but {', '.join(problems)}: "
+        'that axis reads as 0 and that button is never held (set axes and the buttons to what '
+        '`ros2 topic echo /joy` shows moving)'
+    )
+
+
 TWIST_FIELDS = ('linear.x', 'linear.y', 'linear.z', 'angular.x', 'angular.y', 'angular.z')
 
 
