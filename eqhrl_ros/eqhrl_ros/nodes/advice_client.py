@@ -18,7 +18,7 @@ from eqhrl_interfaces.srv import Advise
 
 from ..core.algorithm.advice_outcomes import Resolution
 from ..core.algorithm.learner import Proposal
-from ..core.data.advice import Advice, refused_action_words
+from ..core.data.advice import ACTION_FAULTS, Advice, refused_action_words
 from . import advise_msgs
 from .messages import EXPERT_NAMES_KEPT, printable_name
 from .recording import introspect
@@ -30,7 +30,7 @@ def say_unused_answer(logger, resolution: Resolution, advice: Optional[Advice], 
     learner refused, so that whoever wrote the expert can fix it (the episode's line counts them)."""
     if resolution.outcome == 'declined' and resolution.detail:
         logger.info(f'advice declined: {printable_name(resolution.detail)}', throttle_duration_sec=2.0)
-    elif resolution.outcome == 'failed' and advice is not None:
+    elif resolution.outcome == 'failed' and resolution.detail in ACTION_FAULTS and advice is not None:
         words = refused_action_words(advice.action, scaler.low, scaler.high)
         if words:
             logger.warn(

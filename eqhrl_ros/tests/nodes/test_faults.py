@@ -55,6 +55,28 @@ def test_bad_advice_is_counted_by_kind_and_never_used(harness, ros_context, tmp_
     assert len(learner.learner.advice_replay) == 0
 
 
+def test_a_persons_window_let_pass_is_no_refused_action():
+    """A person's timeout carries no action: it must not be said to be a refused (NaN) one."""
+    from types import SimpleNamespace
+
+    from eqhrl_ros.core.algorithm.advice_outcomes import Resolution
+    from eqhrl_ros.core.data.advice import Advice
+    from eqhrl_ros.nodes.advice_client import say_unused_answer
+
+    lines = []
+    logger = SimpleNamespace(info=lambda line, **kw: lines.append(line), warn=lambda line, **kw: lines.append(line))
+    scaler = SimpleNamespace(low=np.array([-2.0], np.float32), high=np.array([2.0], np.float32))
+    own = np.zeros(1, np.float32)
+    say_unused_answer(logger, Resolution(own, False, 'failed', 'timeout'), Advice.no_answer(4.0, 'person'), scaler)
+    assert lines == []
+    refused = Advice(np.array([9.0], np.float32), '', 'person', True)
+    say_unused_answer(logger, Resolution(own, False, 'failed', 'out_of_bounds'), refused, scaler)
+    assert lines == [
+        "advice from 'person' refused (out_of_bounds): its action [9.] is outside the bounds [-2.] … [2.] "
+        '(env units, as Advise.action_low/high give them); the learner took its own action'
+    ]
+
+
 # The probe's observations come from no env node, so no env_info says the env's pace: the
 # learner is told its protocol (else advice_protocol auto holds the first observation for
 # AUTO_PACE_WAIT_S, test_any_env says how).

@@ -71,14 +71,14 @@ ACTION_SOURCES = ('learner', 'answer', 'asked', 'takeover')
 OUTCOME_SOURCES = {'given': 'answer', 'asked': 'asked', 'taken over': 'takeover'}
 
 
+# What check_advised_action refuses an answer's action for.
+ACTION_FAULTS = ('wrong_size', 'non_finite', 'out_of_bounds')
 # Kinds of failed advice, counted apart from advice given and advice declined.
 FAILURE_KINDS = (
     'unavailable',
     'timeout',
     'error',
-    'wrong_size',
-    'non_finite',
-    'out_of_bounds',
+    *ACTION_FAULTS,
     'untrusted',
     'episode_ended',  # a real-time episode ended before the answer came: not the person's timeout
     'budget_spent',  # the person's seconds (advising_budget_s) ran out before they took the wheel
