@@ -19,6 +19,7 @@ use_sim_time:=true puts every node on /clock's time.
 The trainer takes transitions only from actors it knows: those started here, the full names in
 trainer_actors:= (actors on other machines), or any that signs with key_file:=. A node that exits
 with an error (a trainer refusing to start) stops the launch, which exits non-zero.
+env_node:=none starts no env node: your own runs in each actor's namespace (/actor0/...).
 One params file configures everything:
 its learner: section gives the algorithm to the actors and the trainer (and each the keys of
 its own table); gym_env: (or double_integrator_env:, which starts the example env instead) and
@@ -145,14 +146,16 @@ def _nodes(context, declared):
         if output_dir:
             trainer['output_dir'] = output_dir
         nodes.append(node('trainer', trainer, remappings=remaps, output='screen'))
-    env_node = env_node_for(data)  # the file's gym_env: or double_integrator_env: section says which
+    # env_node:= names it; else the file's gym_env: or double_integrator_env: section says which
+    env_node = env_node_for(data, LaunchConfiguration('env_node').perform(context))
     env_params = {**shared, **_section(data, env_node, pushed)}
     actor_params = {**shared, **learner_section_for(learner, ACTOR_NODE_PARAMS)}
     for i in range(offset, offset + actors):
         ns = f'{prefix}{i}'
         env_i = {**env_params, 'seed': int(env_params.get('seed', 42)) + i}
         actor_i = {**actor_params, 'seed': int(actor_params.get('seed', 42)) + i, **key}
-        nodes.append(node(env_node, env_i, namespace=ns))
+        if env_node != 'none':  # none: your own env node, started apart in the actor's namespace
+            nodes.append(node(env_node, env_i, namespace=ns))
         if with_expert == 'true':
             expert = {**shared, **_section(data, 'expert', pushed)}
             nodes.append(node('expert', expert, namespace=ns))

@@ -141,13 +141,6 @@ def generate_launch_description():
             default_value='true',
             description="with expert:=teleop: start advice_console, the person's page in a browser",
         ),
-        DeclareLaunchArgument(
-            'env_node',
-            default_value='',
-            description='env node to start: gym_env, double_integrator_env (the example env), '
-            'or none (your own, started apart); default: the one the params file has a section for, '
-            'else gym_env',
-        ),
     ]
     declared = [argument.name for argument in arguments]
     return LaunchDescription([*arguments, OpaqueFunction(function=_nodes, kwargs={'declared': declared})])

@@ -37,11 +37,17 @@ def shared_arguments(whose: str) -> list:
     """The launch arguments both launch files take, declared once: the params file (``env`` by
     name, or ``params_file``), and the run's folder for the node that saves (``whose``: 'learner' or
     'trainer'): ``output_dir``, ``resume``, ``overwrite`` (before, given to the launch, these went
-    unheard, and a second launch was refused the folder of the first)."""
+    unheard, and a second launch was refused the folder of the first); the env node to start
+    (``env_node``, for each actor in actors.launch.py) and ``use_sim_time`` for every node."""
     from launch.actions import DeclareLaunchArgument
 
     from ..files.paths import shipped
 
+    each, where = (' for each actor', " in each actor's namespace") if whose == 'trainer' else ('', '')
+    env_node = (
+        f'env node to start{each}: {", ".join(ENV_NODES)} (none: your own, started apart{where}); '
+        'default: the one the params file has a section for, else gym_env'
+    )
     return [
         DeclareLaunchArgument(
             'env', default_value='pendulum', description=f'params file name: {", ".join(shipped("params"))}'
@@ -54,6 +60,7 @@ def shared_arguments(whose: str) -> list:
             'resume', default_value='false', description=f"continue the {whose}'s run (after Ctrl-C)"
         ),
         DeclareLaunchArgument('overwrite', default_value='false', description=f"replace the {whose}'s run"),
+        DeclareLaunchArgument('env_node', default_value='', description=env_node),
         DeclareLaunchArgument(
             'use_sim_time',
             default_value='',

@@ -354,6 +354,17 @@ def test_use_sim_time_given_to_the_launch_puts_every_node_on_it(ros2_env, colcon
         ('train.launch.py', ['env:=double_integrator', 'env_node:=none'], 'expert learner'),
         ('train.launch.py', ['env:=pendulum'], 'gym_env expert learner'),
         ('actors.launch.py', ['env:=double_integrator', 'actors:=1'], 'trainer double_integrator_env expert actor'),
+        # Before: env_node:= was ignored here, so a fleet of one's own robots got a simulator each too.
+        (
+            'actors.launch.py',
+            ['env:=double_integrator', 'actors:=2', 'env_node:=none'],
+            'trainer expert actor expert actor',
+        ),
+        (
+            'actors.launch.py',
+            ['env:=demo', 'actors:=1', 'env_node:=double_integrator_env'],
+            'trainer double_integrator_env expert actor',
+        ),
     ],
 )
 def test_the_launch_files_start_the_env_node_of_the_params_file(

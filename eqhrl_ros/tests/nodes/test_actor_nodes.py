@@ -376,7 +376,7 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
     defaults = dict(actor_prefix='', actor_offset='0', resume='false', transitions_topic='/transitions', key_file='')
     defaults.update(overwrite='false', output_dir='')
     context = types.SimpleNamespace(argv=[], launch_configurations={})  # ros2 launch's command line, no namespace
-    defaults.update(dds_profile='', use_sim_time='')
+    defaults.update(dds_profile='', use_sim_time='', env_node='')
     arguments.update(defaults, weights_topic='/weights', trainer_actors='')
 
     def launched():
