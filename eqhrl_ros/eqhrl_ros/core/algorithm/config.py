@@ -140,7 +140,12 @@ class LearnerConfig:
     gamma: float = hyper(0.99, 'Discount factor (Table 1)', range=(0.0, 1.0))
     tau: float = hyper(0.005, 'Soft target update rate (Table 1)', range=(1e-6, 1.0))
     batch_size: int = hyper(256, 'Minibatch size (not in the paper; SB3 default)', range=(1, 65536))
-    replay_capacity: int = hyper(500_000, 'Replay buffer size (Table 1)', range=(1, 50_000_000))
+    replay_capacity: int = hyper(
+        500_000,
+        'Replay buffer size (Table 1); refused when D and D_advising cannot fit in memory, '
+        'naming a capacity that takes half of it',
+        range=(1, 50_000_000),
+    )
     learning_starts: int = hyper(
         5_000, 'Transitions stored before updates start (Table 1 "minimal buffer size")', range=(1, INT_MAX)
     )

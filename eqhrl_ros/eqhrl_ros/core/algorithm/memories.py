@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from ..data.frame_replay import FrameBatch, FrameReplay, frame_bytes
-from ..data.replay import Minibatch, ReplayBuffer, checked_transition
+from ..data.replay import Minibatch, ReplayBuffer, checked_transition, row_width
 from .config import LearnerConfig, asks_for_advice
 from .image_encoder import random_shift
 from .streams import RandomStreams
@@ -42,17 +42,17 @@ def physical_memory_bytes() -> int:
         return 0
 
 
-def check_frames_fit(capacity: int, frame_shape: tuple, stack: int) -> None:
-    """A ValueError, before anything is allocated, when D's and D_advising's frames could not
-    fit in this machine's memory, with the capacity that would take half of it."""
-    needed, memory = frames_bytes_with_advice(capacity, frame_shape, stack), physical_memory_bytes()
+def check_replay_fits(capacity: int, needed: int, what: str) -> None:
+    """A ValueError, before anything is allocated, when D and D_advising (``needed`` bytes at
+    replay_capacity ``capacity``; ``what`` they hold) could not fit in this machine's memory, with
+    the capacity that would take half of it. Before, a large observation at the default capacity
+    (CarRacing's 27,648 values: 221 GB) ended the node in an allocation's traceback."""
+    memory = physical_memory_bytes()
     if memory and needed > memory:
-        per_transition = needed / capacity
-        fits = int(memory / 2 / per_transition)
+        fits = int(memory / 2 / (needed / capacity))
         raise ValueError(
-            f'replay_capacity {capacity:,} with {"x".join(map(str, frame_shape))} frames needs {needed / 1e9:.1f} GB '
-            f'for the frames of D and D_advising; this machine has {memory / 1e9:.1f} GB '
-            f'(replay_capacity {fits:,} would take half of it)'
+            f'replay_capacity {capacity:,} with {what} needs {needed / 1e9:.1f} GB for D and D_advising; '
+            f'this machine has {memory / 1e9:.1f} GB (replay_capacity {fits:,} would take half of it)'
         )
 
 
@@ -68,6 +68,8 @@ class ReplayMemories:
         self.replay: ReplayBuffer | FrameReplay
         self.advice_replay: ReplayBuffer | FrameReplay
         if camera is None:
+            needed = 2 * config.replay_capacity * row_width(observation.dim, action_dim) * 4  # float32, both full size
+            check_replay_fits(config.replay_capacity, needed, f'observations of {observation.dim:,} values')
             self.replay = ReplayBuffer(config.replay_capacity, observation.dim, action_dim)  # D
             self.advice_replay = ReplayBuffer(config.replay_capacity, observation.dim, action_dim)  # D_advising
         else:
@@ -76,7 +78,8 @@ class ReplayMemories:
                 config.replay_capacity,
                 advice_capacity_with_frames(config.replay_capacity, stack),
             )
-            check_frames_fit(capacity, shape, stack)
+            frames = f'{"x".join(map(str, shape))} frames'
+            check_replay_fits(capacity, frames_bytes_with_advice(capacity, shape, stack), frames)
             self.replay = FrameReplay(capacity, shape, stack, state_dim, action_dim)
             # Advised steps come one by one: each with its whole stack (stack + 1 frames a transition).
             self.advice_replay = FrameReplay(advice_capacity, shape, stack, state_dim, action_dim, isolated=True)

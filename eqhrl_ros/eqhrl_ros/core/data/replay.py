@@ -52,6 +52,16 @@ def checked_transition(obs, action, reward, next_obs, obs_dim: int, action_dim: 
     return obs, action, next_obs
 
 
+def column_widths(obs_dim: int, action_dim: int) -> dict:
+    """float32 values of each field of one stored transition, a row [obs | action | reward | next_obs | terminated]."""
+    return {'obs': obs_dim, 'action': action_dim, 'reward': 1, 'next_obs': obs_dim, 'terminated': 1}
+
+
+def row_width(obs_dim: int, action_dim: int) -> int:
+    """float32 values of one stored transition (D's memory is capacity rows of it)."""
+    return sum(column_widths(obs_dim, action_dim).values())
+
+
 class ReplayBuffer:
     """A fixed-capacity ring buffer of transitions (s, a, r, s', terminated), preallocated.
 
@@ -67,7 +77,7 @@ class ReplayBuffer:
         self.action_dim = action_dim
         # One row per transition, [obs | action | reward | next_obs | terminated]; the fields
         # are column views of it (and numpy views, below, for writing a transition).
-        widths = {'obs': obs_dim, 'action': action_dim, 'reward': 1, 'next_obs': obs_dim, 'terminated': 1}
+        widths = column_widths(obs_dim, action_dim)
         self._columns, start = {}, 0
         for name in BATCH_COLUMNS:
             self._columns[name] = (start, start + widths[name])

@@ -324,3 +324,23 @@ def test_networks_that_cannot_fit_in_memory_are_refused_naming_the_sizes():
     traceback, or later by the out-of-memory killer; a ValueError is a node's one-line refusal."""
     with pytest.raises(ValueError, match=r'hidden sizes \[100000, 100000\] make networks of 30,002,100,004'):
         EQSACLearner(3, [-2.0], [2.0], LearnerConfig(hidden=(100000, 100000)))
+
+
+def test_a_replay_capacity_whose_transitions_cannot_fit_is_refused_before_anything_is_allocated(monkeypatch):
+    """From outside: `learner -p env_id:=CarRacing-v3` (27,648 observation values) at the default
+    replay_capacity ended in a traceback of a failed 110 GB allocation. Now refused as a camera's
+    frames are, with the capacity that would take half of the machine's memory (here a machine of
+    0.1 GB, so that what fits stays small)."""
+    from eqhrl_ros.core.algorithm import memories
+
+    monkeypatch.setattr(memories, 'physical_memory_bytes', lambda: 10**8)
+    spaces = (2_000, [-1.0, 0.0, 0.0], [1.0, 1.0, 1.0])
+    with pytest.raises(
+        ValueError,
+        match=r'^replay_capacity 500,000 with observations of 2,000 values needs 16.0 GB for D and D_advising; '
+        r'this machine has 0.1 GB \(replay_capacity 1,560 would take half of it\)$',
+    ):
+        EQSACLearner(*spaces, LearnerConfig(hidden=(8,), replay_capacity=500_000))
+    fits = EQSACLearner(*spaces, LearnerConfig(hidden=(8,), replay_capacity=1_560))
+    assert fits.replay.capacity == fits.advice_replay.capacity == 1_560
+    assert fits.replay.rows.shape == (1_560, 2 * 2_000 + 3 + 2)  # what the check counted
