@@ -102,9 +102,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         '--discovery',
         choices=DISCOVERY,
         default=None,
-        help='who can reach these nodes: off (this process only; the default with '
-        '--expert-node expert), localhost (this machine; the default with teleop or none) '
-        'or subnet (ROS_AUTOMATIC_DISCOVERY_RANGE)',
+        help='who can reach these nodes: off (this process only; the default when the env and the '
+        'expert are both in it), localhost (this machine; the default with --expert-node teleop or none, '
+        'or --env-node none) or subnet (ROS_AUTOMATIC_DISCOVERY_RANGE)',
     )
     args = parser.parse_args(argv)
     if args.discovery is None:
