@@ -368,7 +368,10 @@ def check_field(f: dataclasses.Field, value: Any, owner: str) -> Any:
     kind: Any = type(f.default)
 
     def refuse(expected: str):
-        raise ValueError(f'{owner}.{name} must be {expected}, got {value!r}')
+        # Named as the ROS parameter too where it differs: a node's user gave `hidden_sizes`.
+        ros = f' (ROS parameter {ros_name(f)})' if ros_name(f) != name else ''
+        got = 'nothing (an empty list is an unset ROS array)' if value is None else repr(value)
+        raise ValueError(f'{owner}.{name}{ros} must be {expected}, got {got}')
 
     if kind is tuple:
         counts = meta['range'] is not None  # a list of counts in range; else layer sizes

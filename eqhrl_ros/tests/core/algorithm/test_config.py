@@ -49,6 +49,19 @@ def test_each_params_file_fits_the_declarations(path):
     LearnerConfig.from_params(learner, node_keys=[p.name for p in LEARNER_NODE_PARAMS])
 
 
+def test_a_refused_field_is_named_as_its_ros_parameter_too():
+    """From outside: `-p hidden_sizes:=[0]` was refused as `LearnerConfig.hidden`, a name the user
+    never gave, and `-p hidden_sizes:=[]` (rclpy leaves an empty array unset) as `got None`."""
+    with pytest.raises(
+        ValueError, match=r'^LearnerConfig.hidden \(ROS parameter hidden_sizes\) must be positive layer'
+    ):
+        LearnerConfig.from_params({'hidden_sizes': [0]})
+    with pytest.raises(ValueError, match=r'hidden_sizes\) must be a list of layer sizes, got nothing \(an empty list'):
+        LearnerConfig.from_params({'hidden_sizes': None})
+    with pytest.raises(ValueError, match=r'^LearnerConfig.gamma must be in'):  # the same name: said once
+        LearnerConfig(gamma=2.0)
+
+
 def test_from_params_refuses_unknown_keys():
     with pytest.raises(ValueError, match='unknown learner parameter.*gama'):
         LearnerConfig.from_params({'gama': 0.9})
