@@ -55,6 +55,8 @@ def declare(node: Node, params: tuple[Param, ...]) -> dict:
             continue
         default = UNSET_KINDS[param.kind] if param.default is None else param.default
         value = node.declare_parameter(param.name, default, descriptor(param)).value
+        if value is None and (isinstance(param.default, list) or param.kind in UNSET_KINDS):
+            value = []  # given as [] (rcl leaves an empty array unset): empty, not None (`axes:=[]` crashed)
         if param.kind == 'double_array' and value is not None:
             value = [float(v) for v in value]
         if param.kind == 'integer_array' and value is not None:

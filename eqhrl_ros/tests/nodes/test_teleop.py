@@ -198,6 +198,9 @@ def test_teleop_expert_node_follows_twist(harness, ros_context):
 def test_teleop_mapping_of_the_wrong_length_is_refused(ros_context):
     with pytest.raises(ValueError, match="'axes' has 2 values"):
         TeleopExpertNode(context=ros_context, parameter_overrides=params(source='joy', axes=[0, 1], scales=[1.0]))
+    # From outside, `-p axes:=[]`: rcl leaves an empty array unset, and the node died in a TypeError.
+    with pytest.raises(ValueError, match="^parameter 'axes' has 0 values, 'scales' has 1$"):
+        TeleopExpertNode(context=ros_context, cli_args=['--ros-args', '-p', 'source:=joy', '-p', 'axes:=[]'])
 
 
 def test_env_publishes_frames_of_the_right_size_and_encoding(harness, ros_context):
