@@ -13,6 +13,7 @@ delivering the person's commands meanwhile, and nothing blocks a thread.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from functools import reduce
@@ -149,6 +150,10 @@ class TeleopExpertNode(Node):
         n = len(p['scales'])
         if len(p['offsets']) != n:
             raise ValueError(f"parameter 'offsets' has {len(p['offsets'])} values, 'scales' has {n}")
+        if not all(math.isfinite(v) for v in (*p['scales'], *p['offsets'])):  # every answer would be NaN
+            raise ValueError(f"parameters 'scales' {p['scales']} and 'offsets' {p['offsets']} must be finite")
+        if p['source'] in ('joy', 'array') and any(a < 0 for a in p['axes']):
+            raise ValueError(f"parameter 'axes' {p['axes']} holds a negative index")
         if p['source'] in ('joy', 'array') and len(p['axes']) != n:
             raise ValueError(f"parameter 'axes' has {len(p['axes'])} values, 'scales' has {n}")
         if p['source'] == 'twist':

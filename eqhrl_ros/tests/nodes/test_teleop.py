@@ -201,6 +201,14 @@ def test_teleop_mapping_of_the_wrong_length_is_refused(ros_context):
     # From outside, `-p axes:=[]`: rcl leaves an empty array unset, and the node died in a TypeError.
     with pytest.raises(ValueError, match="^parameter 'axes' has 0 values, 'scales' has 1$"):
         TeleopExpertNode(context=ros_context, cli_args=['--ros-args', '-p', 'source:=joy', '-p', 'axes:=[]'])
+    # Before, taken: every answer was NaN (refused by the learner), or the axis read as 0.
+    for given, refusal in [
+        ('scales:=[.nan]', r"^parameters 'scales' \[nan\] and 'offsets' \[0.0\] must be finite$"),
+        ('offsets:=[.inf]', r"^parameters 'scales' \[1.0\] and 'offsets' \[inf\] must be finite$"),
+        ('axes:=[-7]', r"^parameter 'axes' \[-7\] holds a negative index$"),
+    ]:
+        with pytest.raises(ValueError, match=refusal):
+            TeleopExpertNode(context=ros_context, cli_args=['--ros-args', '-p', 'source:=joy', '-p', given])
 
 
 def test_env_publishes_frames_of_the_right_size_and_encoding(harness, ros_context):
