@@ -164,9 +164,9 @@ class StartWait:
                 else ''
             )
             self._node.get_logger().warn(
-                f"the gates fired, and nobody can take the wheel: no node publishes '{person_topic}' (the "
-                f"person's teleop_expert), so nothing was asked (counted as unavailable, no person's "
-                f'seconds){advise}',
+                f"the gates fired, and nobody can take the wheel: the graph shows no node publishing '{person_topic}' "
+                "(the person's teleop_expert; at a start, nodes launched together find each other over seconds), "
+                f"so nothing was asked (counted as unavailable, no person's seconds){advise}",
                 throttle_duration_sec=5.0,
             )
         elif not protocol:

@@ -77,6 +77,24 @@ def test_a_persons_window_let_pass_is_no_refused_action():
     ]
 
 
+def test_a_request_for_the_wheel_with_no_person_in_the_graph_says_the_graph_may_lag():
+    """From outside: `ros2 launch … expert:=teleop` warned 3 s after its start that 'no node publishes
+    /person_command' while teleop_expert did; the graph had not shown it yet."""
+    from types import SimpleNamespace
+
+    from eqhrl_ros.nodes.start_wait import StartWait
+
+    said = []
+    node = SimpleNamespace(get_logger=lambda: SimpleNamespace(warn=lambda line, **kw: said.append(line)))
+    wait = StartWait(node, None, None, None, None, None, None, None)
+    wait.say_unasked('wheel', '/env_info', '/person_command', advise_served=False)
+    assert said == [
+        "the gates fired, and nobody can take the wheel: the graph shows no node publishing '/person_command' "
+        "(the person's teleop_expert; at a start, nodes launched together find each other over seconds), so "
+        "nothing was asked (counted as unavailable, no person's seconds)"
+    ]
+
+
 # The probe's observations come from no env node, so no env_info says the env's pace: the
 # learner is told its protocol (else advice_protocol auto holds the first observation for
 # AUTO_PACE_WAIT_S, test_any_env says how).
