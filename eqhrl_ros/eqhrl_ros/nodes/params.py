@@ -7,6 +7,7 @@ value out of range or of the wrong type with a message naming the parameter.
 
 from __future__ import annotations
 
+import array
 import os
 import sys
 
@@ -37,6 +38,12 @@ UNSET_KINDS = {
     'integer_array': Parameter.Type.INTEGER_ARRAY,
     'string_array': Parameter.Type.STRING_ARRAY,
 }
+
+
+def plain(value):
+    """A parameter's value as it was given: rclpy hands a changed array as array.array
+    (`array('d', [3.0])` in a log line or a refusal); a list instead."""
+    return value.tolist() if isinstance(value, array.array) else value
 
 
 def declare(node: Node, params: tuple[Param, ...]) -> dict:
@@ -85,9 +92,9 @@ def _values_as_set(node: Node) -> dict:
             for change in changes:
                 if change.name in known:  # not one being declared now (rclpy calls this for those too)
                     node.get_logger().info(
-                        f'parameter {change.name} set to {change.value!r} (was {known[change.name]!r})'
+                        f'parameter {change.name} set to {plain(change.value)!r} (was {known[change.name]!r})'
                     )
-                known[change.name] = change.value
+                known[change.name] = plain(change.value)
 
         node.add_post_set_parameters_callback(said)
     return known

@@ -48,7 +48,7 @@ from . import messages
 from .advise_msgs import answer, fill_response, frames_refused, request_from_msg, request_refusal
 from .env_info import EnvInfoWatcher, configured_spec
 from .graph_trust import OnePublisher
-from .params import choices_validator, declare, reject_unknown_overrides
+from .params import choices_validator, declare, plain, reject_unknown_overrides
 from .recording import introspect
 from .spinning import run_node, steady_clock
 
@@ -165,7 +165,7 @@ class TeleopExpertNode(Node):
 
     def _on_set_parameters(self, changes) -> SetParametersResult:
         updated = dict(self.params)
-        updated.update({c.name: c.value for c in changes if c.name in updated})
+        updated.update({c.name: plain(c.value) for c in changes if c.name in updated})
         try:
             self._check_mapping(updated)
         except ValueError as error:

@@ -636,3 +636,27 @@ def test_a_stranger_alone_on_teleop_command_answers_nothing_by_default(harness, 
     pub.publish(messages.command_msg([-1.0], True, False, False))
     assert harness.spin_until(lambda: teleop.rejected_commands >= 1, timeout=5)
     assert 'no teleop command' in call_advise(harness, client).reason
+
+
+def test_a_mapping_set_through_the_parameter_service_is_said_and_refused_as_a_list(harness, ros_context):
+    """From outside, `ros2 param set /teleop_expert scales "[3.0]"`: rclpy hands the node an array.array,
+    and the node said `set to array('d', [3.0])`, and refused `[.nan]` as `array('d', [nan])`."""
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    teleop = harness.add(TeleopExpertNode(context=ros_context, parameter_overrides=params(source='joy')))
+    said = []
+    teleop.get_logger = lambda: SimpleNamespace(info=said.append, warn=said.append, error=said.append)
+    caller = harness.add(rclpy.create_node('param_caller', context=ros_context))
+    client = AsyncParameterClient(caller, teleop.get_fully_qualified_name())
+    assert harness.spin_until(lambda: client.services_are_ready())
+
+    def set_scales(value):
+        future = client.set_parameters([Parameter('scales', value=value)])
+        assert harness.spin_until(future.done)
+        return future.result().results[0]
+
+    refused = set_scales([float('nan')])
+    assert not refused.successful and refused.reason == "parameters 'scales' [nan] and 'offsets' [0.0] must be finite"
+    assert set_scales([3.0]).successful
+    assert said == ['parameter scales set to [3.0] (was [1.0])'] and teleop.params['scales'] == [3.0]
