@@ -236,56 +236,6 @@ def test_the_launch_files_included_under_a_namespace_give_their_nodes_their_sect
     assert "('/transitions', '/fleet/t'), ('/weights', '/robot1/weights')" in given.stdout, given.stdout
 
 
-LAUNCH_UNDER_SET_PARAMETER = """
-import sys
-import rclpy
-from rclpy.context import Context
-from launch import LaunchContext
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
-from launch.launch_description_sources import get_launch_description_from_python_launch_file
-from launch_ros.actions import Node
-
-path, given = sys.argv[1], dict(a.split(':=', 1) for a in sys.argv[2:])
-for namespace in ('', '/robot1'):
-    context = LaunchContext()
-    context.launch_configurations['global_params'] = [('use_sim_time', True)]  # the including file's SetParameter
-    if namespace:  # none pushed: launch_ros passes a node's mappings in `/**`, as in a real launch
-        context.launch_configurations['ros_namespace'] = namespace
-    description = get_launch_description_from_python_launch_file(path)
-    for entity in description.entities:
-        if isinstance(entity, DeclareLaunchArgument):
-            default = entity.default_value[0].perform(context) if entity.default_value else ''
-            context.launch_configurations[entity.name] = given.get(entity.name, default)
-    actions = [a for e in description.entities if isinstance(e, OpaqueFunction) for a in e.execute(context)]
-    learner = next(a for a in actions if isinstance(a, Node) and a.node_executable == 'learner')
-    learner._perform_substitutions(context)
-    arguments = ['-p', 'use_sim_time:=true']  # launch_ros puts SetParameter's values first, so
-    for value, is_file in learner._Node__expanded_parameter_arguments:
-        arguments += ['--params-file', value] if is_file else ['-p', value]
-    ros = Context()
-    rclpy.init(args=['--ros-args', *arguments], context=ros)  # and rcl reads them as the node would
-    node = rclpy.create_node(
-        'learner', namespace=namespace or '/', context=ros, automatically_declare_parameters_from_overrides=True
-    )
-    print(namespace or '/', sorted((n, node.get_parameter(n).value) for n in ('mode', 'output_dir', 'use_sim_time')))
-    node.destroy_node()
-    rclpy.shutdown(context=ros)
-"""
-
-
-def test_the_launchs_own_arguments_win_under_an_including_files_set_parameter(ros2_env, colcon_install):
-    """From outside: my launch file set use_sim_time for all (launch_ros's SetParameter, as with a
-    simulator) and included train.launch.py with output_dir and mode. The learner ran eqsac and saved
-    in the params file's runs/pendulum: rcl applies the file's `learner:` section after every `/**`
-    value, and SetParameter's came first. rcl itself reads what the launch passes here."""
-    path = colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros' / 'launch' / 'train.launch.py'
-    command = ['python3', '-c', LAUNCH_UNDER_SET_PARAMETER, str(path), 'output_dir:=/tmp/mine', 'mode:=sac']
-    result = subprocess.run(command, env=ros2_env, capture_output=True, text=True, timeout=60)
-    assert result.returncode == 0, result.stdout + result.stderr[-2000:]
-    expected = "[('mode', 'sac'), ('output_dir', '/tmp/mine'), ('use_sim_time', True)]"
-    assert result.stdout.splitlines() == [f'/ {expected}', f'/robot1 {expected}'], result.stdout
-
-
 LAUNCH_AS_RCL_READS = """
 import sys
 import rclpy
@@ -295,13 +245,16 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.launch_description_sources import get_launch_description_from_python_launch_file
 from launch_ros.actions import Node
 
-path, set_parameter, given = sys.argv[1], sys.argv[2], dict(a.split(':=', 1) for a in sys.argv[3:])
-context = LaunchContext(argv=sys.argv[3:])
+path, set_parameter, namespace, names = sys.argv[1:5]
+given = dict(a.split(':=', 1) for a in sys.argv[5:])
+context = LaunchContext(argv=sys.argv[5:])
 first = []
 if set_parameter != '-':  # an including file's SetParameter: launch_ros passes it first, as -p
     name, value = set_parameter.split('=')
     context.launch_configurations['global_params'] = [(name, value == 'true')]
     first = ['-p', f'{name}:={value}']
+if namespace != '/':  # the including file's PushRosNamespace (none: a node's mappings go in `/**`)
+    context.launch_configurations['ros_namespace'] = namespace
 description = get_launch_description_from_python_launch_file(path)
 for entity in description.entities:
     if isinstance(entity, DeclareLaunchArgument):
@@ -315,12 +268,37 @@ for node in (a for a in actions if isinstance(a, Node)):
         arguments += ['--params-file', value] if is_file else ['-p', value]
     ros = Context()
     rclpy.init(args=['--ros-args', *arguments], context=ros)  # rcl reads them as the node would
-    namespace = node.expanded_node_namespace if node.expanded_node_namespace.startswith('/') else '/'
-    made = rclpy.create_node(node.node_executable, namespace=namespace, context=ros)
-    print('NODE', node.node_executable, made.get_parameter('use_sim_time').value)
+    where = node.expanded_node_namespace if node.expanded_node_namespace.startswith('/') else '/'
+    made = rclpy.create_node(
+        node.node_executable, namespace=where, context=ros, automatically_declare_parameters_from_overrides=True
+    )
+    values = [(n, made.get_parameter(n).value) for n in names.split(',') if made.has_parameter(n)]
+    print('NODE', node.node_executable, where, sorted(values))
     made.destroy_node()
     rclpy.shutdown(context=ros)
 """
+
+
+def read_as_rcl(ros2_env, path, set_parameter, namespace, names, *arguments) -> list:
+    """Each node the launch file at ``path`` starts, as `NODE <executable> <namespace> <values>` of
+    the parameters ``names``: what rcl reads from what the launch passes the node."""
+    command = ['python3', '-c', LAUNCH_AS_RCL_READS, str(path), set_parameter, namespace, names, *arguments]
+    result = subprocess.run(command, env=ros2_env, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr[-2000:]
+    return [line.split(' ', 1)[1] for line in result.stdout.splitlines() if line.startswith('NODE ')]
+
+
+def test_the_launchs_own_arguments_win_under_an_including_files_set_parameter(ros2_env, colcon_install):
+    """From outside: my launch file set use_sim_time for all (launch_ros's SetParameter, as with a
+    simulator) and included train.launch.py with output_dir and mode. The learner ran eqsac and saved
+    in the params file's runs/pendulum: rcl applies the file's `learner:` section after every `/**`
+    value, and SetParameter's came first. rcl itself reads what the launch passes here."""
+    path = colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros' / 'launch' / 'train.launch.py'
+    expected = "[('mode', 'sac'), ('output_dir', '/tmp/mine'), ('use_sim_time', True)]"
+    for namespace in ('/', '/robot1'):
+        given = ('output_dir:=/tmp/mine', 'mode:=sac')
+        nodes = read_as_rcl(ros2_env, path, 'use_sim_time=true', namespace, 'mode,output_dir,use_sim_time', *given)
+        assert f'learner {namespace} {expected}' in nodes, nodes
 
 
 @pytest.mark.parametrize('launch_file', ['train.launch.py', 'actors.launch.py'])
@@ -332,19 +310,17 @@ def test_use_sim_time_given_to_the_launch_puts_every_node_on_it(ros2_env, colcon
     path = colcon_install / 'eqhrl_ros' / 'share' / 'eqhrl_ros' / 'launch' / launch_file
 
     def read(set_parameter, *arguments):
-        command = ['python3', '-c', LAUNCH_AS_RCL_READS, str(path), set_parameter, 'env:=demo', 'actors:=1', *arguments]
-        result = subprocess.run(command, env=ros2_env, capture_output=True, text=True, timeout=60)
-        assert result.returncode == 0, result.stdout + result.stderr[-2000:]
-        return [line.split()[1:] for line in result.stdout.splitlines() if line.startswith('NODE ')]
+        nodes = read_as_rcl(ros2_env, path, set_parameter, '/', 'use_sim_time', 'env:=demo', 'actors:=1', *arguments)
+        return [(line.split()[0], line.split()[-1]) for line in nodes]
 
     nodes = (
         ['gym_env', 'expert', 'learner']
         if launch_file == 'train.launch.py'
         else ['trainer', 'gym_env', 'expert', 'actor']
     )
-    assert read('-', 'use_sim_time:=true') == [[node, 'True'] for node in nodes]
-    assert read('use_sim_time=true', 'use_sim_time:=false') == [[node, 'False'] for node in nodes]
-    assert read('use_sim_time=true') == [[node, 'True'] for node in nodes]
+    assert read('-', 'use_sim_time:=true') == [(node, 'True)]') for node in nodes]
+    assert read('use_sim_time=true', 'use_sim_time:=false') == [(node, 'False)]') for node in nodes]
+    assert read('use_sim_time=true') == [(node, 'True)]') for node in nodes]
 
 
 @pytest.mark.parametrize(
