@@ -81,13 +81,18 @@ lint: $(VENV)/.stamp-deps
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy
 
-test: system-deps setup ros2-tools lint
-	$(VENV)/bin/pytest eqhrl_ros/tests --durations=25
+# Two pytest-xdist workers: the tests mostly wait on processes and ROS, so two share two cores
+# well. Each worker has a ROS domain of its own and they share one colcon build (tests/conftest.py);
+# TEST_WORKERS=0 runs the tests in one process.
+TEST_WORKERS ?= 2
+PYTEST_WORKERS := -n $(TEST_WORKERS)
 
-# A developer's loop: everything but the tests marked slow, stopping at the first failure
-# (about 4 minutes on 2 cores, against about 12 for make test's pytest).
+test: system-deps setup ros2-tools lint
+	$(VENV)/bin/pytest eqhrl_ros/tests $(PYTEST_WORKERS) --durations=25
+
+# A developer's loop: everything but the tests marked slow, stopping at the first failure.
 test-fast: setup
-	$(VENV)/bin/pytest eqhrl_ros/tests -m "not slow" -x -q
+	$(VENV)/bin/pytest eqhrl_ros/tests $(PYTEST_WORKERS) -m "not slow" -x -q
 
 demo: setup
 	$(VENV)/bin/eqhrl-demo

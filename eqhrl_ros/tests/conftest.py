@@ -3,15 +3,29 @@
 Set before rclpy is imported anywhere: a private ROS domain derived from the
 process id, and localhost-only discovery, so that two runs on one machine (or a
 run beside a real robot) never hear each other. Child processes inherit both.
+Under pytest-xdist (make test runs two workers) the domain comes from the run's
+process and the worker's index, so that the workers of one run never share one.
 """
 
 import os
 
-os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)  # 1..100, valid on every platform
+
+def _private_domain() -> int:
+    """1..100, valid on every platform: one domain per test process."""
+    worker = os.environ.get('PYTEST_XDIST_WORKER', '')  # 'gw0', 'gw1', … (set before conftest is read)
+    if not worker.startswith('gw'):
+        return 1 + os.getpid() % 100
+    # The workers are children of the run's pytest: its pid picks a block, the index a domain in it.
+    block, index = os.getppid() % 25, int(worker[2:])
+    return 1 + (block * 4 + index) % 100
+
+
+os.environ['ROS_DOMAIN_ID'] = str(_private_domain())
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
 os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')  # pygame renders rgb_array frames without a display
 
+import fcntl  # noqa: E402
 import shutil  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -61,11 +75,27 @@ def harness(ros_context, request):
 @pytest.fixture(scope='session')
 def colcon_install(tmp_path_factory):
     """The repository built as a ROS user builds it: a checkout under src/ of a workspace,
-    `colcon build`, the venv as underlay. Returns the install space."""
+    `colcon build`, the venv as underlay. Returns the install space.
+
+    Under pytest-xdist the workers of a run share one build: the first that needs it makes it
+    while the others wait on a lock (two builds at once would take both cores for a minute)."""
+    if 'PYTEST_XDIST_WORKER' not in os.environ:
+        return _colcon_build(tmp_path_factory.mktemp('ws'))
+    run_folder = tmp_path_factory.getbasetemp().parent  # above each worker's own basetemp
+    workspace = run_folder / 'colcon_ws'
+    with open(run_folder / 'colcon_ws.lock', 'w') as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not (workspace / 'install').is_dir():
+            shutil.rmtree(workspace, ignore_errors=True)  # what a failed build left
+            workspace.mkdir()
+            return _colcon_build(workspace)
+    return workspace / 'install'
+
+
+def _colcon_build(workspace):
     colcon = VENV / 'bin' / 'colcon'
     if not colcon.exists():
         pytest.fail(f'colcon is missing from {VENV}: run `make setup`')
-    workspace = tmp_path_factory.mktemp('ws')
     (workspace / 'src').mkdir()
     # Build outputs at the top only (a pattern would also drop eqhrl_ros/core/runs), caches anywhere.
     top = {'.venv', '.ros2-tools', 'build', 'install', 'log', 'runs', '.git'}
@@ -94,6 +124,8 @@ def colcon_install(tmp_path_factory):
         text=True,
         timeout=600,
     )
+    if result.returncode != 0:
+        shutil.rmtree(workspace / 'install', ignore_errors=True)  # so that no other worker takes it
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     return workspace / 'install'
 
