@@ -162,3 +162,45 @@ def test_the_results_pages_pixel_table_is_the_committed_report():
         rows = list(csv.DictReader(f))
     assert len(rows) == 2 * 2 * 3 * 40  # settings x modes x seeds x episodes
     assert script.table(rows) == report  # made from the committed runs, to the decimal
+
+
+def test_on_a_ros_install_rosdep_and_the_readmes_pip_line_bring_every_module_the_package_imports():
+    """On a ROS install, rosdep installs package.xml's keys, and the root README's pip line installs
+    the rest, at the versions requirements.txt pins. Every third-party module the package imports
+    comes from one of them (mcap was missing: `record:=true` ended in an ImportError)."""
+    import ast
+    import importlib.metadata
+    import re
+    import sys
+    import xml.etree.ElementTree as ElementTree
+
+    package = Path(__file__).resolve().parents[1]
+    repo = package.parent
+    keys = {element.text for element in ElementTree.parse(package / 'package.xml').getroot().iter('exec_depend')}
+    readme = (repo / 'README.md').read_text()
+    ros_section = readme[readme.index('## With a regular ROS 2 Jazzy install') :]
+    pip_line = re.search(r'^pip install (.*?)\n(?!\s)', ros_section, re.S | re.M).group(1)
+    pins = dict(re.findall(r'"?([A-Za-z0-9_.\-\[\]]+)==([^\s"\\]+)', pip_line))
+    required = dict(re.findall(r'^([A-Za-z0-9_.\-\[\]]+)==(\S+)', (repo / 'requirements.txt').read_text(), re.M))
+    assert pins and all(required.get(name) == version for name, version in pins.items()), (pins, required)
+
+    pip_names = {name.split('[')[0].lower() for name in pins}
+    optional = set(re.findall(r'needs `pip install ([a-z\-]+)`', (package / 'README.md').read_text()))
+    rosdep_dist = {'python3-pil': 'pillow', 'python3-yaml': 'pyyaml'}  # the others: python3-<distribution>
+    rosdep_names = {rosdep_dist.get(key, key.removeprefix('python3-')) for key in keys if key.startswith('python3-')}
+    distributions = importlib.metadata.packages_distributions()
+    modules = set()
+    for path in (package / 'eqhrl_ros').rglob('*.py'):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                modules.update(alias.name.split('.')[0] for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                modules.add(node.module.split('.')[0])
+    uncovered = []
+    for module in sorted(modules - set(sys.stdlib_module_names) - {'eqhrl_ros'}):
+        if module in keys:  # a ROS package: rclpy, std_msgs, launch, eqhrl_interfaces, …
+            continue
+        names = {name.lower() for name in distributions.get(module, [module])}
+        if not names & (pip_names | rosdep_names | optional):
+            uncovered.append(f'{module} ({", ".join(sorted(names))})')
+    assert not uncovered, f'imported, but neither a rosdep key of package.xml nor in the README pip line: {uncovered}'
