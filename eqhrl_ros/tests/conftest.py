@@ -44,6 +44,24 @@ ROS2_TOOLS = REPO / '.ros2-tools' / 'setup.sh'
 torch.set_num_threads(1)
 
 
+@pytest.fixture(autouse=True)
+def _alone_if_marked(request, tmp_path_factory):
+    """Under pytest-xdist, a test marked ``alone`` (it asserts wall-clock timing) runs with no
+    other worker's test beside it. Each test holds the run's lock shared, an ``alone`` test holds
+    it exclusive; the turnstile lets a waiting ``alone`` test in before the next shared holder.
+    Without xdist there is one test at a time anyway."""
+    if 'PYTEST_XDIST_WORKER' not in os.environ:
+        yield
+        return
+    run_folder = tmp_path_factory.getbasetemp().parent  # above each worker's own basetemp
+    alone = request.node.get_closest_marker('alone') is not None
+    with open(run_folder / 'tests.turnstile', 'a') as turnstile, open(run_folder / 'tests.lock', 'a') as lock:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        fcntl.flock(lock, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)  # an alone test waits for the other's end
+        fcntl.flock(turnstile, fcntl.LOCK_UN)
+        yield  # both are released when the files close, after the test's teardown
+
+
 @pytest.fixture
 def ros_context():
     """A private rclpy context, shut down after the test whatever happens."""

@@ -15,7 +15,7 @@ import pytest
 
 from process_helpers import read_rows
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.alone]  # its rate, not the other worker's load
 
 STAMP = re.compile(r'\[INFO\] \[(\d+\.\d+)\] \[(\w+)\]: (.*)')
 

@@ -67,6 +67,7 @@ class PersonAtAConsole:
         timer = self.node.create_timer(plan.delay_s, act, clock=self.clock)
 
 
+@pytest.mark.alone  # reaction times to 80 ms
 def test_teleop_expert_holds_each_request_for_the_person_and_counts_what_they_did(harness, ros_context, tmp_path):
     window = 1.0
     teleop = harness.add(
