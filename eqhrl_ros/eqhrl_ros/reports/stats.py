@@ -10,6 +10,7 @@ runner gives every algorithm of one seed the same network start, noise and start
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,9 @@ from scipy import stats
 
 CONFIDENCE = 0.95
 RESAMPLES = 10_000
+# scipy 1.15 on names bootstrap's generator `rng`; before, `random_state` (a ROS install's
+# rosdep key python3-scipy is 1.11 on Ubuntu 24.04). The same Generator, the same resamples.
+_GENERATOR_KEYWORD = 'rng' if 'rng' in inspect.signature(stats.bootstrap).parameters else 'random_state'
 
 
 def iqm(values, axis: int = -1) -> np.ndarray:
@@ -57,7 +61,7 @@ def bootstrap(values, statistic=np.mean, seed: int = 0) -> Estimate:
         confidence_level=CONFIDENCE,
         n_resamples=RESAMPLES,
         method='percentile',
-        rng=np.random.default_rng(seed),
+        **{_GENERATOR_KEYWORD: np.random.default_rng(seed)},
         vectorized=True,
         axis=-1,
     )

@@ -83,3 +83,29 @@ def test_a_paired_test_gives_a_verdict():
     assert same.n == 30 and same.verdict() == 'equivalent within ±5'
     apart = paired_test({s: v + 9 + (s % 2) for s, v in a.items()}, a, margin=5.0)
     assert apart.verdict() == 'different' and apart.low > 5
+
+
+def test_a_scipy_whose_bootstrap_takes_random_state_gives_the_same_intervals(monkeypatch):
+    """scipy before 1.15 (1.11 is Ubuntu 24.04's python3-scipy, what rosdep installs on a ROS
+    install) names bootstrap's generator `random_state`: `rng=` there was a TypeError."""
+    import importlib
+    from dataclasses import astuple
+
+    import eqhrl_ros.reports.stats as study_stats
+
+    values = np.random.default_rng(3).normal(10, 2, 12)
+    expected = (astuple(study_stats.bootstrap(values)), astuple(study_stats.iqm_estimate(values)))
+    scipy_bootstrap, keyword = stats.bootstrap, study_stats._GENERATOR_KEYWORD  # this scipy's own
+
+    def bootstrap_of_scipy_1_11(data, statistic, *, vectorized=None, axis=0, confidence_level=0.95,
+                                n_resamples=9999, method='BCa', random_state=None):  # fmt: skip
+        return scipy_bootstrap(data, statistic, vectorized=vectorized, axis=axis, confidence_level=confidence_level,
+                               n_resamples=n_resamples, method=method, **{keyword: random_state})  # fmt: skip
+
+    monkeypatch.setattr(stats, 'bootstrap', bootstrap_of_scipy_1_11)
+    try:
+        older = importlib.reload(study_stats)
+        assert (astuple(older.bootstrap(values)), astuple(older.iqm_estimate(values))) == expected
+    finally:
+        monkeypatch.undo()
+        importlib.reload(study_stats)
