@@ -19,6 +19,7 @@ about (one PNG, AskedFrames) and the learner's camera live (PNG, lossless, at it
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import errno
 import hmac
@@ -38,6 +39,7 @@ from .connection_guard import ConnectionGuard, GuardedProtocol, ServerLog
 from .frame_msgs import frame_of, stack_of
 
 MAX_PAGE_MESSAGE = 4096  # bytes; the page sends small JSON only
+STOPPING = 'advice_console is stopping'  # what the page shows when the console goes
 # The first byte of an image sent to the page: which image it is (console.js reads the same).
 IMAGE_KINDS = {'env': b'E', 'asked': b'A', 'camera': b'C'}
 
@@ -298,7 +300,11 @@ class ConsoleServer:
 
             async def stop():
                 for page in list(self._sockets):  # the page shows "disconnected" and retries
-                    await page.close(code=1001, message=b'advice_console is stopping')
+                    # Said first as a message: the close frame's reason is lost where aiohttp's own
+                    # end of the handler closes first (3.9, Ubuntu 24.04's python3-aiohttp: code 1000).
+                    with contextlib.suppress(ConnectionError, RuntimeError):
+                        await page.send_json({'type': 'stopping', 'reason': STOPPING})
+                    await page.close(code=1001, message=STOPPING.encode())
                 if getattr(self, '_server', None) is not None:
                     self._server.close()
                 if self._runner is not None:

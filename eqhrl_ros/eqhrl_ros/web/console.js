@@ -17,6 +17,7 @@ let padButtons = [];
 let budgetEdited = false;  // the person is typing a budget: the learner's value does not overwrite it
 let budgetSEdited = false;
 let connected = false;
+let stoppingReason = '';  // the console said it is stopping: its close frame may lack the reason
 
 function connect() {
   const url = new URL('ws', window.location.href);
@@ -36,9 +37,11 @@ function connect() {
     $('connection').className = 'bad';
     $('stop').disabled = true;
     $('stop').textContent = 'STOP (not connected)';
-    if (wasConnected || event.reason) {
-      $('run-state').textContent = event.reason
-        ? `the console has stopped (${event.reason}): the run has ended or was stopped; STOP cannot reach the robot from this page`
+    const reason = event.reason || stoppingReason;
+    stoppingReason = '';
+    if (wasConnected || reason) {
+      $('run-state').textContent = reason
+        ? `the console has stopped (${reason}): the run has ended or was stopped; STOP cannot reach the robot from this page`
         : 'the console is not reachable: STOP cannot reach the robot from this page until it reconnects';
     }
     setTimeout(connect, 1000);
@@ -53,6 +56,7 @@ function connect() {
       say(message.ok ? `${message.name} set to ${message.value}` : `refused: ${message.reason}`);
     }
     else if (message.type === 'error') say(`console: ${message.error}`);
+    else if (message.type === 'stopping') stoppingReason = String(message.reason);
   };
 }
 

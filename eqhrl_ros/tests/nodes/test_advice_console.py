@@ -607,3 +607,35 @@ def test_a_port_taken_by_another_page_is_refused_with_how_to_give_each_its_own(r
         assert f'cannot serve on 127.0.0.1:{port}' in str(refused.value)
     finally:
         taken.close()
+
+
+def test_a_stopping_console_tells_each_page_why_before_its_socket_closes(ros_context):
+    """The page shows "the console has stopped (reason)" from the close frame's reason, which
+    aiohttp 3.9 (Ubuntu 24.04's python3-aiohttp) loses: its own end of the handler closes first,
+    with code 1000 and no reason, and the page said the console was merely not reachable."""
+    import asyncio
+
+    import aiohttp
+
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    heard, connected = [], threading.Event()
+
+    async def page():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(f'http://127.0.0.1:{console.port}/ws') as socket:
+                connected.set()
+                async for message in socket:
+                    if message.type == aiohttp.WSMsgType.TEXT:
+                        heard.append(message.json())
+                heard.append({'closed': socket.close_code})
+
+    reader = threading.Thread(target=asyncio.run, args=(page(),), daemon=True)
+    try:
+        reader.start()
+        assert connected.wait(10)
+        console.server.stop()
+        reader.join(timeout=10)
+        assert not reader.is_alive() and heard[-1]['closed'] is not None, heard
+        assert heard[-2] == {'type': 'stopping', 'reason': 'advice_console is stopping'}, heard
+    finally:
+        console.destroy_node()
