@@ -114,6 +114,8 @@ class GuardedProtocol(asyncio.Protocol):
             self.guard.header_timeout_s, self.guard.header_overdue, self
         )
         self.inner = self._inner_factory()
+        if isinstance(getattr(self.inner, 'logger', None), ServerLog):  # aiohttp's handler: its log names the client
+            self.inner.logger = self.inner.logger.of_client(client)
         self.inner.connection_made(transport)
 
     def data_received(self, data: bytes) -> None:
@@ -157,9 +159,14 @@ class ServerLog:
     the log; it is now one line in the guard's rate-limited log. An error of the page's own code
     keeps its traceback (aiohttp's own logger)."""
 
-    def __init__(self, guard: ConnectionGuard):
-        self.guard = guard
+    def __init__(self, guard: ConnectionGuard, client: str = ''):
+        self.guard, self.client = guard, client
         self.own = logging.getLogger('aiohttp.server')
+
+    def of_client(self, client: str) -> ServerLog:
+        """This log for one connection: aiohttp before 3.10 (Ubuntu 24.04's 3.9) does not name
+        the client in its line, which is what tells the person where a bad request came from."""
+        return ServerLog(self.guard, client)
 
     def debug(self, *args, **kwargs) -> None:
         pass
@@ -169,5 +176,7 @@ class ServerLog:
             self.own.exception(message, *args, exc_info=exc_info, **kwargs)
             return
         text = message % args if args else message
+        if self.client and ' from ' not in text:
+            text = f'{text} from {self.client}'
         reason = (str(exc_info.message) or type(exc_info).__name__).splitlines()[0][:120]
         self.guard._say(f'{text} refused ({exc_info.code}): {reason}')

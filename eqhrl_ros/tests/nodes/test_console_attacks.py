@@ -195,6 +195,22 @@ def test_a_malformed_request_is_one_line_in_the_log_not_a_traceback_each_time(co
     assert get(console.port, f'127.0.0.1:{console.port}') == 200  # and the page is served on
 
 
+def test_a_bad_requests_line_names_its_client_when_aiohttp_does_not(console):
+    """aiohttp before 3.10 (Ubuntu 24.04's python3-aiohttp is 3.9) logs `Error handling request`
+    without the client: each connection's log adds it, so the line still says where it came from."""
+    from aiohttp.http_exceptions import BadHttpMessage
+
+    lines = []
+    console.server.guard._log, console.server.guard._logged_at = lines.append, float('-inf')
+    with socket.create_connection(('127.0.0.1', console.port), timeout=5):
+        deadline = time.monotonic() + 5
+        while not console.server.guard.open and time.monotonic() < deadline:
+            time.sleep(0.02)
+        (connection,) = console.server.guard.open
+        connection.inner.logger.exception('Error handling request', exc_info=BadHttpMessage('bad'))  # as 3.9 calls it
+    assert len(lines) == 1 and lines[0].startswith('Error handling request from 127.0.0.1 refused (400)'), lines
+
+
 def test_what_the_page_shows_of_the_learner_and_the_env_is_never_a_strangers_beside_theirs(harness, ros_context):
     """Before, any node's learner/driver told the person who drives (a stranger's 'learner' while they
     drove), and any node's frames were the scene they steered by; its requests and statistics were
