@@ -25,7 +25,7 @@ INTERFACE_SRC := $(shell find eqhrl_interfaces -type f 2>/dev/null)
 PACKAGE_SRC := $(shell find eqhrl_ros -type f -not -path '*/tests/*' -not -path 'eqhrl_ros/build/*' \
 	-not -path '*.egg-info/*' -not -path '*/__pycache__/*' 2>/dev/null)
 
-.PHONY: system-deps setup ros2-tools lint test test-fast demo bench bench-seeds bench-pixels bench-learner bench-ros bench-flood bench-actors bench-multi-host bench-busy profile clean lock
+.PHONY: system-deps setup ros2-tools lint test test-fast test-noble demo bench bench-seeds bench-pixels bench-learner bench-ros bench-flood bench-actors bench-multi-host bench-busy profile clean lock
 
 setup: $(VENV)/.stamp-eqhrl_ros
 
@@ -89,6 +89,15 @@ PYTEST_WORKERS := -n $(TEST_WORKERS)
 
 test: system-deps setup ros2-tools lint
 	$(VENV)/bin/pytest eqhrl_ros/tests $(PYTEST_WORKERS) --durations=25
+
+# The suite with what rosdep installs on Ubuntu 24.04 (tools/noble-versions.txt: numpy 1.26,
+# scipy 1.11, aiohttp 3.9, ...) before the venv's newer pins, as a ROS install runs the nodes.
+# Not part of make test.
+NOBLE := $(BUILD)/noble
+test-noble: setup ros2-tools
+	rm -rf $(NOBLE)
+	$(VPY) -m pip install -q --no-deps --target $(NOBLE) -r tools/noble-versions.txt 2>&1 | $(PIP_QUIET)
+	PYTHONPATH=$(CURDIR)/$(NOBLE) $(VENV)/bin/pytest eqhrl_ros/tests $(PYTEST_WORKERS) --durations=10
 
 # A developer's loop: everything but the tests marked slow, stopping at the first failure.
 test-fast: setup
