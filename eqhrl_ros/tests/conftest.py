@@ -25,6 +25,7 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
 os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')  # pygame renders rgb_array frames without a display
 
+import contextlib  # noqa: E402
 import fcntl  # noqa: E402
 import shutil  # noqa: E402
 import subprocess  # noqa: E402
@@ -47,19 +48,25 @@ torch.set_num_threads(1)
 @pytest.fixture(autouse=True)
 def _alone_if_marked(request, tmp_path_factory):
     """Under pytest-xdist, a test marked ``alone`` (it asserts wall-clock timing) runs with no
-    other worker's test beside it. Each test holds the run's lock shared, an ``alone`` test holds
-    it exclusive; the turnstile lets a waiting ``alone`` test in before the next shared holder.
-    Without xdist there is one test at a time anyway."""
+    other worker's test beside it. Without xdist there is one test at a time anyway."""
     if 'PYTEST_XDIST_WORKER' not in os.environ:
         yield
         return
+    with _run_lock(tmp_path_factory, exclusive=request.node.get_closest_marker('alone') is not None):
+        yield  # released after the test's teardown
+
+
+@contextlib.contextmanager
+def _run_lock(tmp_path_factory, exclusive):
+    """The run's lock, over all its xdist workers: each test (and the colcon build) holds it
+    shared, an ``alone`` test exclusive. The turnstile lets a waiting ``alone`` test in before
+    the next shared holder."""
     run_folder = tmp_path_factory.getbasetemp().parent  # above each worker's own basetemp
-    alone = request.node.get_closest_marker('alone') is not None
     with open(run_folder / 'tests.turnstile', 'a') as turnstile, open(run_folder / 'tests.lock', 'a') as lock:
         fcntl.flock(turnstile, fcntl.LOCK_EX)
-        fcntl.flock(lock, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)  # an alone test waits for the other's end
+        fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)  # exclusive: waits for the others
         fcntl.flock(turnstile, fcntl.LOCK_UN)
-        yield  # both are released when the files close, after the test's teardown
+        yield  # both are released when the files close
 
 
 @pytest.fixture
@@ -106,7 +113,8 @@ def colcon_install(tmp_path_factory):
         if not (workspace / 'install').is_dir():
             shutil.rmtree(workspace, ignore_errors=True)  # what a failed build left
             workspace.mkdir()
-            return _colcon_build(workspace)
+            with _run_lock(tmp_path_factory, exclusive=False):  # a session fixture: not under a test's lock
+                return _colcon_build(workspace)
     return workspace / 'install'
 
 
