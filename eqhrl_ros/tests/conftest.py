@@ -60,12 +60,13 @@ def _alone_if_marked(request, tmp_path_factory):
 def _run_lock(tmp_path_factory, exclusive):
     """The run's lock, over all its xdist workers: each test (and the colcon build) holds it
     shared, an ``alone`` test exclusive. The turnstile lets a waiting ``alone`` test in before
-    the next shared holder."""
+    the next shared holder. POSIX record locks (lockf), which belong to the worker process: a
+    child that a test forks and leaves behind does not hold them, as it held flock's."""
     run_folder = tmp_path_factory.getbasetemp().parent  # above each worker's own basetemp
-    with open(run_folder / 'tests.turnstile', 'a') as turnstile, open(run_folder / 'tests.lock', 'a') as lock:
-        fcntl.flock(turnstile, fcntl.LOCK_EX)
-        fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)  # exclusive: waits for the others
-        fcntl.flock(turnstile, fcntl.LOCK_UN)
+    with open(run_folder / 'tests.turnstile', 'a+') as turnstile, open(run_folder / 'tests.lock', 'a+') as lock:
+        fcntl.lockf(turnstile, fcntl.LOCK_EX)
+        fcntl.lockf(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)  # exclusive: waits for the others
+        fcntl.lockf(turnstile, fcntl.LOCK_UN)
         yield  # both are released when the files close
 
 
@@ -108,8 +109,8 @@ def colcon_install(tmp_path_factory):
         return _colcon_build(tmp_path_factory.mktemp('ws'))
     run_folder = tmp_path_factory.getbasetemp().parent  # above each worker's own basetemp
     workspace = run_folder / 'colcon_ws'
-    with open(run_folder / 'colcon_ws.lock', 'w') as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+    with open(run_folder / 'colcon_ws.lock', 'a+') as lock:
+        fcntl.lockf(lock, fcntl.LOCK_EX)  # released when the file closes
         if not (workspace / 'install').is_dir():
             shutil.rmtree(workspace, ignore_errors=True)  # what a failed build left
             workspace.mkdir()
