@@ -174,9 +174,8 @@ def main(argv=None) -> int:
         flush=True,
     )
     count, start = EpisodeCount(len(todo) * settings.episodes), time.monotonic()
-    progress = progress_queue(args.cluster)
     try:
-        with stopping_like_ctrl_c(), run_pool(jobs, args.cluster) as pool:
+        with stopping_like_ctrl_c(), progress_queue(args.cluster) as progress, run_pool(jobs, args.cluster) as pool:
             tasks = submit_runs(
                 pool, settings, args.algorithms, todo, output, progress, together, jobs, args.through_ros
             )

@@ -129,9 +129,17 @@ def run_pool(jobs: int, cluster: str = ''):
         pool.close()
 
 
+@contextlib.contextmanager
 def progress_queue(cluster: str):
-    """A queue the runs report episodes to: a Manager's on this machine, none across hosts."""
-    return NoProgress() if cluster else mp.Manager().Queue()
+    """A queue the runs report episodes to: a Manager's on this machine, none across hosts.
+    The Manager is spawned, as the pool is, and shut down on the way out: forked (the default),
+    it copied a process with threads (rclpy's, torch's) with its open files and locks, and
+    outlived the command until the garbage collector found it."""
+    if cluster:
+        yield NoProgress()
+        return
+    with mp.get_context('spawn').Manager() as manager:
+        yield manager.Queue()
 
 
 @contextlib.contextmanager

@@ -153,10 +153,13 @@ def run_study(plan: Plan, settings: dict, output: Path, todo: list, jobs: int, c
     ``cluster``); a matched run starts once the run it matches is finished. Gathers after each
     run. Returns (exit status, runs finished)."""
     start = time.monotonic()
-    progress = progress_queue(cluster)
     finished, pending, running = 0, list(todo), {}
     try:
-        with stopping_like_ctrl_c(), run_pool(max(1, min(jobs, len(todo) or 1)), cluster) as pool:
+        with (
+            stopping_like_ctrl_c(),
+            progress_queue(cluster) as progress,
+            run_pool(max(1, min(jobs, len(todo) or 1)), cluster) as pool,
+        ):
             if cluster:
                 print(f'on the Dask cluster at {cluster}: {pool.slots} worker threads', flush=True)
             while pending or running:

@@ -50,8 +50,27 @@ def tiny_run(output, *extra):
 
 
 @pytest.mark.slow
+def children_of_this_process() -> set:
+    """Live child processes of this one, but multiprocessing's resource tracker (one per
+    process, started by the first spawn and kept on purpose)."""
+    found = set()
+    for pid in filter(str.isdigit, os.listdir('/proc')):
+        try:
+            stat = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+            command = Path(f'/proc/{pid}/cmdline').read_bytes()
+        except OSError:
+            continue
+        if int(stat[1]) == os.getpid() and stat[0] != 'Z' and b'resource_tracker' not in command:
+            found.add(int(pid))
+    return found
+
+
 def test_runner_writes_the_documented_columns_and_resume_skips_finished_runs(tmp_path, capsys):
+    before = children_of_this_process()
     assert tiny_run(tmp_path) == 0
+    # Its progress queue's Manager was forked and outlived the command, with this process's open
+    # files and locks (it held the test run's lock and stopped the other xdist worker).
+    assert children_of_this_process() - before == set()
     rows = read(tmp_path / 'episodes.csv')
     assert tuple(rows[0].keys()) == gather.COLUMNS
     assert len(rows) == 2 * 2 * 2
