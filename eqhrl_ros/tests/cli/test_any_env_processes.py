@@ -50,6 +50,7 @@ def test_learner_and_expert_started_first_wait_for_the_example_env_then_learn(tm
     assert sum(int(r['success']) for r in rows) > 0  # the env reports its verdict
 
 
+@pytest.mark.alone  # its runs take ROS domains of their own (domain_ids): maybe the other worker's
 def test_the_experiment_runner_drives_a_users_env_node_by_command(tmp_path, capsys):
     params = tmp_path / 'di.yaml'
     params.write_text(

@@ -249,6 +249,7 @@ def test_episodes_to_reach_is_nan_when_never_reached():
 
 
 @pytest.mark.slow
+@pytest.mark.alone  # its runs take ROS domains of their own (domain_ids): maybe the other worker's
 def test_in_process_and_through_ros_give_the_same_numbers(tmp_path):
     """Lock-step ROS runs the same algorithm on the same seed: the same episodes, with the
     same advice, and returns equal up to float32 rounding of rewards in the messages."""

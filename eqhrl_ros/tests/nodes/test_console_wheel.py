@@ -9,6 +9,7 @@ in seconds, set on the page, ending a stretch within a step.
 
 import time
 
+import pytest
 from test_advice_console import Graph, browser, wait_for  # noqa: F401 (browser: the fixture)
 
 from eqhrl_ros.nodes.advice_console_node import AdviceConsole
@@ -21,6 +22,7 @@ from ros_helpers import applied_actions, params, small_learner_params
 RATE_HZ = 30.0
 
 
+@pytest.mark.alone  # a real-time env at 30 Hz and a browser, waited on by the clock
 def test_a_person_takes_the_wheel_when_asked_and_the_page_tells_the_truth(browser, ros_context, tmp_path):  # noqa: F811
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.keys import Keys
