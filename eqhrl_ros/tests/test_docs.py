@@ -204,3 +204,11 @@ def test_on_a_ros_install_rosdep_and_the_readmes_pip_line_bring_every_module_the
         if not names & (pip_names | rosdep_names | optional):
             uncovered.append(f'{module} ({", ".join(sorted(names))})')
     assert not uncovered, f'imported, but neither a rosdep key of package.xml nor in the README pip line: {uncovered}'
+
+
+def test_the_label_rule_the_message_and_the_readme_state_is_the_cores():
+    from eqhrl_ros.core.envs.spec import MAX_LABEL_LENGTH
+
+    rule = f'printable text on one line, at most {MAX_LABEL_LENGTH} characters'
+    assert rule in ' '.join((INTERFACES / 'msg' / 'EnvInfo.msg').read_text().replace('#', ' ').split())
+    assert rule in README

@@ -38,6 +38,7 @@ from ..core.envs.spec import EnvSpec
 from ..parameters import CONSOLE_PARAMS
 from . import messages
 from .console_camera import LearnerCamera
+from .console_intake import request_shown, stats_shown
 from .console_server import AskedFrames, ConsoleServer, host_allowed, host_name, is_loopback  # noqa: F401
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .graph_trust import subscribe_from_one, subscribe_stop
@@ -45,7 +46,6 @@ from .params import declare, reject_unknown_overrides
 from .spinning import run_node, steady_clock
 from .teleop_expert_node import ANSWER_MARGIN_S
 
-OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
 # The learner parameters the page shows and may set.
 LEARNER_CONTROLS = ('advice_enabled', 'advising_budget', 'advising_budget_s')
 # Read, not set: what the page says about the run's end, how a request asks and when steering takes over.
@@ -112,6 +112,7 @@ class AdviceConsole(Node):
         self._camera_said = 0.0  # time.monotonic() the page was last told of refused camera frames
         self.input = PageInput()
         self.pages = 0  # open websockets
+        self.dropped = 0  # the learner's messages out of meaning (console_intake), not shown
         self.published = 0
 
         self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
@@ -167,57 +168,46 @@ class AdviceConsole(Node):
             self._bump()
 
     def _on_request(self, msg: AdviceRequest) -> None:
+        try:
+            request = request_shown(msg, self.spec.action_size if self.spec is not None else None)
+        except ValueError as why:
+            self._drop('learner/advice_request', why)
+            return
         # Decoded and encoded before the lock: the page waits for nothing.
         asked = AskedFrames.of_request(msg, self.asked, self.get_logger())
         with self.lock:
             if asked is not None and asked != self.asked:
                 self.asked, self.asked_number = asked, self.asked_number + 1
-            self.request = {
-                'outcome': OUTCOME_NAMES.get(msg.outcome, '?'),
-                'detail': msg.detail,
-                'episode': msg.episode,
-                'step': msg.step,
-                'discrepancy': _finite(msg.discrepancy),
-                'entropy': _finite(msg.entropy),
-                'timeout_s': float(msg.timeout_s),
-                'human': bool(msg.human),
-                'response_time_s': float(msg.response_time_s),
-                'proposed_action': [float(v) for v in msg.proposed_action],
-                'given_action': [float(v) for v in msg.given_action],
-                'wheel': bool(msg.wheel),
-                'steps_driven': int(msg.steps_driven),
-            }
+            self.request = request
             self.request_seen = time.monotonic()
             done = msg.outcome not in (AdviceRequest.PENDING, AdviceRequest.TAKEN)
             if done:
                 self.recent = [*self.recent, self.request][-RECENT_KEPT:]
-            if done and msg.human and math.isfinite(msg.response_time_s) and msg.response_time_s >= 0:
+            if done and msg.human:  # its seconds checked by request_shown
                 # The person's seconds on this request, until its episode's statistics count them:
                 # the page's budget in seconds runs down request by request, not episode by episode.
                 self.person_s_open[(msg.episode, msg.step)] = float(msg.response_time_s)
             self._bump()
 
     def _on_stats(self, msg: EpisodeStats) -> None:
+        try:
+            episode = stats_shown(msg)
+        except ValueError as why:
+            self._drop('learner/episode_stats', why)
+            return
         with self.lock:
-            self.episodes.append(
-                {
-                    'episode': msg.episode,
-                    'return': float(msg.episode_return),
-                    'asked': msg.advice_asked,
-                    'given': msg.advice_given,
-                    'human': msg.advice_human,
-                    'human_time_s': float(msg.human_time_s),
-                    'human_time_total_s': float(msg.human_time_total_s),
-                    'success': bool(msg.success),
-                    'takeover_steps': msg.takeover_steps,
-                    'takeover_s': float(msg.takeover_s),
-                    'asked_steps': msg.asked_steps,
-                }
-            )
+            self.episodes.append(episode)
             del self.episodes[:-EPISODES_KEPT]
             self.person_s_open = {k: s for k, s in self.person_s_open.items() if k[0] > msg.episode}
             self.takeover_s_open = {k: s for k, s in self.takeover_s_open.items() if k > msg.episode}
             self._bump()
+
+    def _drop(self, topic: str, why: ValueError) -> None:
+        self.dropped += 1
+        self.get_logger().warning(
+            f'a message on {topic} dropped, not shown on the page: {why} ({self.dropped} dropped so far)',
+            throttle_duration_sec=5.0,
+        )
 
     def _on_driver(self, msg: String) -> None:
         with self.lock:
@@ -486,10 +476,6 @@ def _parameters_read(future, names) -> dict:
     return {
         name: list(v) if not isinstance(v, (bool, int, float, str)) else v for name, v in read.items() if v is not None
     }
-
-
-def _finite(value: float) -> Optional[float]:
-    return float(value) if math.isfinite(value) else None  # JSON has no NaN (QASAC's E(s))
 
 
 def main(args=None):

@@ -37,7 +37,6 @@ KEYS = {'a': (0, -1), 'd': (0, +1), 'w': (1, +1), 's': (1, -1)}
 AXIS_KEYS = ('a/d', 'w/s')  # one pair of keys per action dimension
 CLEAR, HOME, REVERSE, RESET = '\x1b[2J', '\x1b[H', '\x1b[7m', '\x1b[0m'
 HIDE_CURSOR, SHOW_CURSOR = '\x1b[?25l', '\x1b[?25h'
-OUTCOME_NAMES = {v: k for k, v in messages.ADVICE_OUTCOMES.items()}
 
 
 class KeyboardTeleop(Node):
@@ -184,7 +183,7 @@ class KeyboardTeleop(Node):
             )
             lines.append(f'  move ({keys}) or press Enter to answer, x to skip')
         elif request:
-            last = OUTCOME_NAMES.get(request.outcome, '?')
+            last = messages.OUTCOME_NAMES.get(request.outcome, '?')
             if request.human:
                 last += f' after {request.response_time_s:.1f} s'
             lines.append(f'  learner: no request pending (last one: {last})')

@@ -52,6 +52,7 @@ ADVICE_OUTCOMES = {
     'failed': AdviceRequest.FAILED,
     'taken': AdviceRequest.TAKEN,
 }
+OUTCOME_NAMES = {number: name for name, number in ADVICE_OUTCOMES.items()}
 
 
 # learner/advice_request: the latest request stays available to a person's UI that starts later.

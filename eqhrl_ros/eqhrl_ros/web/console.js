@@ -66,6 +66,13 @@ function send(data) {
 
 function say(text) { $('message').textContent = text; }
 
+// Text from another node (an env's labels) made safe to put into markup: shown, never parsed.
+function escapeHtml(text) {
+  const holder = document.createElement('span');
+  holder.textContent = String(text);
+  return holder.innerHTML;
+}
+
 // ------------------------------------------------------------------ what the node sends
 
 // Images come as binary messages, each led by one byte that says which (console_server.py,
@@ -313,7 +320,7 @@ function drawBars() {
   };
   const yours = (i) => at(i, sent(i));
   bars.innerHTML = low.map((_, i) => {
-    const label = (state.env.action_labels[i] || `action[${i}]`);
+    const label = escapeHtml(state.env.action_labels[i] || `action[${i}]`);  // the env's words
     const p = proposed ? `<div class="mark proposed" style="left:${at(i, proposed[i])}%"></div>` : '';
     const value = sent(i);
     return `<div>${label} [${low[i]}, ${high[i]}]: <b data-action="${i}">${value >= 0 ? '+' : ''}${value.toFixed(2)}</b></div>` +

@@ -5,6 +5,7 @@ teleop_expert (answer window) <- teleop_command <- advice_console <- the page <-
 gamepad. The nodes spin in a thread of this process, so the test reads the learner's counts.
 """
 
+import math
 import os
 import re
 import socket
@@ -483,6 +484,89 @@ def test_an_experts_reason_is_shown_as_text_and_never_runs_on_the_page(browser, 
         wait_for(lambda: reason in browser.execute_script(recent), what='the reason shown as text')
         assert browser.execute_script("return document.querySelectorAll('#recent img, #request img').length") == 0
         assert browser.execute_script('return window.ran') is None
+    finally:
+        graph.close()
+
+
+def test_an_envs_action_labels_are_shown_as_text_and_never_run_on_the_page(browser, ros_context):
+    """The bars are labelled with the env's action_labels: its env_info, another node's words.
+    Before, a label was put into the page as markup, so an env announcing
+    '<img src=x onerror=...>' ran its script in the person's page (which holds STOP and the wheel)."""
+    import rclpy
+
+    from eqhrl_interfaces.msg import EnvInfo
+    from eqhrl_ros.nodes.env_info import ENV_INFO_QOS
+
+    label = '<img src=x onerror="window.ran = 1">force'
+    env = rclpy.create_node('env_stand_in', context=ros_context)
+    announce = env.create_publisher(EnvInfo, 'env_info', ENV_INFO_QOS)
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_node='/env_stand_in'))
+    graph = Graph(ros_context, [env, console])
+    try:
+        announce.publish(
+            EnvInfo(
+                publisher='/env_stand_in',
+                name='stand_in',
+                observation_size=2,
+                action_size=1,
+                action_labels=[label],
+                action_low=[-1.0],
+                action_high=[1.0],
+            )
+        )
+        wait_for(lambda: console.spec is not None, what="the env's env_info taken")
+        browser.get(console.url)
+        bars = "return document.getElementById('bars').textContent"
+        wait_for(lambda: label in browser.execute_script(bars), what='the label shown as text')
+        assert browser.execute_script("return document.querySelectorAll('#bars img').length") == 0
+        assert browser.execute_script('return window.ran') is None
+    finally:
+        graph.close()
+
+
+def test_a_learners_message_with_numbers_out_of_meaning_is_dropped_and_the_page_goes_on(browser, ros_context):
+    """A NaN return or a NaN wait in the learner's messages: before, the console sent them as JSON's
+    non-standard NaN, the page could not parse any state after that, and it froze (no request, no
+    episode) for as long as the message was kept: the latched request, or 500 episodes."""
+    import rclpy
+
+    from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
+    from eqhrl_ros.nodes import messages
+
+    learner = rclpy.create_node('learner', context=ros_context)
+    requests = learner.create_publisher(AdviceRequest, 'learner/advice_request', messages.LATCHED_QOS)
+    stats = learner.create_publisher(EpisodeStats, 'learner/episode_stats', 100)
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    graph = Graph(ros_context, [learner, console])
+    person = "return document.getElementById('person').textContent"
+    try:
+        browser.get(console.url)
+        wait_for(lambda: 'over 0 episodes' in browser.execute_script(person), what='the page up')
+
+        # One at a time: the request topic is latched with depth 1 (a newer request replaces one not yet read).
+        def taken(step):  # dropped, or (without the checks) shown
+            return lambda: (
+                getattr(console, 'dropped', 0) >= step or len(console.episodes) + bool(console.request) >= step
+            )
+
+        stats.publish(EpisodeStats(episode=0, length=10, episode_return=math.nan))
+        wait_for(taken(1))
+        requests.publish(AdviceRequest(outcome=AdviceRequest.PENDING, episode=0, step=3, timeout_s=math.inf))
+        wait_for(taken(2))
+        requests.publish(
+            AdviceRequest(outcome=AdviceRequest.PENDING, episode=1, step=4, timeout_s=5.0, proposed_action=[math.nan])
+        )
+        wait_for(lambda: getattr(console, 'dropped', 0) >= 3 or (console.request or {}).get('step') == 4)
+        stats.publish(EpisodeStats(episode=1, length=10, episode_return=-3.0))
+        requests.publish(
+            AdviceRequest(outcome=AdviceRequest.PENDING, episode=2, step=7, timeout_s=5.0, proposed_action=[0.5])
+        )
+        request = "return document.getElementById('request').textContent"
+        wait_for(
+            lambda: 'episode 2, step 7' in browser.execute_script(request), what=lambda: browser.execute_script(request)
+        )
+        assert 'over 1 episodes' in browser.execute_script(person)
+        assert console.dropped == 3
     finally:
         graph.close()
 

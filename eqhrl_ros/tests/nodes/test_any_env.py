@@ -51,6 +51,22 @@ def test_env_info_round_trips_and_a_self_contradicting_one_is_refused():
         EnvSpec('robot', 4, [1.0], [1.0])
 
 
+@pytest.mark.parametrize(
+    'label',
+    ['\x1b[2Jforce', 'force\nsecond line', 'f' * 65, 'x' * 1_000_000],
+    ids=['escape', 'newline', '65', 'megabyte'],
+)
+def test_a_label_that_is_not_one_short_printable_line_is_refused(label):
+    """Labels go to a person's page and terminal: an escape sequence, a second line or a long text
+    is refused, in a message of bounded length (not echoed whole)."""
+    with pytest.raises(ValueError, match='each label must be printable text on one line') as refused:
+        EnvSpec('robot', 2, [-1.0], [1.0], action_labels=(label,))
+    assert len(str(refused.value)) < 200 and '\x1b' not in str(refused.value)  # shown escaped
+    with pytest.raises(ValueError, match='observation label'):
+        EnvSpec('robot', 2, [-1.0], [1.0], observation_labels=('x', label))
+    assert EnvSpec('robot', 2, [-1.0], [1.0], ('θ (rad)', 'x<y & "z"'), ('f' * 64,)).action_labels == ('f' * 64,)
+
+
 def test_a_learner_without_env_id_waits_for_env_info_then_learns_from_the_example_env(
     harness, ros_context, tmp_path, caplog
 ):

@@ -24,6 +24,8 @@ SUCCESS_RULES = ('none', 'reported', 'return_at_least', 'pendulum_upright')
 # outside them is refused before a network of that size is made.
 MAX_OBSERVATION_SIZE = 1_000_000
 MAX_ACTION_SIZE = 10_000
+# A label names one value for a person (the console's bars, the record): a word or a few, on one line.
+MAX_LABEL_LENGTH = 64
 
 
 def builtin_success(name: str) -> tuple[str, float]:
@@ -163,6 +165,14 @@ class EnvSpec:
         ):
             if labels and len(labels) != size:
                 raise ValueError(f'{len(labels)} {kind} labels for {size} {kind} values{where}')
+            for label in labels:
+                if not (isinstance(label, str) and len(label) <= MAX_LABEL_LENGTH and label.isprintable()):
+                    text = str(label)
+                    quoted = repr(text) if len(text) <= 40 else f'{text[:40]!r}... ({len(text)} characters)'
+                    raise ValueError(
+                        f'{kind} label {quoted}: each label must be printable text on one line, at most '
+                        f'{MAX_LABEL_LENGTH} characters{where}'
+                    )
         if self.success_rule not in SUCCESS_RULES:
             raise ValueError(f'success rule {self.success_rule!r} is not one of {SUCCESS_RULES}{where}')
         if not math.isfinite(self.success_threshold):
