@@ -25,6 +25,7 @@ import errno
 import hmac
 import ipaddress
 import json
+import math
 import threading
 import time
 from importlib import resources
@@ -127,6 +128,24 @@ def jpeg(frame: Image, quality: int) -> Optional[bytes]:
 
 def _static(name: str) -> str:
     return resources.files('eqhrl_ros').joinpath('web', name).read_text()
+
+
+def page_json(state) -> str:
+    """The state as JSON a browser parses: a number that is not finite becomes null (JSON has no
+    NaN, and a page's JSON.parse refused the whole state that held one: the page froze). What the
+    console takes is checked by meaning first (console_intake.py); this is the last guard, for
+    what it reads besides (the learner's and teleop_expert's parameters)."""
+
+    def finite(value):
+        if isinstance(value, float):
+            return value if math.isfinite(value) else None
+        if isinstance(value, dict):
+            return {key: finite(v) for key, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [finite(v) for v in value]
+        return value
+
+    return json.dumps(finite(state), allow_nan=False)
 
 
 class ConsoleServer:
@@ -287,7 +306,7 @@ class ConsoleServer:
                 png = await self._loop.run_in_executor(None, camera_frames.png_bytes, camera[None])
                 await socket.send_bytes(IMAGE_KINDS['camera'] + png)
             if state is not None:
-                await socket.send_str(json.dumps(state))
+                await socket.send_str(page_json(state))
             if frame is not None:
                 data = await self._loop.run_in_executor(None, jpeg, frame, self.params['jpeg_quality'])
                 if data:

@@ -251,3 +251,22 @@ def test_what_the_page_shows_of_the_learner_and_the_env_is_never_a_strangers_bes
     harness.spin_until(lambda: False, timeout=0.6)
     said = console.take_input({'type': 'stop', 'stopped': False})
     assert said.startswith('not released, the robot stays stopped') and console.stopped
+
+
+def test_the_state_a_page_gets_is_strict_json_with_null_for_numbers_that_are_not_finite():
+    """A browser's JSON.parse refuses NaN and Infinity (Python's json writes them by default)."""
+    import json
+    import math
+
+    from eqhrl_ros.nodes.console_server import page_json
+
+    def strict(constant):
+        raise ValueError(f'{constant} is not JSON')
+
+    state = {'learner': {'advising_budget_s': math.nan}, 'episodes': [{'return': -math.inf}], 'n': 3, 't': (1.5, 'x')}
+    assert json.loads(page_json(state), parse_constant=strict) == {
+        'learner': {'advising_budget_s': None},
+        'episodes': [{'return': None}],
+        'n': 3,
+        't': [1.5, 'x'],
+    }
