@@ -43,6 +43,19 @@ MAX_PAGE_MESSAGE = 4096  # bytes; the page sends small JSON only
 STOPPING = 'advice_console is stopping'  # what the page shows when the console goes
 # The first byte of an image sent to the page: which image it is (console.js reads the same).
 IMAGE_KINDS = {'env': b'E', 'asked': b'A', 'camera': b'C'}
+# What the browser is told with every response: only the page's own script runs (markup from
+# another node that got into the page would not run), it talks to this server only, no other site
+# may frame it (a framed STOP or RESUME under a decoy: clickjacking), and the token in its address
+# is never sent on as a referrer.
+PAGE_HEADERS = {
+    'Content-Security-Policy': (
+        "default-src 'none'; script-src 'self'; connect-src 'self'; img-src 'self' blob: data:; "
+        "style-src 'self' 'unsafe-inline'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'"
+    ),
+    'X-Frame-Options': 'DENY',
+    'X-Content-Type-Options': 'nosniff',
+    'Referrer-Policy': 'no-referrer',
+}
 
 
 def is_loopback(host: str) -> bool:
@@ -148,6 +161,10 @@ def page_json(state) -> str:
     return json.dumps(finite(state), allow_nan=False)
 
 
+async def _add_page_headers(request: web.Request, response: web.StreamResponse) -> None:
+    response.headers.update(PAGE_HEADERS)
+
+
 class ConsoleServer:
     """The page's HTTP server for ``console`` (module docstring); ``start()`` raises OSError when
     it cannot serve (the port taken, the host unknown)."""
@@ -198,6 +215,7 @@ class ConsoleServer:
         app.router.add_get('/', self._page)
         app.router.add_get('/console.js', self._script)
         app.router.add_get('/ws', self._websocket)
+        app.on_response_prepare.append(_add_page_headers)
         # A short keep-alive: a connection that made its request and then idles gives its place back.
         self._runner = web.AppRunner(app, access_log=None, keepalive_timeout=5.0, logger=ServerLog(self.guard))
         await self._runner.setup()

@@ -571,6 +571,35 @@ def test_a_learners_message_with_numbers_out_of_meaning_is_dropped_and_the_page_
         graph.close()
 
 
+def test_no_other_site_can_frame_the_page(browser, ros_context, tmp_path):
+    """Before, a site open in the person's browser could frame the page (the frame's websocket came
+    from the console's own origin, so it was let in) and lay a decoy over STOP or RESUME."""
+    import functools
+    import http.server
+
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    graph = Graph(ros_context, [console])
+    (tmp_path / 'decoy.html').write_text(f'<iframe src="{console.url}" width="900" height="700"></iframe>')
+    quiet = type('Quiet', (http.server.SimpleHTTPRequestHandler,), {'log_message': lambda *args: None})
+    site = http.server.ThreadingHTTPServer(('127.0.0.1', 0), functools.partial(quiet, directory=str(tmp_path)))
+    threading.Thread(target=site.serve_forever, daemon=True).start()
+    try:
+        # Another site: another origin (localhost, not the console's 127.0.0.1, and another port).
+        browser.get(f'http://localhost:{site.server_address[1]}/decoy.html')
+
+        def refused():
+            return any('frame-ancestors' in entry['message'] for entry in browser.get_log('browser'))
+
+        wait_for(refused, what="the browser's refusal to frame the page")
+        assert console.pages == 0  # no page of the frame ever connected
+        browser.get(console.url)  # opened as itself, it works under the same policy
+        wait_for(lambda: console.pages == 1, what='the page connected')
+        assert browser.execute_script("return document.getElementById('env').textContent") == 'env: Pendulum-v1'
+    finally:
+        site.shutdown()
+        graph.close()
+
+
 def test_the_page_shows_the_frames_a_camera_learner_asked_about_pixel_for_pixel(browser, ros_context):
     """A camera learner's request carries the stack it asks about (learner/advice_request frames):
     the page shows it beside the env's rendering, at the learner's size and drawn in whole pixels,
