@@ -212,3 +212,48 @@ def test_the_label_rule_the_message_and_the_readme_state_is_the_cores():
     rule = f'printable text on one line, at most {MAX_LABEL_LENGTH} characters'
     assert rule in ' '.join((INTERFACES / 'msg' / 'EnvInfo.msg').read_text().replace('#', ' ').split())
     assert rule in README
+
+
+def _documented_commands():
+    """Each eqhrl-* command in a code block of the READMEs and docs/*.md: (file, program, argv)."""
+    import re
+    import shlex
+
+    root = Path(__file__).resolve().parents[2]
+    for path in [root / 'README.md', root / 'eqhrl_ros' / 'README.md', *sorted((root / 'docs').glob('*.md'))]:
+        for block in re.findall(r'```[a-z]*\n(.*?)```', path.read_text(), re.S):
+            for line in re.sub(r'\\\n\s*', ' ', block).splitlines():
+                found = re.match(r'\s*(?:\.venv/bin/)?(eqhrl-[a-z-]+)\s+(.*)', line)
+                if found:
+                    words = re.split(r'\s+#', found.group(2))[0]
+                    yield path.relative_to(root), found.group(1), shlex.split(words.replace('"$E"', 'E'))
+
+
+def test_every_documented_eqhrl_command_is_one_its_program_takes(monkeypatch):
+    """Each documented command line is parsed by its own program's parser (run no further): a flag
+    renamed or a choice dropped in the code, and left in the docs, fails here."""
+    import argparse
+    import importlib
+
+    class Parsed(Exception):
+        pass
+
+    parse = argparse.ArgumentParser.parse_args
+
+    def parse_only(self, args=None, namespace=None):
+        raise Parsed(parse(self, args, namespace))
+
+    monkeypatch.setattr(argparse.ArgumentParser, 'parse_args', parse_only)
+    commands = list(_documented_commands())
+    assert len(commands) >= 40
+    refused = []
+    for path, program, argv in commands:
+        main = importlib.import_module(f'eqhrl_ros.cli.{program[len("eqhrl-") :].replace("-", "_")}').main
+        try:
+            main(argv)
+            refused.append(f'{path}: {program} {argv}: ran without parsing its arguments')
+        except Parsed:
+            pass
+        except SystemExit as error:
+            refused.append(f'{path}: {program} {" ".join(argv)}: exit {error.code}')
+    assert not refused, refused
