@@ -39,7 +39,7 @@ from ..parameters import CONSOLE_PARAMS
 from . import messages
 from .console_camera import LearnerCamera
 from .console_intake import request_shown, stats_shown
-from .console_server import AskedFrames, ConsoleServer, host_allowed, host_name, is_loopback  # noqa: F401
+from .console_server import AskedFrames, ConsoleServer, host_allowed, host_name, is_loopback, page_token, page_url  # noqa: F401
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .graph_trust import subscribe_from_one, subscribe_stop
 from .params import declare, reject_unknown_overrides
@@ -78,10 +78,11 @@ class AdviceConsole(Node):
         super().__init__('advice_console', **kwargs)
         reject_unknown_overrides(self, CONSOLE_PARAMS)
         self.params = p = declare(self, CONSOLE_PARAMS)
-        if not is_loopback(p['host']) and not p['token']:
+        self.token = page_token(p)  # never logged: /rosout is the graph's
+        if not is_loopback(p['host']) and not self.token:
             raise ValueError(
                 f'host {p["host"]!r} lets other machines reach the page, and whoever reaches it can steer '
-                'the robot: set a token (the page is then opened with ?token=...)'
+                'the robot: set a token_file (the page is then opened with ?token=<its content>)'
             )
         self.allowed_names = {
             'localhost',
@@ -137,7 +138,7 @@ class AdviceConsole(Node):
 
         self.server = ConsoleServer(self, p, self.allowed_names, self.get_logger().warning)
         self.server.start()
-        self.get_logger().info(f'the person opens {self.url} (whoever reaches it can steer the robot)')
+        self._say_where()
 
     @property
     def guard(self):
@@ -149,10 +150,22 @@ class AdviceConsole(Node):
 
     @property
     def url(self) -> str:
-        host = self.params['host']
-        shown_host = f'[{host}]' if ':' in host else host
-        token = f'?token={self.params["token"]}' if self.params['token'] else ''
-        return f'http://{shown_host}:{self.port}/{token}'
+        return page_url(self.params['host'], self.port, self.token)
+
+    def _say_where(self) -> None:
+        """The page's address in the log, its token as a placeholder: the log goes to /rosout."""
+        if not self.token:
+            self.get_logger().info(f'the person opens {self.url} (whoever reaches it can steer the robot)')
+            return
+        where = 'token_file' if self.params['token_file'] else 'the token parameter'
+        self.get_logger().info(
+            f'the person opens {page_url(self.params["host"], self.port, "<token>")}, <token> as in {where}'
+        )
+        if not self.params['token_file']:
+            self.get_logger().warning(
+                'the token parameter can be read by any node on the ROS graph (ros2 param get /advice_console '
+                'token): give it in a token_file instead'
+            )
 
     # ------------------------------------------------------------------ ROS side
 

@@ -36,6 +36,7 @@ from aiohttp import WSMsgType, web
 from sensor_msgs.msg import Image
 
 from ..core.data import camera_frames
+from ..core.data.signing import read_key
 from .connection_guard import ConnectionGuard, GuardedProtocol, ServerLog
 from .frame_msgs import frame_of, stack_of
 
@@ -56,6 +57,27 @@ PAGE_HEADERS = {
     'X-Content-Type-Options': 'nosniff',
     'Referrer-Policy': 'no-referrer',
 }
+
+
+def page_token(params: dict) -> str:
+    """The secret the page's address must carry: token_file's content, or the token parameter
+    ('': none). ValueError (a start-up refusal) when both are given or the file cannot be one."""
+    if params['token'] and params['token_file']:
+        raise ValueError('give token or token_file, not both')
+    if not params['token_file']:
+        return params['token']
+    secret = read_key(params['token_file'], 'token file')
+    try:
+        return secret.decode('ascii')
+    except UnicodeDecodeError:
+        raise ValueError(
+            f'token file {params["token_file"]}: the token must be ASCII text (it goes in an address)'
+        ) from None
+
+
+def page_url(host: str, port: int, token: str) -> str:
+    shown_host = f'[{host}]' if ':' in host else host
+    return f'http://{shown_host}:{port}/' + (f'?token={token}' if token else '')
 
 
 def is_loopback(host: str) -> bool:
@@ -236,7 +258,7 @@ class ConsoleServer:
         return await handler(request)
 
     def _authorized(self, request: web.Request) -> bool:
-        token = self.params['token']
+        token = self.console.token
         return not token or hmac.compare_digest(request.query.get('token', ''), token)
 
     async def _page(self, request: web.Request) -> web.Response:

@@ -176,7 +176,19 @@ CONSOLE_PARAMS = (
         'machines steer the robot and needs a token',
     ),
     Param('port', 8080, 'TCP port of the page (0: any free port, logged at start)', (0, 65535)),
-    Param('token', '', 'Secret the page address must carry (?token=...); required when host is not localhost'),
+    Param(
+        'token',
+        '',
+        'Secret the page address must carry (?token=...); a token or token_file is required when host is not '
+        'localhost. Any node on the graph can read this parameter (ros2 param get): prefer token_file',
+    ),
+    Param(
+        'token_file',
+        '',
+        'A file holding the secret the page address must carry (?token=<its content>; made like key_file), '
+        'which, unlike token, no node on the graph can read',
+        path=True,
+    ),
     Param(
         'allowed_hosts',
         None,

@@ -277,6 +277,63 @@ def test_the_console_refuses_another_host_without_a_token_and_checks_the_token(r
         console.destroy_node()
 
 
+def test_the_pages_token_comes_from_a_file_and_never_reaches_the_graphs_log(ros_context, tmp_path):
+    """Before, the token was only a parameter, which any node on the graph reads (ros2 param get),
+    and the start-up line, which goes to /rosout for every node to read, carried it whole."""
+    import urllib.error
+    import urllib.request
+
+    import rclpy
+    from rcl_interfaces.msg import Log
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+
+    secret = 'c0ffee' * 6
+    (tmp_path / 'console.token').write_text(secret + '\n')
+    heard = []
+
+    def rosout_listener():  # made before each console, so that it hears its start
+        listener = rclpy.create_node('rosout_listener', context=ros_context)
+        rosout_qos = QoSProfile(depth=1000, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        listener.create_subscription(Log, '/rosout', lambda m: heard.append((m.name, m.msg)), rosout_qos)
+        return listener
+
+    listener = rosout_listener()
+    console = AdviceConsole(
+        context=ros_context, parameter_overrides=params(port=0, token_file=str(tmp_path / 'console.token'))
+    )
+    graph = Graph(ros_context, [listener, console])
+    try:
+        wait_for(lambda: any('the person opens' in text for _, text in heard), what='the start-up line on /rosout')
+        assert not any(secret in text for _, text in heard)
+        assert any(f':{console.port}/?token=<token>, <token> as in token_file' in text for _, text in heard)
+        assert console.get_parameter('token').value == ''
+        base = f'http://127.0.0.1:{console.port}/'
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(base + '?token=guess', timeout=5)
+        assert refused.value.code == 403
+        assert b'advice console' in urllib.request.urlopen(base + f'?token={secret}', timeout=5).read()
+    finally:
+        graph.close()
+    heard.clear()
+    listener = rosout_listener()
+    console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, token=secret))
+    graph = Graph(ros_context, [listener, console])
+    try:
+        wait_for(lambda: any('can be read by any node' in text for _, text in heard), what='the warning')
+        assert not any(secret in text for _, text in heard)
+    finally:
+        graph.close()
+    with pytest.raises(ValueError, match='give token or token_file, not both'):
+        AdviceConsole(
+            context=ros_context, parameter_overrides=params(token='x' * 16, token_file=str(tmp_path / 'console.token'))
+        )
+    (tmp_path / 'short.token').write_text('abc')
+    with pytest.raises(ValueError, match='token file .*short.token: 3 bytes; at least 16'):
+        AdviceConsole(
+            context=ros_context, parameter_overrides=params(host='0.0.0.0', token_file=str(tmp_path / 'short.token'))
+        )
+
+
 def test_the_console_checks_what_the_page_sends(ros_context):
     console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, env_id='Pendulum-v1'))
     try:

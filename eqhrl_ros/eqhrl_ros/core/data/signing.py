@@ -31,19 +31,19 @@ class KeyFileError(ValueError):
     """A key file that cannot serve: missing, unreadable, too short or too long."""
 
 
-def read_key(path) -> bytes:
+def read_key(path, what: str = 'key file') -> bytes:
     """The secret in ``path`` (surrounding whitespace stripped), or KeyFileError saying why not."""
     path = Path(path)
     try:
         info = path.stat()
         if info.st_size > MAX_KEY_BYTES:
-            raise KeyFileError(f'key file {path}: {info.st_size} bytes; a key is {MIN_KEY_BYTES} to {MAX_KEY_BYTES}')
+            raise KeyFileError(f'{what} {path}: {info.st_size} bytes; a secret is {MIN_KEY_BYTES} to {MAX_KEY_BYTES}')
         key = path.read_bytes().strip()
     except OSError as error:
-        raise KeyFileError(f'key file {path}: cannot be read ({error.strerror or error})') from None
+        raise KeyFileError(f'{what} {path}: cannot be read ({error.strerror or error})') from None
     if len(key) < MIN_KEY_BYTES:
         raise KeyFileError(
-            f'key file {path}: {len(key)} bytes; at least {MIN_KEY_BYTES} (e.g. '
+            f'{what} {path}: {len(key)} bytes; at least {MIN_KEY_BYTES} (e.g. '
             f"python3 -c 'import secrets; print(secrets.token_hex(32))' > {path.name})"
         )
     return key
