@@ -121,6 +121,44 @@ def test_a_learner_told_a_camera_the_env_does_not_announce_stops_saying_which_it
     assert "the env announces no camera 'front' (its cameras: none)" in node.exit_error
 
 
+@pytest.mark.parametrize('topic', ['bad topic!', '2d/front', 'front/', 'a//b', '~x', 'cam/{node}', 'c' * 256])
+def test_a_camera_topic_that_is_no_ros_name_is_refused_in_one_line(topic):
+    with pytest.raises(ValueError, match='is not a ROS topic name') as refused:
+        EnvCamera('camera', topic, 24, 24, 'mono8')
+    assert len(str(refused.value)) < 300
+    for good in ('camera', '/robot/front_cam', '~/image_raw', 'c' * 255):
+        assert EnvCamera('camera', good, 24, 24, 'mono8').topic == good
+    with pytest.raises(ValueError, match='camera name'):
+        EnvCamera('front\x1b[2J', 'camera', 24, 24, 'mono8')
+
+
+def test_a_learner_refuses_an_env_info_whose_camera_topic_is_no_ros_name(harness, ros_context, tmp_path):
+    """Before, the learner subscribed to the announced topic as it started, rclpy raised there, and
+    the node stopped with a traceback."""
+    import rclpy
+    from std_msgs.msg import Float32MultiArray
+
+    from eqhrl_interfaces.msg import CameraPart, EnvInfo
+    from eqhrl_ros.nodes import env_info
+
+    env = harness.add(rclpy.create_node('fake_env', context=ros_context))
+    env.create_publisher(Float32MultiArray, 'observation', 10)
+    camera = CameraPart(name='camera', topic='bad topic!', height=24, width=24, encoding='mono8')
+    msg = EnvInfo(
+        publisher='/fake_env',
+        name='cam_env',
+        observation_size=3,
+        action_size=1,
+        action_low=[-2.0],
+        action_high=[2.0],
+        cameras=[camera],
+    )
+    env.create_publisher(EnvInfo, 'env_info', env_info.ENV_INFO_QOS).publish(msg)
+    node = harness.add(camera_learner(ros_context, tmp_path))
+    assert harness.spin_until(lambda: getattr(node, 'exit_error', None), timeout=15)
+    assert "topic 'bad topic!' is not a ROS topic name" in node.exit_error and node.learner is None
+
+
 def test_the_record_holds_each_frame_once_and_a_later_camera_learner_takes_its_advice_with_the_frames(
     harness, ros_context, tmp_path
 ):

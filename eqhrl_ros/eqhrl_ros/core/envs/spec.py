@@ -8,6 +8,7 @@ No gymnasium and no torch here, so that light nodes (a teleop) can read it.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field, fields
 from typing import Optional
 
@@ -26,6 +27,11 @@ MAX_OBSERVATION_SIZE = 1_000_000
 MAX_ACTION_SIZE = 10_000
 # A label names one value for a person (the console's bars, the record): a word or a few, on one line.
 MAX_LABEL_LENGTH = 64
+# A topic a node subscribes to because an env announced it (a camera's): a ROS name, relative,
+# absolute or private (~/...), with no substitution. Before, another name raised in the middle
+# of the learner's (or the person's console's) start, where it stopped the node with a traceback.
+TOPIC_NAME = re.compile(r'(?:~/|/)?[A-Za-z_][A-Za-z0-9_]*(?:/[A-Za-z_][A-Za-z0-9_]*)*')
+MAX_TOPIC_LENGTH = 255
 
 
 def builtin_success(name: str) -> tuple[str, float]:
@@ -84,6 +90,20 @@ class CameraSpec:
         return self.stack * self.height * self.width * self.channels
 
 
+def check_label(what: str, label, where: str = '') -> None:
+    """A name a person reads (a label, a camera's name): ValueError unless one short printable line."""
+    if not (isinstance(label, str) and len(label) <= MAX_LABEL_LENGTH and label.isprintable()):
+        raise ValueError(
+            f'{what} {_quoted(str(label))}: each label must be printable text on one line, at most '
+            f'{MAX_LABEL_LENGTH} characters{where}'
+        )
+
+
+def _quoted(text: str) -> str:
+    """Another node's text in a message: escaped, and cut when long."""
+    return repr(text) if len(text) <= 40 else f'{text[:40]!r}... ({len(text)} characters)'
+
+
 @dataclass(frozen=True)
 class EnvCamera:
     """A camera an env announces beside its observation vector (EnvInfo.cameras): its name, the
@@ -100,6 +120,12 @@ class EnvCamera:
 
         if not self.name or not self.topic:
             raise ValueError(f'a camera needs a name and a topic, got {self.name!r} on {self.topic!r}')
+        check_label('camera name', self.name)
+        if len(self.topic) > MAX_TOPIC_LENGTH or not TOPIC_NAME.fullmatch(self.topic):
+            raise ValueError(
+                f'camera {self.name!r}: topic {_quoted(self.topic)} is not a ROS topic name (letters, digits and _ '
+                f'in parts joined by /, none starting with a digit, at most {MAX_TOPIC_LENGTH} characters)'
+            )
         if self.encoding not in ENCODINGS:
             raise ValueError(f'camera {self.name!r}: encoding {self.encoding!r} is not one of {", ".join(ENCODINGS)}')
         if not (1 <= self.height and 1 <= self.width and self.height * self.width <= MAX_CAMERA_PIXELS):
@@ -166,13 +192,7 @@ class EnvSpec:
             if labels and len(labels) != size:
                 raise ValueError(f'{len(labels)} {kind} labels for {size} {kind} values{where}')
             for label in labels:
-                if not (isinstance(label, str) and len(label) <= MAX_LABEL_LENGTH and label.isprintable()):
-                    text = str(label)
-                    quoted = repr(text) if len(text) <= 40 else f'{text[:40]!r}... ({len(text)} characters)'
-                    raise ValueError(
-                        f'{kind} label {quoted}: each label must be printable text on one line, at most '
-                        f'{MAX_LABEL_LENGTH} characters{where}'
-                    )
+                check_label(f'{kind} label', label, where)
         if self.success_rule not in SUCCESS_RULES:
             raise ValueError(f'success rule {self.success_rule!r} is not one of {SUCCESS_RULES}{where}')
         if not math.isfinite(self.success_threshold):
