@@ -177,3 +177,15 @@ def run_learner(harness, ros_context, tmp_path, episodes=3, **extra):
     )
     assert harness.spin_until(lambda: learner.done, timeout=60)
     return learner, probe
+
+
+def rosout_listener(context, heard: list):
+    """A node that appends (logger name, text) of each /rosout line to ``heard``; make it before the
+    node to hear, so that it hears that node's start too."""
+    from rcl_interfaces.msg import Log
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+
+    listener = rclpy.create_node('rosout_listener', context=context)
+    qos = QoSProfile(depth=1000, durability=DurabilityPolicy.TRANSIENT_LOCAL)  # as rosout publishes
+    listener.create_subscription(Log, '/rosout', lambda m: heard.append((m.name, m.msg)), qos)
+    return listener

@@ -30,6 +30,7 @@ __all__ = ['OBSERVATION_QOS', 'LearnerNode', 'main']
 class LearnerNode(RunFiles, ActingNode):
     def __init__(self, **kwargs):
         super().__init__('learner', LEARNER_NODE_PARAMS, **kwargs)
+        self._diverged_said = 0  # updates with a loss that is not finite, as last said in the log
 
     def _before_start(self) -> None:
         self._open_run_folder()
@@ -123,6 +124,7 @@ class LearnerNode(RunFiles, ActingNode):
 
     def _transition(self, obs, action, reward, next_obs, terminated, truncated, advised, success, source):
         summary = self.learner.step(obs, action, reward, next_obs, terminated, truncated, advised, success)
+        self._say_diverged()
         if self.recording is not None:  # stored: learner.step refuses a bad one with ValueError
             normalized = self.learner.normalize(action)
             observation = self.learner.observation
@@ -133,6 +135,20 @@ class LearnerNode(RunFiles, ActingNode):
                 (state, normalized, reward, next_state, terminated, advised, ACTION_SOURCES.index(source), *frames)
             )
         return summary
+
+    def _say_diverged(self) -> None:
+        """Updates whose loss was not finite, said (before, silently applied): one absurd value the
+        env sent stays in the replay memory and spoils every batch that draws it."""
+        updater = self.learner.updater
+        if updater.non_finite_updates > self._diverged_said:
+            self._diverged_said = updater.non_finite_updates
+            self.get_logger().warning(
+                f'{updater.non_finite_updates} of {updater.updates} updates so far had a loss that is not finite: '
+                'the replay memory holds a reward or observation too large for float32 arithmetic (the env sent '
+                'it: check its units). Such updates were applied; a weight whose squared gradient overflowed '
+                "learns no more (Adam's second moment stays infinite)",
+                throttle_duration_sec=10.0,
+            )
 
     def _write_transitions(self, summary=None) -> None:
         """The transitions stored since the last write, as the actors send them to a trainer."""

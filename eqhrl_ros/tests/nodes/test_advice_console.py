@@ -23,7 +23,7 @@ from eqhrl_ros.nodes.learner_node import LearnerNode
 from eqhrl_ros.nodes.spinning import start_up_errors
 from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
 
-from ros_helpers import params, small_learner_params
+from ros_helpers import params, rosout_listener, small_learner_params
 
 CHROMIUM, CHROMEDRIVER = '/usr/bin/chromium', '/usr/bin/chromedriver'
 # The screenshot in the docs comes from this test: EQHRL_CONSOLE_SCREENSHOT=docs/images/advice_console.png
@@ -283,21 +283,10 @@ def test_the_pages_token_comes_from_a_file_and_never_reaches_the_graphs_log(ros_
     import urllib.error
     import urllib.request
 
-    import rclpy
-    from rcl_interfaces.msg import Log
-    from rclpy.qos import DurabilityPolicy, QoSProfile
-
     secret = 'c0ffee' * 6
     (tmp_path / 'console.token').write_text(secret + '\n')
     heard = []
-
-    def rosout_listener():  # made before each console, so that it hears its start
-        listener = rclpy.create_node('rosout_listener', context=ros_context)
-        rosout_qos = QoSProfile(depth=1000, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        listener.create_subscription(Log, '/rosout', lambda m: heard.append((m.name, m.msg)), rosout_qos)
-        return listener
-
-    listener = rosout_listener()
+    listener = rosout_listener(ros_context, heard)
     console = AdviceConsole(
         context=ros_context, parameter_overrides=params(port=0, token_file=str(tmp_path / 'console.token'))
     )
@@ -315,7 +304,7 @@ def test_the_pages_token_comes_from_a_file_and_never_reaches_the_graphs_log(ros_
     finally:
         graph.close()
     heard.clear()
-    listener = rosout_listener()
+    listener = rosout_listener(ros_context, heard)
     console = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, token=secret))
     graph = Graph(ros_context, [listener, console])
     try:
