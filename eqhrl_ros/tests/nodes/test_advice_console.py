@@ -87,6 +87,16 @@ def wait_for(condition, timeout=20.0, what=''):
     raise AssertionError(f'timed out waiting for {what() if callable(what) else what or condition}')
 
 
+def shown_as_text(browser, text, *where):
+    """``text`` (another node's words, with an <img onerror>) appears as text in the first element
+    of ``where``, and no element was made of it, so no script of its ran."""
+    shown = f"return document.getElementById('{where[0]}').textContent"
+    wait_for(lambda: text in browser.execute_script(shown), what=f'{text!r} shown as text in #{where[0]}')
+    images = ', '.join(f'#{element} img' for element in where)
+    assert browser.execute_script(f"return document.querySelectorAll('{images}').length") == 0
+    assert browser.execute_script('return window.ran') is None
+
+
 def test_a_person_advises_from_the_browser(browser, ros_context, tmp_path):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
@@ -526,10 +536,7 @@ def test_an_experts_reason_is_shown_as_text_and_never_runs_on_the_page(browser, 
             lambda: browser.execute_script("return document.getElementById('connection').textContent") == 'connected'
         )
         requests.publish(AdviceRequest(outcome=AdviceRequest.DECLINED, episode=0, step=3, detail=reason))
-        recent = "return document.getElementById('recent').textContent"
-        wait_for(lambda: reason in browser.execute_script(recent), what='the reason shown as text')
-        assert browser.execute_script("return document.querySelectorAll('#recent img, #request img').length") == 0
-        assert browser.execute_script('return window.ran') is None
+        shown_as_text(browser, reason, 'recent', 'request')
     finally:
         graph.close()
 
@@ -562,10 +569,7 @@ def test_an_envs_action_labels_are_shown_as_text_and_never_run_on_the_page(brows
         )
         wait_for(lambda: console.spec is not None, what="the env's env_info taken")
         browser.get(console.url)
-        bars = "return document.getElementById('bars').textContent"
-        wait_for(lambda: label in browser.execute_script(bars), what='the label shown as text')
-        assert browser.execute_script("return document.querySelectorAll('#bars img').length") == 0
-        assert browser.execute_script('return window.ran') is None
+        shown_as_text(browser, label, 'bars')
     finally:
         graph.close()
 
