@@ -259,7 +259,9 @@ class ConsoleServer:
 
     def _authorized(self, request: web.Request) -> bool:
         token = self.console.token
-        return not token or hmac.compare_digest(request.query.get('token', ''), token)
+        # As bytes: compare_digest raises TypeError on a str beyond ASCII (a guess of ?token=%C3%A9).
+        given = request.query.get('token', '').encode('utf-8', 'surrogateescape')
+        return not token or hmac.compare_digest(given, token.encode())
 
     async def _page(self, request: web.Request) -> web.Response:
         if not self._authorized(request):

@@ -270,3 +270,23 @@ def test_the_state_a_page_gets_is_strict_json_with_null_for_numbers_that_are_not
         'n': 3,
         't': [1.5, 'x'],
     }
+
+
+def test_a_token_that_is_not_ascii_is_refused_like_a_wrong_one_not_a_traceback(ros_context, capfd):
+    """hmac.compare_digest raises TypeError on a str with a character beyond ASCII: before, such a
+    guess (?token=%C3%A9) was a 500 and a traceback in the node's log, for each request."""
+    import urllib.error
+    import urllib.request
+
+    node = AdviceConsole(context=ros_context, parameter_overrides=params(port=0, token='s3cret-s3cret-s3cret'))
+    try:
+        base = f'http://127.0.0.1:{node.port}/'
+        for guess in ('?token=%C3%A9', 'ws?token=%C3%A9', '?token=%00'):
+            with pytest.raises(urllib.error.HTTPError) as refused:
+                urllib.request.urlopen(base + guess, timeout=5)
+            assert refused.value.code == 403, guess
+        assert b'advice console' in urllib.request.urlopen(base + '?token=s3cret-s3cret-s3cret', timeout=5).read()
+        time.sleep(0.2)
+        assert 'Traceback' not in capfd.readouterr().err
+    finally:
+        node.destroy_node()
