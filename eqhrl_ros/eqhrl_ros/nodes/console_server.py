@@ -302,7 +302,7 @@ class ConsoleServer:
             data = json.loads(text)
             if not isinstance(data, dict):
                 raise ValueError('not an object')
-        except ValueError:
+        except (ValueError, RecursionError):  # RecursionError: '[[[[…]]]]', nested deeper than json reads
             await socket.send_json({'type': 'error', 'error': 'messages must be JSON objects'})
             return
         if data.get('type') == 'set':

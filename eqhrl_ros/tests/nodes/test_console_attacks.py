@@ -290,3 +290,26 @@ def test_a_token_that_is_not_ascii_is_refused_like_a_wrong_one_not_a_traceback(r
         assert 'Traceback' not in capfd.readouterr().err
     finally:
         node.destroy_node()
+
+
+def test_a_page_message_nested_too_deep_gets_an_error_and_the_socket_goes_on(console, capfd):
+    """4 KB of '[[[[…]]]]' (within the message size limit): json.loads raised RecursionError, which
+    was not caught, so each such message closed its socket with a traceback in the node's log."""
+
+    async def page():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(f'http://127.0.0.1:{console.port}/ws') as socket:
+                await socket.send_str('[' * 2040 + ']' * 2040)
+                replies = []
+                while not any(r.get('type') == 'error' for r in replies):
+                    replies.append(await asyncio.wait_for(socket.receive_json(), 5))
+                await socket.send_json({'type': 'input', 'command': [0.5], 'deadman': True})
+                deadline = time.monotonic() + 5
+                while console.input.command != [0.5] and time.monotonic() < deadline:
+                    await asyncio.sleep(0.02)
+                return [r for r in replies if r.get('type') == 'error'], socket.closed
+
+    errors, closed = asyncio.run(page())
+    assert errors == [{'type': 'error', 'error': 'messages must be JSON objects'}] and not closed
+    assert console.input.command == [0.5]  # the same socket still takes the person's input
+    assert 'Traceback' not in capfd.readouterr().err
