@@ -175,7 +175,7 @@ def load_checkpoint(learner, path, replay_path=None, check_extra=None) -> dict |
             raise CheckpointError(f'{replay_path}: does not fit this learner ({error})') from error
     try:
         extra = json.loads(state['extra']) if 'extra' in state else None
-    except (TypeError, ValueError) as error:
+    except (TypeError, ValueError, RecursionError) as error:  # RecursionError: nested deeper than json reads
         raise CheckpointError(f'{path}: its extra state is not JSON ({error})') from error
     if check_extra is not None:
         check_extra(extra)

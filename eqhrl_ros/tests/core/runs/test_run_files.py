@@ -198,6 +198,10 @@ def optimizer_step_of_two_numbers(state):
     next(iter(state['critic_optimizer']['state'].values()))['step'] = torch.tensor([1.0, 2.0])
 
 
+def extra_nested_too_deep(state):
+    state['extra'] = '[' * 5000 + ']' * 5000  # json.loads raised RecursionError: a traceback, not a refusal
+
+
 @pytest.mark.parametrize(
     'change,message',
     [
@@ -208,6 +212,7 @@ def optimizer_step_of_two_numbers(state):
         (negative_episode, 'counters.episode must be an integer >= 0'),
         (episode_beyond_steps, 'exceeds counters.total_steps'),
         (inf_optimizer_moment, "'critic_optimizer' holds non-finite"),
+        (extra_nested_too_deep, 'its extra state is not JSON'),
     ],
 )
 def test_checkpoints_no_run_can_produce_are_refused_and_change_nothing(tmp_path, change, message):
