@@ -72,6 +72,7 @@ def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
                 start = last_start(folder)
                 run = (str(start.get('mode') or Path(folder).resolve().name), int(start.get('seed', 0)))
             for row in reader:
+                _check_numbers(row, path, reader.line_num)
                 key = run if single else (row['algorithm'], int(row['seed']))
                 if where.setdefault(key, folder) != folder:
                     raise ValueError(
@@ -82,11 +83,24 @@ def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
     runs = {}
     for key, items in rows.items():
         items.sort(key=lambda r: int(r['episode']))
-        runs[key] = {
-            column: np.array([float(r[column]) for r in items])
-            for column in ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')
-        }
+        runs[key] = {column: np.array([float(r[column]) for r in items]) for column in RUN_COLUMNS}
     return runs
+
+
+RUN_COLUMNS = ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')  # what the report reads
+
+
+def _check_numbers(row: dict, path: Path, line: int) -> None:
+    """ValueError naming the file, the line and the column of a value the report cannot read (a row
+    torn by a kill, a hand edit): before, one line that named the value only."""
+    for column in (*RUN_COLUMNS, *(('seed',) if 'seed' in row else ())):
+        value = row.get(column)
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            number = math.nan
+        if not math.isfinite(number) or (column in ('episode', 'seed') and not number.is_integer()):
+            raise ValueError(f'{path}, line {line}: {column} is {value!r}, not a number this report can read')
 
 
 def env_of(folders) -> str:
