@@ -72,7 +72,7 @@ def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
                 start = last_start(folder)
                 run = (str(start.get('mode') or Path(folder).resolve().name), int(start.get('seed', 0)))
             for row in reader:
-                _check_numbers(row, path, reader.line_num)
+                _check_numbers(row, path, reader.line_num, RUN_COLUMNS)
                 key = run if single else (row['algorithm'], int(row['seed']))
                 if where.setdefault(key, folder) != folder:
                     raise ValueError(
@@ -90,10 +90,10 @@ def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
 RUN_COLUMNS = ('episode', 'return', 'length', 'advice_asked', 'advice_given', 'success')  # what the report reads
 
 
-def _check_numbers(row: dict, path: Path, line: int) -> None:
+def _check_numbers(row: dict, path: Path, line: int, columns) -> None:
     """ValueError naming the file, the line and the column of a value the report cannot read (a row
-    torn by a kill, a hand edit): before, one line that named the value only."""
-    for column in (*RUN_COLUMNS, *(('seed',) if 'seed' in row else ())):
+    torn by a kill, a hand edit): before, a traceback (a torn row) or a line that named the value only."""
+    for column in (*columns, *(('seed',) if 'seed' in row else ())):
         value = row.get(column)
         try:
             number = float(value)
@@ -198,7 +198,9 @@ def read_eval(folders) -> dict[str, dict[int, list[float]]]:
         if not path.exists():
             continue
         with path.open(newline='') as f:
-            for row in csv.DictReader(f):
+            reader = csv.DictReader(f)
+            for row in reader:
+                _check_numbers(row, path, reader.line_num, ('episode', 'return'))
                 per_run[(row['algorithm'], int(row['seed']), int(row['episode']))].append(float(row['return']))
     out = defaultdict(lambda: defaultdict(list))
     for (algorithm, _seed, episode), returns in sorted(per_run.items()):
