@@ -62,7 +62,11 @@ def main(argv=None) -> int:
         if not (folder / name).exists():
             print(f'eqhrl-study-report: {folder / name} is missing (run eqhrl-study first)', file=sys.stderr)
             return 2
-    write_report(folder, output, args.threshold)
+    try:
+        write_report(folder, output, args.threshold)
+    except ValueError as error:  # a table it cannot read (study_scores.read_csv names the row)
+        print(f'eqhrl-study-report: {error}', file=sys.stderr)
+        return 2
     print(f'wrote {output / "table.md"} and figures')
     return 0
 

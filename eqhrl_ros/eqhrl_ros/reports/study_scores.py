@@ -47,8 +47,16 @@ class RunScores:
 
 
 def read_csv(path: Path) -> list[dict]:
+    """A study's table, each row whole: ValueError names the file and line of one with fewer or more
+    values than the header (a row torn by a kill, a hand edit). Before, a traceback further on."""
     with path.open(newline='') as f:
-        return list(csv.DictReader(f))
+        reader = csv.DictReader(f)
+        rows = []
+        for row in reader:
+            if None in row or None in row.values():
+                raise ValueError(f'{path}, line {reader.line_num}: not one value for each of its columns')
+            rows.append(row)
+        return rows
 
 
 def read_arms(folder: Path) -> list[ArmInfo]:

@@ -90,3 +90,21 @@ def test_the_placement_table_shows_whether_a_matched_arm_asked_as_clustered_as_i
     arms = [ArmInfo('eqsac', 'EQSAC', 'g', 'eqsac', ''), ArmInfo('random', 'random', 'g', 'random', 'eqsac')]
     table = placement_table(tmp_path, arms)
     assert '| random | eqsac | 2 | 6 / 6 | 2 of 2 | 100 % | 0 % |' in table
+
+
+def test_a_torn_row_in_a_studys_table_is_one_line_naming_file_and_line(tmp_path, capsys):
+    """Before, eqhrl-study-report met a row with fewer values than its header (a kill mid-write, a
+    hand edit) deep in its tables, as a TypeError traceback."""
+    import shutil
+    from pathlib import Path
+
+    from eqhrl_ros.cli.study_report import main
+
+    study = Path(__file__).resolve().parents[3] / 'docs' / 'results' / 'study_lunar_lander_steps'
+    shutil.copy(study / 'plan.yaml', tmp_path / 'plan.yaml')
+    (tmp_path / 'arms.csv').write_text('arm,label,group,mode,seeds,learner,expert,match\nsac,SAC,main,sac\n')
+    for name in ('episodes.csv', 'eval.csv'):
+        (tmp_path / name).write_text('arm,seed,episode,return\n')
+    assert main([str(tmp_path), '--output', str(tmp_path / 'report')]) == 2
+    said = capsys.readouterr().err
+    assert said == f'eqhrl-study-report: {tmp_path / "arms.csv"}, line 2: not one value for each of its columns\n'
