@@ -358,7 +358,7 @@ class AdviceConsole(Node):
                     return f'command must be a list of {size} numbers'
                 try:
                     values = [float(v) for v in command]
-                except (TypeError, ValueError):
+                except (TypeError, ValueError, OverflowError):  # OverflowError: an integer of 400 digits
                     return 'command must hold numbers'
                 if not all(math.isfinite(v) for v in values):
                     return 'command must be finite'

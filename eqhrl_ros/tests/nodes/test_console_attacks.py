@@ -292,14 +292,23 @@ def test_a_token_that_is_not_ascii_is_refused_like_a_wrong_one_not_a_traceback(r
         node.destroy_node()
 
 
-def test_a_page_message_nested_too_deep_gets_an_error_and_the_socket_goes_on(console, capfd):
-    """4 KB of '[[[[…]]]]' (within the message size limit): json.loads raised RecursionError, which
-    was not caught, so each such message closed its socket with a traceback in the node's log."""
+@pytest.mark.parametrize(
+    'message,error',
+    [
+        ('[' * 2040 + ']' * 2040, 'messages must be JSON objects'),
+        ('{"type": "input", "command": [1' + '0' * 400 + ']}', 'command must hold numbers'),
+    ],
+    ids=['nested', 'a 400-digit integer'],
+)
+def test_a_page_message_python_cannot_take_gets_an_error_and_the_socket_goes_on(console, capfd, message, error):
+    """Within the message size limit: 4 KB of '[[[[…]]]]' (json.loads raised RecursionError) and an
+    integer of 400 digits (float() raised OverflowError). Neither was caught, so each such message
+    closed its socket with a traceback in the node's log."""
 
     async def page():
         async with aiohttp.ClientSession() as session:
             async with session.ws_connect(f'http://127.0.0.1:{console.port}/ws') as socket:
-                await socket.send_str('[' * 2040 + ']' * 2040)
+                await socket.send_str(message)
                 replies = []
                 while not any(r.get('type') == 'error' for r in replies):
                     replies.append(await asyncio.wait_for(socket.receive_json(), 5))
@@ -310,6 +319,6 @@ def test_a_page_message_nested_too_deep_gets_an_error_and_the_socket_goes_on(con
                 return [r for r in replies if r.get('type') == 'error'], socket.closed
 
     errors, closed = asyncio.run(page())
-    assert errors == [{'type': 'error', 'error': 'messages must be JSON objects'}] and not closed
+    assert errors == [{'type': 'error', 'error': error}] and not closed
     assert console.input.command == [0.5]  # the same socket still takes the person's input
     assert 'Traceback' not in capfd.readouterr().err
