@@ -142,7 +142,13 @@ def parse_args(argv=None):
         'e.g. "ros2 run my_pkg my_env --ros-args -p seed:={seed}" ({seed} and {max_steps} are filled in); '
         'the learner and expert take the spaces from its env_info',
     )
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    for name in ('seeds', 'algorithms'):  # each pair is one run folder: twice, its rows were gathered twice
+        given = getattr(args, name)
+        twice = sorted({str(value) for value in given if given.count(value) > 1})
+        if twice:
+            parser.error(f'argument --{name}: {", ".join(twice)} given more than once (each is one run)')
+    return args
 
 
 def main(argv=None) -> int:

@@ -101,6 +101,8 @@ def load_plan(name_or_path: str) -> Plan:
         for seed in _expect(f'{where}: seeds', group.get('seeds'), list, 'a list of seeds'):
             if _expect(f'{where}: seed', seed, int, 'a whole number') < 0:
                 raise ValueError(f'{where}: seeds must be >= 0, got {seed}')
+            if group['seeds'].count(seed) > 1:  # one run folder: its rows were gathered twice
+                raise ValueError(f'{where}: seed {seed} appears twice')
         for name, spec in _expect(f'{where}: arms', group.get('arms') or {}, dict, 'a mapping of arms').items():
             spec = _expect(f'{path}: arm {name!r}', spec or {}, dict, 'a mapping')
             _refuse_unknown(f'{path}: arm {name!r}', spec, ARM_KEYS)

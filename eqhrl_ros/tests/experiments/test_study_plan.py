@@ -114,3 +114,30 @@ def test_a_step_matched_arm_needs_a_reference_with_a_gate_trace(tmp_path):
     plan['groups'][0]['arms']['eqsac']['gate_trace'] = True
     path.write_text(yaml.safe_dump(plan, sort_keys=False))
     assert [a.match_timing for a in study_plan.load_plan(str(path)).arms] == ['rate', 'steps']
+
+
+def test_a_seed_given_twice_is_refused_by_a_plan_and_by_eqhrl_experiment(tmp_path, capsys):
+    """One seed of one arm is one run folder: given twice, the run ran once and its rows were
+    gathered twice (400 rows of 200 episodes in episodes.csv)."""
+    import yaml
+
+    from eqhrl_ros.cli.experiment import parse_args
+
+    plan = {
+        'name': 'p',
+        'params': 'pendulum',
+        'episodes': 2,
+        'groups': [{'name': 'g', 'seeds': [0, 1, 0], 'arms': {'sac': {'mode': 'sac'}}}],
+    }
+    path = tmp_path / 'plan.yaml'
+    path.write_text(yaml.safe_dump(plan, sort_keys=False))
+    with pytest.raises(ValueError, match="group 'g': seed 0 appears twice"):
+        study_plan.load_plan(str(path))
+    for argv, said in (
+        (['--seeds', '1', '2', '1'], 'argument --seeds: 1 given more than once'),
+        (['--algorithms', 'sac', 'eqsac', 'sac'], 'argument --algorithms: sac given more than once'),
+    ):
+        with pytest.raises(SystemExit) as refused:
+            parse_args(['--output', str(tmp_path / 'out'), *argv])
+        assert refused.value.code == 2 and said in capsys.readouterr().err
+    assert parse_args(['--output', str(tmp_path / 'out'), '--seeds', '1', '2']).seeds == [1, 2]
