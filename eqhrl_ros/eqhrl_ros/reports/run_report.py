@@ -61,6 +61,10 @@ def read_runs(folders) -> dict[tuple[str, int], dict[str, np.ndarray]]:
     noted there is named by its folder, seed 0). Before, a single run's folder raised KeyError.
     One algorithm and seed in two folders is refused (its rows would mix into one run)."""
     rows, where = defaultdict(list), {}
+    resolved = [Path(folder).resolve() for folder in folders]
+    for folder, place in zip(folders, resolved):
+        if resolved.count(place) > 1:  # its rows would be read twice
+            raise ValueError(f'{folder} is given more than once')
     for folder in folders:
         path = Path(folder) / 'episodes.csv'
         if not path.exists():

@@ -27,3 +27,9 @@ def test_a_torn_row_of_eval_csv_is_named_by_file_and_line(tmp_path):
         read_eval([tmp_path])
     (tmp_path / 'eval.csv').write_text('algorithm,seed,episode,start,return\nsac,0,10,0,-120.5\nsac,0,10,1,-100.5\n')
     assert read_eval([tmp_path]) == {'sac': {10: [-110.5]}}
+
+
+def test_a_folder_given_twice_is_refused_not_read_twice(tmp_path):
+    (tmp_path / 'episodes.csv').write_text(HEADER + '0,-9.5,100,3,3,0\n')
+    with pytest.raises(ValueError, match='is given more than once'):
+        read_runs([tmp_path, tmp_path / '.'])
