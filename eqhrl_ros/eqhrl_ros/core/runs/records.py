@@ -68,6 +68,8 @@ class RunFolder:
             )
         if self.path.exists() and not self.path.is_dir():
             raise RunFolderError(f"output folder '{self.path}' is a file")
+        if resume and not self.checkpoint.exists():  # before the folder is made: a refusal leaves none behind
+            raise RunFolderError(f"nothing to resume: '{self.checkpoint}' does not exist")
         try:
             self.path.mkdir(parents=True, exist_ok=True)
             fd, probe = tempfile.mkstemp(dir=self.path, prefix='.write-test.')
@@ -81,8 +83,6 @@ class RunFolder:
                 f"output folder '{self.path}' holds a run ({', '.join(existing)}): resume it "
                 '(resume:=true, eqhrl-train --resume) or replace it (overwrite:=true, --overwrite)'
             )
-        if resume and not self.checkpoint.exists():
-            raise RunFolderError(f"nothing to resume: '{self.checkpoint}' does not exist")
         self.removed_temporaries = remove_stale_temporaries(self.path)
         self.overwrite = overwrite
         self.provenance: Optional[Path] = None

@@ -300,6 +300,7 @@ def test_folders_that_cannot_be_used_are_refused_with_one_line(tmp_path):
         RunFolder(a_file / 'run')
     with pytest.raises(RunFolderError, match='nothing to resume'):
         RunFolder(tmp_path / 'empty', resume=True)
+    assert not (tmp_path / 'empty').exists()  # before, the refused resume left the folder made
     (tmp_path / 'run').mkdir()
     (tmp_path / 'run' / 'episodes.csv').write_text('episode\n0\n')
     with pytest.raises(RunFolderError, match='resume and overwrite both given'):  # before: resume won, unsaid
