@@ -83,6 +83,14 @@ def _expect(where: str, value, kind, what: str):
     return value
 
 
+def _check_seeds(where: str, seeds) -> None:
+    for seed in _expect(f'{where}: seeds', seeds, list, 'a list of seeds'):
+        if _expect(f'{where}: seed', seed, int, 'a whole number') < 0:
+            raise ValueError(f'{where}: seeds must be >= 0, got {seed}')
+        if seeds.count(seed) > 1:  # one run folder: its rows were gathered twice
+            raise ValueError(f'{where}: seed {seed} appears twice')
+
+
 def load_plan(name_or_path: str) -> Plan:
     """The plan, refused with the place of the first mistake in it."""
     path = plan_file(name_or_path)
@@ -98,11 +106,7 @@ def load_plan(name_or_path: str) -> Plan:
         _refuse_unknown(f'{path}: group {group.get("name")!r}', group, GROUP_KEYS)
         where = f'{path}: group {group.get("name")!r}'
         _expect(f'{where}: name', group.get('name'), str, 'a name')
-        for seed in _expect(f'{where}: seeds', group.get('seeds'), list, 'a list of seeds'):
-            if _expect(f'{where}: seed', seed, int, 'a whole number') < 0:
-                raise ValueError(f'{where}: seeds must be >= 0, got {seed}')
-            if group['seeds'].count(seed) > 1:  # one run folder: its rows were gathered twice
-                raise ValueError(f'{where}: seed {seed} appears twice')
+        _check_seeds(where, group.get('seeds'))
         for name, spec in _expect(f'{where}: arms', group.get('arms') or {}, dict, 'a mapping of arms').items():
             spec = _expect(f'{path}: arm {name!r}', spec or {}, dict, 'a mapping')
             _refuse_unknown(f'{path}: arm {name!r}', spec, ARM_KEYS)
