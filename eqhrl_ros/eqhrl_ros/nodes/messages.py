@@ -270,8 +270,29 @@ def parse_observation(msg, obs_dim: int, topic: str = 'observation') -> EnvStep:
         raise MessageError(f"'{topic}': non-finite value(s) at index {bad}")
     obs = data[:obs_dim].copy()
     reward, terminated, truncated, episode, step = data[obs_dim:expected].tolist()
+    flags = [('terminated', terminated), ('truncated', truncated), *_success_flag(data, expected)]
+    _check_meaning(topic, [('episode', episode), ('step', step)], flags)
     success = bool(data[expected] > 0.5) if data.shape[0] > expected else None
     return EnvStep(obs, float(reward), terminated > 0.5, truncated > 0.5, int(episode), int(step), success)
+
+
+# Episode and step travel as float32, exact for whole numbers up to 2^24: beyond, or negative, or
+# with a fraction, a number is no episode's or step's (before, int() floored 2.5 to 2 unsaid).
+MAX_COUNTER = 2**24
+
+
+def _success_flag(data: np.ndarray, expected: int) -> list:
+    return [(OBS_SUCCESS, float(data[expected]))] if data.shape[0] > expected else []
+
+
+def _check_meaning(topic: str, counters, flags=()) -> None:
+    """MessageError unless each counter is a whole number in [0, 2^24] and each flag 0 or 1."""
+    for name, value in counters:
+        if not (0 <= value <= MAX_COUNTER and float(value).is_integer()):
+            raise MessageError(f"'{topic}': {name} {value:g} is not a whole number in [0, {MAX_COUNTER:,}]")
+    for name, value in flags:
+        if value not in (0.0, 1.0):
+            raise MessageError(f"'{topic}': {name} {value:g} is not 0 or 1")
 
 
 def action_msg(action, episode: Optional[int] = None, step: Optional[int] = None):
@@ -300,6 +321,7 @@ def parse_action(msg, action_dim: int, topic: str = 'action'):
         raise MessageError(f"'{topic}': non-finite value(s) {data.tolist()}")
     tag = None
     if data.shape[0] == action_dim + len(ACTION_TAIL):
+        _check_meaning(topic, zip(ACTION_TAIL, data[action_dim:].tolist()))
         tag = (int(data[action_dim]), int(data[action_dim + 1]))
     return data[:action_dim].copy(), tag
 

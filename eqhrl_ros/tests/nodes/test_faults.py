@@ -583,3 +583,24 @@ def test_updates_spoiled_by_a_reward_too_large_for_float32_are_said(harness, ros
     said = [found for found in said if found]
     assert said and 1 <= int(said[0][1]) <= spoiled <= learner.learner.updater.updates
     assert 'too large for float32' in said[0].string
+
+
+@pytest.mark.parametrize(
+    'tail,said',
+    [
+        ([0.0, 0.0, 0.0, 2.5], 'step 2.5 is not a whole number in [0, 16,777,216]'),
+        ([0.0, 0.0, -1.0, 0.0], 'episode -1 is not a whole number'),
+        ([0.0, 0.0, 0.0, 2.0**25], 'step 3.35544e+07 is not a whole number'),
+        ([0.5, 0.0, 0.0, 3.0], 'terminated 0.5 is not 0 or 1'),
+        ([0.0, 0.0, 0.0, 3.0, 2.0], 'success 2 is not 0 or 1'),
+    ],
+)
+def test_an_observation_whose_step_or_flags_mean_nothing_is_refused_not_floored(tail, said):
+    """Before, int() floored a step of 2.5 to 2 and a flag of 0.7 was read as true, unsaid."""
+    values = np.array([0.1, 0.2, 0.3, -1.0, *tail], dtype=np.float32)  # obs[3], reward, then the tail
+    with pytest.raises(messages.MessageError, match=re.escape(said)):
+        messages.parse_observation(values, 3)
+    assert messages.parse_observation(np.array([0.1, 0.2, 0.3, -1.0, 1.0, 0.0, 7.0, 3.0], np.float32), 3).step == 3
+    with pytest.raises(messages.MessageError, match='step 1.5 is not a whole number'):
+        messages.parse_action(np.array([0.5, 0.0, 1.5], np.float32), 1)
+    assert messages.parse_action(np.array([0.5, 2.0, 9.0], np.float32), 1)[1] == (2, 9)
