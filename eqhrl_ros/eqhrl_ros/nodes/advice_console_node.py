@@ -24,7 +24,7 @@ from socket import gethostname
 from typing import Optional
 
 from rclpy.node import Node
-from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Image
 from std_msgs.msg import Bool, Float32MultiArray, String
@@ -35,10 +35,10 @@ from ..core.algorithm.advice_window import advice_window
 from ..core.algorithm.config import advice_protocol, check_value
 from ..core.data.signing import CommandSeal, signer_from
 from ..core.envs.spec import EnvSpec
-from ..parameters import CONSOLE_PARAMS
+from ..parameters import CONSOLE_PARAMS, LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS, TELEOP_EXPERT_PARAMS
 from . import messages
 from .console_camera import LearnerCamera
-from .console_intake import request_shown, stats_shown
+from .console_intake import parameters_shown, request_shown, stats_shown
 from .console_server import AskedFrames, ConsoleServer, host_allowed, host_name, is_loopback, page_token, page_url  # noqa: F401
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .graph_trust import subscribe_from_one, subscribe_stop
@@ -48,6 +48,7 @@ from .teleop_expert_node import ANSWER_MARGIN_S
 
 # The learner parameters the page shows and may set.
 LEARNER_CONTROLS = ('advice_enabled', 'advising_budget', 'advising_budget_s')
+LEARNER_TABLES = (LEARNER_CONFIG_PARAMS, LEARNER_NODE_PARAMS)  # what the values read from the learner are checked by
 # Read, not set: what the page says about the run's end, how a request asks and when steering takes over.
 LEARNER_SHOWN = (*LEARNER_CONTROLS, 'max_episodes', 'mode')
 # Read apart: a learner without them (an older one, a stand-in) still gets the rest of the page.
@@ -286,7 +287,7 @@ class AdviceConsole(Node):
             future.add_done_callback(lambda f, names=names: self._on_learner_params(f, names))
 
     def _on_teleop_settings(self, future) -> None:
-        read = _parameters_read(future, TELEOP_SETTINGS)  # teleop_expert may have gone meanwhile
+        read = parameters_shown(future, TELEOP_SETTINGS, self.params['teleop_node'], (TELEOP_EXPERT_PARAMS,), self)
         if set(read) != set(TELEOP_SETTINGS):
             return
         with self.lock:
@@ -295,7 +296,7 @@ class AdviceConsole(Node):
                 self._bump()
 
     def _on_learner_params(self, future, names: tuple) -> None:
-        read = _parameters_read(future, names)  # the learner may have gone (or lack these): unknown
+        read = parameters_shown(future, names, self.params['learner_node'], LEARNER_TABLES, self)  # {}: gone, or odd
         if not read:
             return
         with self.lock:
@@ -476,19 +477,6 @@ class AdviceConsole(Node):
     def destroy_node(self) -> None:
         self.server.stop()
         super().destroy_node()
-
-
-def _parameters_read(future, names) -> dict:
-    """A get_parameters answer as {name: value} (arrays as lists), those set alone; {} when the
-    node went away meanwhile."""
-    try:
-        values = future.result().values
-    except Exception:
-        return {}
-    read = {name: parameter_value_to_python(value) for name, value in zip(names, values)}
-    return {
-        name: list(v) if not isinstance(v, (bool, int, float, str)) else v for name, v in read.items() if v is not None
-    }
 
 
 def main(args=None):

@@ -12,8 +12,11 @@ from __future__ import annotations
 import math
 from typing import Optional
 
+from rclpy.parameter import parameter_value_to_python
+
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 
+from ..parameters import check_section
 from .messages import OUTCOME_NAMES
 
 # An expert's reason or a failure's kind, as the page lists it: a line, not a document.
@@ -86,3 +89,24 @@ def finite_or_none(value: float) -> Optional[float]:
 def _seconds(name: str, value: float) -> None:
     if not (math.isfinite(value) and value >= 0):
         raise ValueError(f'{name} {value} is not a finite number of seconds >= 0')
+
+
+def parameters_shown(future, names, node_name: str, tables, node) -> dict:
+    """A get_parameters answer as {name: value} (arrays as lists), those set alone, each checked as
+    that node checks it (type, range, choices: ``tables``); {} when the node went away meanwhile, or
+    when a value is not one it could hold (a stranger posing as it while it is not running: before,
+    a string where the page needs a number broke the page's drawing), said in the log."""
+    try:
+        values = future.result().values
+    except Exception:
+        return {}
+    read = {name: parameter_value_to_python(value) for name, value in zip(names, values)}
+    read = {
+        name: list(v) if not isinstance(v, (bool, int, float, str)) else v for name, v in read.items() if v is not None
+    }
+    try:
+        check_section(node_name, read, *tables)
+    except ValueError as why:
+        node.get_logger().warning(f'not shown on the page: {why}', throttle_duration_sec=10.0)
+        return {}
+    return read

@@ -322,3 +322,33 @@ def test_a_page_message_python_cannot_take_gets_an_error_and_the_socket_goes_on(
     assert errors == [{'type': 'error', 'error': error}] and not closed
     assert console.input.command == [0.5]  # the same socket still takes the person's input
     assert 'Traceback' not in capfd.readouterr().err
+
+
+def test_a_node_posing_as_the_learner_with_values_it_could_not_hold_is_not_shown(harness, ros_context, monkeypatch):
+    """The page reads the learner's parameters from the node named learner_node. While the learner
+    is not running, any node may take that name. A value the learner could not hold (a string for
+    its budget in seconds) broke the page's drawing before. Now the values are checked as the
+    learner checks them, and none of them is shown."""
+    import rclpy
+    from rclpy.impl.rcutils_logger import RcutilsLogger
+
+    warned = []
+    monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append(line))
+    console = harness.add(
+        AdviceConsole(context=ros_context, namespace='/posed', parameter_overrides=params(port=0, env_id='Pendulum-v1'))
+    )
+    stranger = harness.add(rclpy.create_node('learner', namespace='/posed', context=ros_context))
+    for name, value in (
+        ('mode', 'eqsac'),
+        ('advice_enabled', True),
+        ('advising_budget', 1),
+        ('advising_budget_s', 'lots'),
+        ('max_episodes', 3),
+    ):
+        stranger.declare_parameter(name, value)
+    assert harness.spin_until(lambda: any('not shown on the page' in line for line in warned), timeout=10), (
+        warned,
+        console.learner_params,
+    )
+    assert "'advising_budget_s'" in next(line for line in warned if 'not shown on the page' in line)
+    assert console.learner_params == {}
