@@ -138,10 +138,11 @@ def observation_publisher(harness):
 class StubExpert:
     """Serves Advise from its own executor thread, like a separate process would."""
 
-    def __init__(self, context, answer='advise', delay=0.0, name='stub_expert', expert_name='stub'):
+    def __init__(self, context, answer='advise', delay=0.0, name='stub_expert', expert_name='stub', **fields):
         self.node = rclpy.create_node(name, context=context)
         self.requests = []
         self.answer, self.delay, self.expert_name = answer, delay, expert_name
+        self.fields = fields  # more of the response, set as given (human, response_time_s, reason)
         self.node.create_service(Advise, 'advise', self._serve)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
@@ -159,6 +160,8 @@ class StubExpert:
             response.advised, response.action = True, [1.0]
         else:
             response.advised, response.reason = False, 'not now'
+        for name, value in self.fields.items():
+            setattr(response, name, value)
         return response
 
     def close(self):

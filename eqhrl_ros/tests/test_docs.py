@@ -214,6 +214,14 @@ def test_the_label_rule_the_message_and_the_readme_state_is_the_cores():
     assert rule in README
 
 
+def test_the_reason_cap_the_service_and_the_readme_state_is_the_learners():
+    from eqhrl_ros.nodes.messages import REASON_MAX
+
+    rule = f'one printable line of at most {REASON_MAX} characters'
+    assert rule in ' '.join((INTERFACES / 'srv' / 'Advise.srv').read_text().replace('#', ' ').split())
+    assert rule in ' '.join(README.split())
+
+
 def _documented_commands():
     """Each eqhrl-* command in a code block of the READMEs and docs/*.md: (file, program, argv)."""
     import re

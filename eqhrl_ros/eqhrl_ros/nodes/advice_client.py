@@ -175,4 +175,17 @@ class AdviceClient:
                 )
                 self.on_end(pending, failure='untrusted')
             else:
-                self.on_end(pending, advise_msgs.advice_from_response(response, name))
+                self.on_end(
+                    pending, self._person_time_checked(advise_msgs.advice_from_response(response, name), pending)
+                )
+
+    def _person_time_checked(self, advice: Advice, pending: PendingAdvice) -> Advice:
+        waited = time.monotonic() - pending.sent
+        checked, changed = advise_msgs.person_time_checked(advice, waited)
+        if changed:
+            self.node.get_logger().warn(
+                f"'{advice.expert_name}' says a person took {advice.response_time_s} s on a request the learner "
+                f'waited {waited:.3f} s on; counted as {waited:.3f} s (an expert measures inside that wait)',
+                throttle_duration_sec=5.0,
+            )
+        return checked

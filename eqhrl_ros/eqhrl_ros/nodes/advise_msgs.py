@@ -4,6 +4,7 @@ AdviceRequest and Advice, in one place: the learner sends and reads, experts rea
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -12,6 +13,7 @@ from eqhrl_interfaces.srv import Advise
 from ..core.data.advice import Advice, AdviceRequest
 from ..core.data.camera_frames import FrameError
 from .frame_msgs import stack_msgs, stack_of
+from .messages import REASON_MAX, printable_text
 
 
 def request_msg(request: AdviceRequest, timeout_s: float = 0.0) -> Advise.Request:
@@ -100,8 +102,21 @@ def fill_response(response: Advise.Response, advice: Advice, name: str) -> Advis
 
 
 def advice_from_response(response: Advise.Response, name: str) -> Advice:
-    """The answer as the core's Advice; ``name`` is the expert's name as the learner shows it."""
+    """The answer as the core's Advice; ``name`` is the expert's name as the learner shows it. The
+    reason is another node's text, bound for the person's page and terminal and the record: one
+    printable line of at most REASON_MAX characters."""
     action = np.asarray(response.action, dtype=np.float32) if response.advised else None
-    return Advice(
-        action, response.reason, name, bool(response.human), float(response.response_time_s), bool(response.timed_out)
-    )
+    reason = printable_text(response.reason, REASON_MAX)
+    return Advice(action, reason, name, bool(response.human), float(response.response_time_s), bool(response.timed_out))
+
+
+def person_time_checked(advice: Advice, waited_s: float) -> tuple[Advice, bool]:
+    """``advice`` with a person's time the learner can believe, and whether it had to be changed.
+    The expert measures from the request's arrival to its answer, inside the learner's own wait
+    (``waited_s``, from sending to the answer): a time that is not a number from 0 to that wait is
+    taken as the wait. Otherwise an expert's word of 10^6 s would spend the person's seconds, and
+    a NaN would reach the person's page."""
+    claim = advice.response_time_s
+    if not advice.human or 0.0 <= claim <= waited_s:
+        return advice, False
+    return replace(advice, response_time_s=float(waited_s)), True

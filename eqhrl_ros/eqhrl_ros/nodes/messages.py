@@ -449,14 +449,20 @@ def advice_request_msg(
     )
 
 
-# Expert names come from other nodes: cap them before they reach a log line or a count.
+# Expert names and reasons come from other nodes: cap them before they reach a log line, a count,
+# the person's page or terminal, or the record.
 EXPERT_NAME_MAX = 64
 EXPERT_NAMES_KEPT = 8
+REASON_MAX = 200
+
+
+def printable_text(text: str, limit: int, ascii_only: bool = False) -> str:
+    """``text`` as one safe line of at most ``limit`` characters: anything not printable (escape
+    sequences, line breaks), and with ``ascii_only`` anything not ASCII, becomes '?'."""
+    text = ''.join(c if c.isprintable() and (c.isascii() or not ascii_only) else '?' for c in (text or '')[: limit + 1])
+    return text if len(text) <= limit else text[: limit - 3] + '...'
 
 
 def printable_name(name: str) -> str:
     """``name`` as one safe log token: printable ASCII only, at most EXPERT_NAME_MAX characters."""
-    text = ''.join(c if c.isprintable() and c.isascii() else '?' for c in (name or '')[: EXPERT_NAME_MAX + 1])
-    if len(text) > EXPERT_NAME_MAX:
-        text = text[: EXPERT_NAME_MAX - 3] + '...'
-    return text or '(unnamed)'
+    return printable_text(name, EXPERT_NAME_MAX, ascii_only=True) or '(unnamed)'

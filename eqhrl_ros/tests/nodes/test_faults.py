@@ -18,7 +18,7 @@ from rclpy.impl.rcutils_logger import RcutilsLogger
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Float32MultiArray, MultiArrayLayout
 
-from eqhrl_interfaces.msg import EnvInfo
+from eqhrl_interfaces.msg import AdviceRequest, EnvInfo
 from eqhrl_ros.core.envs.spec import EnvSpec
 from eqhrl_ros.nodes import env_info, messages
 from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegratorEnv
@@ -54,6 +54,47 @@ def test_bad_advice_is_counted_by_kind_and_never_used(harness, ros_context, tmp_
     assert totals.asked > 0 and totals.failed[kind] > totals.failed['timeout']
     assert totals.failed[kind] + totals.failed['timeout'] == totals.asked and totals.given == 0
     assert len(learner.learner.advice_replay) == 0
+
+
+HOSTILE_REASON = '\x1b[2J\x1b]0;owned\x07' + 'why ' * 50_000
+
+
+@pytest.mark.parametrize(
+    'answer,fields',
+    [
+        ([0.5], dict(human=True, response_time_s=float('nan'))),
+        ('decline', dict(human=True, response_time_s=1e6, reason=HOSTILE_REASON)),
+    ],
+)
+def test_an_experts_word_on_a_persons_time_and_reason_is_checked_by_meaning(
+    harness, ros_context, tmp_path, monkeypatch, answer, fields
+):
+    """From outside, an expert of one's own (Advise.srv) said a person took NaN s or 10^6 s and
+    declined with 200 KB of escape sequences: the learner counted 10^6 person seconds for a request it
+    waited 0.3 s on, relayed the NaN on learner/advice_request (where the person's page drops a
+    message that holds one, so the request stayed open on the screen) and the reason whole."""
+    warned = []
+    monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append((logger.name, line)))
+    watch = harness.add(rclpy.create_node('request_watch', context=ros_context))
+    ended = []
+    watch.create_subscription(
+        AdviceRequest, 'learner/advice_request', lambda m: m.outcome != AdviceRequest.PENDING and ended.append(m), 100
+    )
+    expert = StubExpert(ros_context, answer, **fields)
+    try:
+        learner, _ = run_learner(harness, ros_context, tmp_path, episodes=2, mode='random', random_ask_rate=0.3)
+    finally:
+        expert.close()
+    assert harness.spin_until(lambda: len(ended) >= learner.learner.advice_total.asked > 0), (len(ended),)
+    waited = 0.3 + 0.2  # advice_timeout_s, and the slack of a busy test process
+    for message in ended:
+        assert 0.0 <= message.response_time_s <= waited, message
+        assert len(message.detail) <= 200 and message.detail.isprintable(), message.detail[:300]
+    totals = learner.learner.advice_total
+    assert 0.0 <= totals.human_time_s <= waited * totals.asked, totals
+    claim = 'nan' if answer != 'decline' else '1000000.0'
+    said = f"'stub' says a person took {claim} s on a request the learner waited"
+    assert any(name == 'learner' and said in line for name, line in warned), warned
 
 
 def test_a_persons_window_let_pass_is_no_refused_action():
