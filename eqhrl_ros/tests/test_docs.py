@@ -265,3 +265,92 @@ def test_every_documented_eqhrl_command_is_one_its_program_takes(monkeypatch):
         except SystemExit as error:
             refused.append(f'{path}: {program} {" ".join(argv)}: exit {error.code}')
     assert not refused, refused
+
+
+def _documented_ros2_commands():
+    """Each `ros2 run eqhrl_ros …` and `ros2 launch eqhrl_ros …` in the READMEs, docs/*.md and the
+    launch files' docstrings, in code blocks and in the text: (file, 'run' or 'launch', target, words)."""
+    import re
+    import shlex
+
+    root = Path(__file__).resolve().parents[2]
+    paths = [root / 'README.md', root / 'eqhrl_ros' / 'README.md', *sorted((root / 'docs').glob('*.md'))]
+    for path in [*paths, *sorted((root / 'eqhrl_ros' / 'launch').glob('*.launch.py'))]:
+        text = re.sub(r'\\\n\s*', ' ', path.read_text())
+        for kind, target, rest in re.findall(r'ros2 (run|launch) eqhrl_ros ([^\s`]+)([^\n`|#(]*)', text):
+            if target != '...':
+                words = [w for w in shlex.split(rest.replace('...', '')) if w]
+                yield path.relative_to(root), kind, target, words
+
+
+def _run_refusals(node: str, words: list) -> list:
+    """What `ros2 run eqhrl_ros <node> <words>` would refuse before it starts: a parameter the node
+    does not declare, a value of another type, range or choice, a params file the package lacks."""
+    import yaml
+
+    from eqhrl_ros.parameters import check_section
+
+    if node not in NODES:
+        return [f'no node {node!r}']
+    tables = [params for _, params in node_tables(node)]
+    refused, words = [], list(words)
+    if words and words[0] != '--ros-args':
+        refused.append(f'{words[0]!r} before --ros-args')
+    while words:
+        word = words.pop(0)
+        if word in ('-p', '--params-file', '-r', '--enclave') and words:
+            value = words.pop(0)
+            if word == '-p':
+                name, _, text = value.partition(':=')
+                try:
+                    check_section(node, {name: yaml.safe_load(text)}, *tables)
+                except ValueError as error:
+                    if not text.startswith('$'):  # a shell's value ($HOME/…) is a string once expanded
+                        refused.append(str(error))
+            elif word == '--params-file' and 'params/' in value:
+                if not (SHARE / 'params' / Path(value).name).is_file():
+                    refused.append(f'no params file {Path(value).name}')
+    return refused
+
+
+def _launch_refusals(launch_file: str, words: list) -> list:
+    """What `ros2 launch eqhrl_ros <file> <words>` would not take: an argument the file does not
+    declare, an env with no params file, a mode or an expert it does not know."""
+    import re
+
+    from eqhrl_ros.core.algorithm.config import MODES
+
+    path = SHARE / 'launch' / launch_file
+    if not path.is_file():
+        return [f'no launch file {launch_file}']
+    text = path.read_text()
+    if 'shared_arguments(' in text:
+        text += (SHARE / 'eqhrl_ros' / 'nodes' / 'launching.py').read_text()
+    declared = set(re.findall(r"DeclareLaunchArgument\(\s*'(\w+)'", text))
+    experts = {'train.launch.py': {'expert', 'teleop', 'none'}, 'actors.launch.py': {'true', 'false'}}
+    choices = {'mode': set(MODES), 'expert': experts[launch_file]}
+    refused = []
+    for word in words:
+        name, _, value = word.partition(':=')
+        if name not in declared:
+            refused.append(f'{name!r} is no argument of {launch_file} ({", ".join(sorted(declared))})')
+        elif name == 'env' and not (SHARE / 'params' / f'{value}.yaml').is_file():
+            refused.append(f'env:={value}: no params/{value}.yaml')
+        elif name in choices and value not in choices[name]:
+            refused.append(f'{name}:={value} is not one of {sorted(choices[name])}')
+    return refused
+
+
+SHARE = Path(__file__).resolve().parents[1]  # eqhrl_ros/: params/, launch/, the code
+
+
+def test_every_documented_ros2_command_names_what_its_node_or_launch_file_takes():
+    """From outside, every documented command must work as written: a parameter renamed in the code,
+    a params file or a launch argument dropped, and left in the docs, fails here."""
+    commands = list(_documented_ros2_commands())
+    assert len([c for c in commands if c[1] == 'run']) >= 40 and len([c for c in commands if c[1] == 'launch']) >= 15
+    refused = []
+    for path, kind, target, words in commands:
+        found = _run_refusals(target, words) if kind == 'run' else _launch_refusals(target, words)
+        refused += [f'{path}: ros2 {kind} eqhrl_ros {target} {" ".join(words)}: {why}' for why in found]
+    assert not refused, '\n'.join(refused)
