@@ -103,7 +103,7 @@ def fill_response(response: Advise.Response, advice: Advice, name: str) -> Advis
 
 def advice_from_response(response: Advise.Response, name: str) -> Advice:
     """The answer as the core's Advice; ``name`` is the expert's name as the learner shows it. The
-    reason is another node's text, bound for the person's page and terminal and the record: one
+    reason is another node's text, bound for learner/advice_request and the person's page and terminal: one
     printable line of at most REASON_MAX characters."""
     action = np.asarray(response.action, dtype=np.float32) if response.advised else None
     reason = printable_text(response.reason, REASON_MAX)

@@ -450,7 +450,7 @@ def advice_request_msg(
 
 
 # Expert names and reasons come from other nodes: cap them before they reach a log line, a count,
-# the person's page or terminal, or the record.
+# or the person's page or terminal.
 EXPERT_NAME_MAX = 64
 EXPERT_NAMES_KEPT = 8
 REASON_MAX = 200
