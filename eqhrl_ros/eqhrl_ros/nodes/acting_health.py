@@ -39,6 +39,8 @@ def acting_checks(node) -> list:
         expert = Check('expert', OK, 'advice paused (advice_enabled false)', values)
     elif servers == 0:
         expert = Check('expert', WARN, "no node serves 'advise': the learner acts alone", values)
+    elif node.advice.serving():
+        expert = Check('expert', WARN, f"{servers} nodes serve 'advise': no answer is taken until one does", values)
     elif asked >= 10 and timeouts > asked / 2:
         expert = Check('expert', WARN, f'{timeouts} of {asked} requests timed out', values)
     else:

@@ -20,6 +20,7 @@ from ..core.algorithm.advice_outcomes import Resolution
 from ..core.algorithm.learner import Proposal
 from ..core.data.advice import ACTION_FAULTS, Advice, refused_action_words
 from . import advise_msgs
+from .graph_trust import UNKNOWN_NODE, servers
 from .messages import EXPERT_NAMES_KEPT, printable_name
 from .recording import introspect
 
@@ -66,8 +67,6 @@ class AdviceClient:
         self._token = 0
         self.latencies: deque = deque(maxlen=100_000)  # seconds, request to answer
         self.experts_heard: Counter = Counter()  # expert_name -> advice answers this episode
-        self._servers = 1
-        self._servers_checked = 0.0
 
     @property
     def service_name(self) -> str:
@@ -87,27 +86,20 @@ class AdviceClient:
         timeout = self.params['advice_timeout_s'] if timeout is None else timeout
         request = advise_msgs.request_msg(proposal.request, timeout)
         timer = self.node.create_timer(timeout, lambda: self._on_timeout(token), clock=self.clock)
-        self._check_servers()
         now = time.monotonic()
         self.pending = PendingAdvice(token, proposal, key, timer, now, now + timeout)
         future = self.client.call_async(request)
         future.add_done_callback(lambda f: self._on_response(token, f))
 
-    def _check_servers(self) -> None:
-        """Warn when several nodes serve 'advise': rclpy keeps the first answer to a request
-        and drops the others, so with accept_expert set, a request the other server answers
-        first counts as 'untrusted' even if the accepted expert answers it too."""
-        now = time.monotonic()
-        if now - self._servers_checked < 5.0:
-            return
-        self._servers_checked = now
-        servers = self.servers()
-        if servers > 1 and servers != self._servers:
-            self.node.get_logger().warn(
-                f"{servers} nodes serve '{self.client.srv_name}': the first answer "
-                'to each request is used, the others are dropped'
-            )
-        self._servers = servers
+    def serving(self) -> list:
+        """The nodes serving 'advise' while more than one does, else []. Each gets every request,
+        and rclpy keeps the first answer without saying whose it is: while a second node serves,
+        no answer can be told from a stranger's (graph_trust's rule for topics). A restarted
+        expert's old endpoints carry its own name and count once."""
+        if self.servers() <= 1:
+            return []
+        names = servers(self.node, self.node.resolve_service_name(self.client.srv_name)) - {UNKNOWN_NODE}
+        return sorted(names) if len(names) > 1 else []
 
     def pause(self) -> Optional[float]:
         """A STOP: the open request's timeout holds; returns the seconds it has left (None: none open)."""
@@ -168,8 +160,16 @@ class AdviceClient:
                 self.experts_heard[name] += 1
             else:
                 self.experts_heard['(others)'] += 1
-            accept = self.params['accept_expert']
-            if accept and response.expert_name != accept:
+            accept, serving = self.params['accept_expert'], self.serving()
+            if serving:
+                service = self.node.resolve_service_name(self.client.srv_name)
+                self.node.get_logger().warn(
+                    f"ignored advice: {len(serving)} nodes serve '{service}' ({', '.join(serving)}), so an answer "
+                    "cannot be told from a stranger's; none is taken until one node serves it",
+                    throttle_duration_sec=5.0,
+                )
+                self.on_end(pending, failure='untrusted')
+            elif accept and response.expert_name != accept:
                 self.node.get_logger().warn(
                     f"ignored advice from '{name}' (accept_expert is '{accept}')", throttle_duration_sec=5.0
                 )

@@ -1,4 +1,4 @@
-"""Who publishes a topic, judged through the ROS graph.
+"""Who publishes a topic (or serves a service), judged through the ROS graph.
 
 rclpy (Jazzy) tells a subscriber nothing about which publisher sent a message, so a node that
 must take a topic from one peer only (teleop_expert's commands, the env's env_info) asks the
@@ -28,6 +28,23 @@ def full_name(namespace: str, name: str) -> str:
 def publishers(node: Node, topic: str) -> set:
     """Full names of the nodes publishing on ``topic`` (a resolved name)."""
     return {full_name(i.node_namespace, i.node_name) for i in node.get_publishers_info_by_topic(topic)}
+
+
+def servers(node: Node, service: str) -> set:
+    """Full names of the nodes serving ``service`` (a resolved name). rclpy (Jazzy) has no query of
+    a service's servers, so each node of the graph is asked for its services: call it only when
+    ``count_services`` says there is more than one."""
+    from rclpy._rclpy_pybind11 import NodeNameNonExistentError
+
+    names = set()
+    for name, namespace in node.get_node_names_and_namespaces():
+        try:
+            served = node.get_service_names_and_types_by_node(name, namespace)
+        except NodeNameNonExistentError:  # it left between the two queries
+            continue
+        if any(each == service for each, _ in served):
+            names.add(full_name(namespace, name))
+    return names
 
 
 class OnePublisher:

@@ -183,6 +183,25 @@ def test_untrusted_expert_is_refused(harness, ros_context, tmp_path):
     assert totals.asked > 0 and totals.failed['untrusted'] == totals.asked and totals.given == 0
 
 
+def test_no_answer_is_taken_while_two_nodes_serve_advise(harness, ros_context, tmp_path, monkeypatch):
+    """From outside: a stranger serving 'advise' beside the expert answered first as often as not,
+    and its actions went into D and D_advising (the learner only warned). rclpy does not say which
+    server an answer came from, so while two nodes serve, none is taken, as with two publishers."""
+    warned = []
+    monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append((logger.name, line)))
+    experts = [StubExpert(ros_context, name='expert'), StubExpert(ros_context, [2.0], name='stranger')]
+    try:
+        learner, _ = run_learner(harness, ros_context, tmp_path, episodes=2, mode='random', random_ask_rate=0.3)
+    finally:
+        for expert in experts:
+            expert.close()
+    totals = learner.learner.advice_total
+    assert totals.asked > 0 and totals.given == 0 and len(learner.learner.advice_replay) == 0, totals
+    assert totals.failed['untrusted'] + totals.failed['timeout'] == totals.asked and totals.failed['untrusted'] > 0
+    said = "ignored advice: 2 nodes serve '/advise' (/expert, /stranger), so an answer cannot be told from a stranger's"
+    assert any(name == 'learner' and line.startswith(said) for name, line in warned), warned
+
+
 def test_env_that_dies_mid_episode_and_restarts(harness, ros_context, tmp_path):
     env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
     learner = harness.add(

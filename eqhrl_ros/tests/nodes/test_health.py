@@ -25,6 +25,17 @@ def test_the_learner_says_when_no_expert_serves_and_when_one_does(harness, ros_c
     assert harness.spin_until(lambda: learner.health.level('expert') == WARN, timeout=10)
     expert = harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
     assert harness.spin_until(lambda: learner.health.level('expert') == OK, timeout=10)
+    # A second node serving advise: no answer can be told from its (test_faults.py), so WARN, and OK once it leaves.
+    second = ExpertNode(
+        context=ros_context,
+        parameter_overrides=params(env_id='Pendulum-v1'),
+        cli_args=['--ros-args', '-r', '__node:=second'],
+    )
+    harness.executor.add_node(second)
+    assert harness.spin_until(lambda: learner.health.level('expert') == WARN, timeout=10)
+    harness.executor.remove_node(second)
+    second.destroy_node()
+    assert harness.spin_until(lambda: learner.health.level('expert') == OK, timeout=10)
 
     def statuses():
         return [s for msg in heard for s in msg.status if s.name == '/learner: expert']
@@ -32,6 +43,8 @@ def test_the_learner_says_when_no_expert_serves_and_when_one_does(harness, ros_c
     assert harness.spin_until(lambda: {s.level for s in statuses()} >= {DiagnosticStatus.WARN, DiagnosticStatus.OK})
     statuses = statuses()
     assert any(kv.key == 'advise servers' for kv in statuses[-1].values) and expert is not None
+    said = "2 nodes serve 'advise': no answer is taken until one does"
+    assert any(s.level == DiagnosticStatus.WARN and s.message == said for s in statuses), [s.message for s in statuses]
 
 
 def test_the_learner_warns_of_a_stalled_env_and_clears_when_it_steps_again(harness, ros_context, tmp_path):
