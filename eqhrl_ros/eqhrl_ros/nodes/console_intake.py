@@ -17,10 +17,8 @@ from rclpy.parameter import parameter_value_to_python
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats
 
 from ..parameters import check_section
-from .messages import OUTCOME_NAMES
+from .messages import OUTCOME_NAMES, REASON_MAX, printable_text
 
-# An expert's reason or a failure's kind, as the page lists it: a line, not a document.
-MAX_DETAIL_CHARS = 300
 STATS_SECONDS = ('human_time_s', 'human_time_total_s', 'takeover_s')
 STATS_COUNTS = ('length', 'advice_asked', 'advice_given', 'advice_human', 'takeover_steps', 'asked_steps')
 
@@ -40,7 +38,9 @@ def request_shown(msg: AdviceRequest, action_size: Optional[int]) -> dict:
             raise ValueError(f'{name} has {len(values)} values; the env acts with {action_size}')
         if not all(math.isfinite(v) for v in values):
             raise ValueError(f'{name} holds a value that is not finite')
-    detail = msg.detail if len(msg.detail) <= MAX_DETAIL_CHARS else msg.detail[: MAX_DETAIL_CHARS - 3] + '...'
+    # An expert's reason or a failure's kind: a line, not a document, as the learner cuts it (a node
+    # posing as the learner cuts nothing).
+    detail = printable_text(msg.detail, REASON_MAX)
     return {
         'outcome': OUTCOME_NAMES[msg.outcome],
         'detail': detail,

@@ -352,3 +352,15 @@ def test_a_node_posing_as_the_learner_with_values_it_could_not_hold_is_not_shown
     )
     assert "'advising_budget_s'" in next(line for line in warned if 'not shown on the page' in line)
     assert console.learner_params == {}
+
+
+def test_a_reason_from_a_node_posing_as_the_learner_reaches_the_page_as_one_short_line():
+    """The learner cuts an expert's reason to one printable line (test_faults.py); a node posing as the
+    learner cuts nothing, so the console cuts it the same way before the page lists it."""
+    from eqhrl_interfaces.msg import AdviceRequest
+    from eqhrl_ros.nodes.console_intake import request_shown
+    from eqhrl_ros.nodes.messages import REASON_MAX
+
+    shown = request_shown(AdviceRequest(outcome=AdviceRequest.PENDING, detail='\x1b[2J\nwhy' + 'y' * 5000), 1)
+    assert len(shown['detail']) == REASON_MAX and shown['detail'].startswith('?[2J?why')
+    assert shown['detail'].isprintable() and shown['detail'].endswith('...')
