@@ -67,6 +67,18 @@ def test_a_label_that_is_not_one_short_printable_line_is_refused(label):
     assert EnvSpec('robot', 2, [-1.0], [1.0], ('θ (rad)', 'x<y & "z"'), ('f' * 64,)).action_labels == ('f' * 64,)
 
 
+@pytest.mark.parametrize('rate_hz', [float('nan'), float('inf'), -20.0])
+def test_an_env_info_whose_rate_is_no_number_of_steps_a_second_is_refused(rate_hz):
+    """From outside: a real-time env_info with rate_hz NaN or infinite was taken, the learner read
+    the episode's seconds left from it as 0, and every request for the wheel ended before a person
+    could take it, unsaid."""
+    info = env_info.env_info_msg(EnvSpec('robot', 2, [-1.0], [1.0], realtime=True, rate_hz=20.0))
+    info.rate_hz = rate_hz
+    with pytest.raises(ValueError, match=r'rate_hz must be a finite number of steps a second, >= 0 \(0: not said\)'):
+        env_info.spec_from_msg(info)
+    assert env_info.spec_from_msg(env_info.env_info_msg(EnvSpec('robot', 2, [-1.0], [1.0], rate_hz=0.0))).rate_hz == 0.0
+
+
 def test_a_learner_without_env_id_waits_for_env_info_then_learns_from_the_example_env(
     harness, ros_context, tmp_path, caplog
 ):

@@ -197,6 +197,12 @@ class EnvSpec:
             raise ValueError(f'success rule {self.success_rule!r} is not one of {SUCCESS_RULES}{where}')
         if not math.isfinite(self.success_threshold):
             raise ValueError(f'success threshold must be finite{where}')
+        if not (math.isfinite(self.rate_hz) and self.rate_hz >= 0.0):
+            # The learner reads a real-time episode's seconds left from it: a NaN or infinite rate left
+            # none, and each request for the wheel ended before a person could take it.
+            raise ValueError(
+                f'rate_hz must be a finite number of steps a second, >= 0 (0: not said), got {self.rate_hz}{where}'
+            )
         names = [camera.name for camera in self.cameras]
         if len(set(names)) != len(names) or not all(isinstance(c, EnvCamera) for c in self.cameras):
             raise ValueError(f'cameras must be EnvCamera with names of their own, got {names}{where}')
