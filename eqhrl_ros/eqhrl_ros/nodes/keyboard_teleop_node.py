@@ -28,6 +28,7 @@ from ..core.data.signing import CommandSeal, signer_from
 from ..core.envs.spec import EnvSpec
 from ..parameters import KEYBOARD_PARAMS
 from . import messages
+from .console_intake import request_shown
 from .env_info import EnvInfoWatcher, configured_spec
 from .graph_trust import subscribe_from_one
 from .params import declare, reject_unknown_overrides
@@ -57,6 +58,8 @@ class KeyboardTeleop(Node):
         self.wheel_protocol = False  # the learner asks for the wheel: t is the deadman (a toggle)
         self.holding = False  # t pressed: the person holds the wheel
         self.request_seen = 0.0
+        self.action_size = None  # the env's, once known: a request's actions must be of it
+        self.dropped = 0  # the learner's requests out of meaning (console_intake), not shown
         self.publisher = self.create_publisher(Float32MultiArray, 'teleop_command', 10)
         # A stranger's beside the learner's: none shown.
         self.request_guard = subscribe_from_one(
@@ -70,6 +73,7 @@ class KeyboardTeleop(Node):
         self.draw()
 
     def _on_env(self, spec: EnvSpec) -> None:
+        self.action_size = spec.action_size
         dimensions = self.params['dimensions']
         if dimensions > spec.action_size:
             raise ValueError(f'dimensions is {dimensions}, env {spec.name!r} takes {spec.action_size} action value(s)')
@@ -78,6 +82,15 @@ class KeyboardTeleop(Node):
             self.draw()
 
     def _on_request(self, msg: AdviceRequest) -> None:
+        try:  # checked by meaning, as the person's page checks it: a NaN or endless wait is no countdown
+            request_shown(msg, self.action_size)
+        except ValueError as error:
+            self.dropped += 1
+            self.get_logger().warning(
+                f'a message on learner/advice_request dropped, not shown: {error} ({self.dropped} dropped so far)',
+                throttle_duration_sec=5.0,
+            )
+            return
         before = self.request
         new = before is None or (before.episode, before.step) != (msg.episode, msg.step)
         self.request = msg

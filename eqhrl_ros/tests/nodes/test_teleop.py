@@ -660,3 +660,38 @@ def test_a_mapping_set_through_the_parameter_service_is_said_and_refused_as_a_li
     assert not refused.successful and refused.reason == "parameters 'scales' [nan] and 'offsets' [0.0] must be finite"
     assert set_scales([3.0]).successful
     assert said == ['parameter scales set to [3.0] (was [1.0])'] and teleop.params['scales'] == [3.0]
+
+
+def test_keyboard_teleop_shows_no_request_whose_numbers_mean_nothing(harness, ros_context):
+    """From outside: a node posing as the learner (while none ran) sent a request whose wait was
+    infinite: the terminal counted down '… of inf s', and one with a NaN wait '… of nan s'. The
+    terminal now checks a request as the person's page does, drops it and keeps the one before."""
+    import io
+
+    from eqhrl_ros.nodes.keyboard_teleop_node import KeyboardTeleop
+
+    read_end, write_end = os.pipe()
+    screen = io.StringIO()
+    try:
+        keyboard = harness.add(
+            KeyboardTeleop(read_end, screen, context=ros_context, parameter_overrides=params(dimensions=1))
+        )
+        learner = harness.add(rclpy.create_node('learner', context=ros_context))
+        said = learner.create_publisher(AdviceRequestMsg, 'learner/advice_request', messages.LATCHED_QOS)
+        good = AdviceRequestMsg(
+            outcome=AdviceRequestMsg.PENDING, episode=2, step=5, timeout_s=5.0, proposed_action=[0.5]
+        )
+        said.publish(good)
+        assert harness.spin_until(lambda: keyboard.request is not None)
+        for dropped, wait in enumerate((float('inf'), float('nan')), start=1):  # one at a time: latched, depth 1
+            said.publish(AdviceRequestMsg(outcome=AdviceRequestMsg.PENDING, episode=9, step=9, timeout_s=wait))
+            assert harness.spin_until(lambda: keyboard.dropped == dropped, timeout=5)
+        keyboard.action_size = 1  # as the env's env_info says (unknown, an action's size is not judged)
+        said.publish(AdviceRequestMsg(outcome=AdviceRequestMsg.PENDING, episode=9, step=9, proposed_action=[0.1, 0.2]))
+        assert harness.spin_until(lambda: keyboard.dropped == 3, timeout=5)
+        shown = screen.getvalue().split('\x1b[H')[-1]
+        assert 'episode 9' not in shown and 'inf s' not in shown and 'nan s' not in shown
+        assert (keyboard.request.episode, keyboard.request.step) == (2, 5)
+    finally:
+        os.close(read_end)
+        os.close(write_end)
