@@ -157,7 +157,7 @@ def _nodes(context, declared):
         if env_node != 'none':  # none: your own env node, started apart in the actor's namespace
             nodes.append(node(env_node, env_i, namespace=ns))
         if with_expert == 'true':
-            expert = {**shared, **_section(data, 'expert', pushed)}
+            expert = {**shared, **_section(data, 'expert', pushed), **key}  # answers only requests signed with it
             nodes.append(node('expert', expert, namespace=ns))
         nodes.append(node('actor', actor_i, namespace=ns, remappings=remaps, output='screen'))
     # A node that refuses to start (or fails later) stops the launch, which then exits non-zero.
@@ -185,9 +185,6 @@ def generate_launch_description():
             default_value='',
             description='actors the trainer takes transitions from, comma-separated full names '
             '(/host_a_actor0/actor,...; default: those started here; with key_file, any that signs)',
-        ),
-        DeclareLaunchArgument(
-            'key_file', default_value='', description="the deployment's shared key: signs weights and batches"
         ),
         DeclareLaunchArgument('transitions_topic', default_value='/transitions', description='remap /transitions'),
         DeclareLaunchArgument('weights_topic', default_value='/weights', description='remap /weights'),

@@ -13,6 +13,7 @@ ros2 launch eqhrl_ros train.launch.py env:=teleop_pendulum expert:=teleop   (a p
 ros2 launch eqhrl_ros train.launch.py env:=pendulum resume:=true   (after Ctrl-C: go on with the run)
     output_dir:= (default: the params file's), resume:=true, overwrite:=true go to the learner
 ros2 launch eqhrl_ros train.launch.py env:=pendulum use_sim_time:=true   (every node on /clock's time)
+ros2 launch eqhrl_ros train.launch.py env:=pendulum key_file:=$HOME/eqhrl.key   (advice signed with the key)
 Included by your launch file under a PushRosNamespace (one group per robot), each node gets the
 params file's sections for it, a bare learner: section included (rcl alone would give it to
 /learner only).
@@ -59,8 +60,11 @@ def _nodes(context, declared):
     namespace = namespace_of(context)
     clock = sim_time(context)  # use_sim_time:=, on every node
 
+    key_file = LaunchConfiguration('key_file').perform(context)  # the deployment's shared secret
+
     def parameters(name):
-        return [*node_parameters(data, name, namespace), *([clock] if clock else [])]
+        keyed = [{'key_file': key_file}] if key_file and name != env_node else []
+        return [*node_parameters(data, name, namespace), *([clock] if clock else []), *keyed]
 
     expert = LaunchConfiguration('expert').perform(context)
     if expert not in EXPERT_NODES:

@@ -141,6 +141,7 @@ class StubExpert:
     def __init__(self, context, answer='advise', delay=0.0, name='stub_expert', expert_name='stub', **fields):
         self.node = rclpy.create_node(name, context=context)
         self.requests = []
+        self.signatures = []  # each request's signature (empty: unsigned), as it came
         self.answer, self.delay, self.expert_name = answer, delay, expert_name
         self.fields = fields  # more of the response, set as given (human, response_time_s, reason)
         self.node.create_service(Advise, 'advise', self._serve)
@@ -151,6 +152,7 @@ class StubExpert:
 
     def _serve(self, request, response):
         self.requests.append((request.episode, request.step, request.discrepancy, request.entropy))
+        self.signatures.append(bytes(request.signature))
         if self.delay:
             time.sleep(self.delay)
         response.expert_name = self.expert_name

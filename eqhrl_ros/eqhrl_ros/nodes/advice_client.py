@@ -19,6 +19,7 @@ from eqhrl_interfaces.srv import Advise
 from ..core.algorithm.advice_outcomes import Resolution
 from ..core.algorithm.learner import Proposal
 from ..core.data.advice import ACTION_FAULTS, Advice, refused_action_words
+from ..core.data.signing import signer_from
 from . import advise_msgs
 from .graph_trust import UNKNOWN_NODE, servers
 from .messages import EXPERT_NAMES_KEPT, printable_name
@@ -50,6 +51,7 @@ class PendingAdvice:
     sent: float = 0.0  # time.monotonic() when the request went out
     deadline: float = 0.0  # time.monotonic() when it times out (moved on by a STOP's pause)
     paused_at: Optional[float] = None  # a STOP holds it (and its timeout) since then
+    request: Optional[Advise.Request] = None  # as sent (its counter and signature: the answer's must match)
 
 
 class AdviceClient:
@@ -57,7 +59,10 @@ class AdviceClient:
 
     def __init__(self, node, params: dict, lock, clock, on_end: Callable):
         self.node = node
-        self.params = params  # the node's live parameters: advice_timeout_s, accept_expert
+        self.params = params  # the node's live parameters: advice_timeout_s, accept_expert, key_file
+        # With key_file, requests are signed and only answers signed for them are taken (KeyFileError,
+        # a ValueError, refuses the node at start-up).
+        self.seal = advise_msgs.request_seal(signer_from(params['key_file']))
         self.lock = lock
         self.clock = clock
         self.on_end = on_end
@@ -84,19 +89,20 @@ class AdviceClient:
         self._token += 1
         token = self._token
         timeout = self.params['advice_timeout_s'] if timeout is None else timeout
-        request = advise_msgs.request_msg(proposal.request, timeout)
+        request = advise_msgs.sign_request(advise_msgs.request_msg(proposal.request, timeout), self.seal)
         timer = self.node.create_timer(timeout, lambda: self._on_timeout(token), clock=self.clock)
         now = time.monotonic()
-        self.pending = PendingAdvice(token, proposal, key, timer, now, now + timeout)
+        self.pending = PendingAdvice(token, proposal, key, timer, now, now + timeout, request=request)
         future = self.client.call_async(request)
         future.add_done_callback(lambda f: self._on_response(token, f))
 
     def serving(self) -> list:
         """The nodes serving 'advise' while more than one does, else []. Each gets every request,
         and rclpy keeps the first answer without saying whose it is: while a second node serves,
-        no answer can be told from a stranger's (graph_trust's rule for topics). A restarted
-        expert's old endpoints carry its own name and count once."""
-        if self.servers() <= 1:
+        no unsigned answer can be told from a stranger's (graph_trust's rule for topics); with
+        key_file, the signature tells, so [] always. A restarted expert's old endpoints carry its own
+        name and count once."""
+        if self.seal is not None or self.servers() <= 1:
             return []
         names = servers(self.node, self.node.resolve_service_name(self.client.srv_name)) - {UNKNOWN_NODE}
         return sorted(names) if len(names) > 1 else []
@@ -161,7 +167,11 @@ class AdviceClient:
             else:
                 self.experts_heard['(others)'] += 1
             accept, serving = self.params['accept_expert'], self.serving()
-            if serving:
+            unsigned = advise_msgs.answer_refusal(response, pending.request, self.seal)
+            if unsigned:
+                self.node.get_logger().warn(f"ignored advice from '{name}': {unsigned}", throttle_duration_sec=5.0)
+                self.on_end(pending, failure='untrusted')
+            elif serving:
                 service = self.node.resolve_service_name(self.client.srv_name)
                 self.node.get_logger().warn(
                     f"ignored advice: {len(serving)} nodes serve '{service}' ({', '.join(serving)}), so an answer "

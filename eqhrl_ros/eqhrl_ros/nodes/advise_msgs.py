@@ -4,7 +4,9 @@ AdviceRequest and Advice, in one place: the learner sends and reads, experts rea
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import replace
+from typing import Optional
 
 import numpy as np
 
@@ -12,6 +14,7 @@ from eqhrl_interfaces.srv import Advise
 
 from ..core.data.advice import Advice, AdviceRequest
 from ..core.data.camera_frames import FrameError
+from ..core.data.signing import RequestCheck, RequestSeal
 from .frame_msgs import stack_msgs, stack_of
 from .messages import REASON_MAX, printable_text
 
@@ -120,3 +123,84 @@ def person_time_checked(advice: Advice, waited_s: float) -> tuple[Advice, bool]:
     if not advice.human or 0.0 <= claim <= waited_s:
         return advice, False
     return replace(advice, response_time_s=float(waited_s)), True
+
+
+# Signed with key_file (core/data/signing.py): the parts each signature covers, field by field.
+SIGNED_KIND = 'advise'
+
+
+def _f32(values) -> bytes:
+    """float32 values as bytes, each NaN as the one NaN (QASAC's entropy): a NaN's bits may differ
+    between the learner's value and the one the expert reads, and the signature must not."""
+    values = np.asarray(values, dtype='<f4').reshape(-1)
+    return np.where(np.isnan(values), np.float32('nan'), values).astype('<f4').tobytes()
+
+
+def request_parts(msg: Advise.Request) -> list:
+    """The request's content, as its signature covers it (everything but counter and signature)."""
+    parts = [
+        _f32(msg.observation),
+        _f32(msg.proposed_action),
+        _f32(msg.action_low),
+        _f32(msg.action_high),
+        _f32([msg.discrepancy, msg.entropy, msg.timeout_s]),
+        struct.pack('<ii', msg.episode, msg.step),
+    ]
+    for frame in msg.frames:
+        header = struct.pack('<iIIII?', frame.header.stamp.sec, frame.header.stamp.nanosec, frame.height,
+                             frame.width, frame.step, bool(frame.is_bigendian))  # fmt: skip
+        parts += [header, frame.header.frame_id.encode(), frame.encoding.encode(), bytes(frame.data)]
+    return parts
+
+
+def answer_parts(msg: Advise.Response) -> list:
+    """The answer's content, as its signature covers it (everything but the signature)."""
+    flags = struct.pack('<???', bool(msg.advised), bool(msg.human), bool(msg.timed_out))
+    return [flags, _f32(msg.action), _f32([msg.response_time_s]), msg.reason.encode(), msg.expert_name.encode()]
+
+
+def request_seal(signer) -> Optional[RequestSeal]:
+    """The learner's seal of its requests with key_file's signer; None: unsigned."""
+    return RequestSeal(signer, SIGNED_KIND) if signer else None
+
+
+def request_check(signer) -> Optional[RequestCheck]:
+    """An expert's check of requests with key_file's signer; None: any well-formed request is taken."""
+    return RequestCheck(signer, SIGNED_KIND) if signer else None
+
+
+def sign_request(msg: Advise.Request, seal: Optional[RequestSeal]) -> Advise.Request:
+    if seal is not None:
+        msg.counter, signature = seal.seal(request_parts(msg))
+        msg.signature = list(signature)
+    return msg
+
+
+def answer_refusal(msg: Advise.Response, request: Advise.Request, seal: Optional[RequestSeal]) -> str:
+    """'' when the learner may take this answer to ``request``: no key is set, or it is signed for it."""
+    if seal is None:
+        return ''
+    return seal.answer_refusal(request.counter, bytes(request.signature), answer_parts(msg), bytes(msg.signature))
+
+
+def unsigned_request(
+    msg: Advise.Request, response: Advise.Response, check: Optional[RequestCheck], name: str, logger
+) -> Optional[Advise.Response]:
+    """An expert's decline (itself unsigned) of a request its key_file does not vouch for, said in
+    its log; None when the request may be answered (it is then marked as taken: a copy of it is
+    refused as a replay)."""
+    if check is None:
+        return None
+    refusal = check.refusal(msg.counter, request_parts(msg), bytes(msg.signature))
+    if not refusal:
+        return None
+    reason = f'request refused: {refusal}'
+    logger.warning(f'{reason} (episode {msg.episode}, step {msg.step})', throttle_duration_sec=5.0)
+    return fill_response(response, Advice.decline(reason), name)
+
+
+def sign_answer(msg: Advise.Response, request: Advise.Request, check: Optional[RequestCheck]) -> Advise.Response:
+    """The expert's answer, signed for ``request`` when it has a key (only answers to requests it took)."""
+    if check is not None:
+        msg.signature = list(check.seal_answer(request.counter, bytes(request.signature), answer_parts(msg)))
+    return msg

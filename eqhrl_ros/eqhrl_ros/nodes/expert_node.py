@@ -20,12 +20,22 @@ from eqhrl_interfaces.srv import Advise
 
 from ..core.data.advice import Advice
 from ..core.data.camera_frames import FrameError
+from ..core.data.signing import signer_from
 from ..core.envs.spec import EnvSpec
 from ..core.experts.controllers import expert_disagreements
 from ..core.experts.factory import make_expert
 from ..core.experts.simulated_human import HumanLimits, SimulatedHuman
 from ..parameters import EXPERT_PARAMS, HUMAN_LIMIT_PARAMS
-from .advise_msgs import answer, fill_response, frames_refused, request_from_msg, request_refusal
+from .advise_msgs import (
+    answer,
+    fill_response,
+    frames_refused,
+    request_check,
+    request_from_msg,
+    request_refusal,
+    sign_answer,
+    unsigned_request,
+)
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .params import choices_validator, declare, reject_unknown_overrides
 from .recording import introspect
@@ -41,6 +51,9 @@ class ExpertNode(Node):
         self.params = declare(self, EXPERT_PARAMS)
         self.add_on_set_parameters_callback(choices_validator(EXPERT_PARAMS))
         p = self.params
+        # With key_file: only requests signed with it are answered, and each answer is signed for its
+        # request (KeyFileError, a ValueError, refuses the node at start-up).
+        self.request_check = request_check(signer_from(p['key_file']))
         self.backend = backend
         if self.backend is None and (p['backend'] == 'policy' or p['env_id']):
             # env_id here names the controller (any env name, not only a gymnasium id).
@@ -119,13 +132,28 @@ class ExpertNode(Node):
         return None
 
     def _on_request(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        unsigned = unsigned_request(
+            request, response, self.request_check, self.get_fully_qualified_name(), self.get_logger()
+        )
+        if unsigned is not None:
+            return unsigned
         name = self.get_fully_qualified_name()
         refusal = self._refusal(request)
         if refusal is not None:
-            return fill_response(response, refusal, name)
-        return answer(self.backend, request, response, name, self.get_logger())
+            return sign_answer(fill_response(response, refusal, name), request, self.request_check)
+        return sign_answer(
+            answer(self.backend, request, response, name, self.get_logger()), request, self.request_check
+        )
 
     async def _on_request_as_person(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        unsigned = unsigned_request(
+            request, response, self.request_check, self.get_fully_qualified_name(), self.get_logger()
+        )
+        if unsigned is not None:
+            return unsigned
+        return sign_answer(await self._as_person(request, response), request, self.request_check)
+
+    async def _as_person(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
         """The simulated person reacts after their drawn delay, within the answer window
         (cut, like teleop_expert's, to the learner's timeout)."""
         name = self.get_fully_qualified_name()

@@ -38,7 +38,8 @@ def shared_arguments(whose: str) -> list:
     name, or ``params_file``), and the run's folder for the node that saves (``whose``: 'learner' or
     'trainer'): ``output_dir``, ``resume``, ``overwrite`` (before, given to the launch, these went
     unheard, and a second launch was refused the folder of the first); the env node to start
-    (``env_node``, for each actor in actors.launch.py) and ``use_sim_time`` for every node."""
+    (``env_node``, for each actor in actors.launch.py), ``use_sim_time`` for every node, and
+    ``key_file`` for every node that signs or checks what it sends and receives."""
     from launch.actions import DeclareLaunchArgument
 
     from ..files.paths import shipped
@@ -66,6 +67,12 @@ def shared_arguments(whose: str) -> list:
             default_value='',
             description='true: every node takes its ROS time from /clock (a simulator); false: from the '
             "system; empty: as the params file or an including launch file's SetParameter says",
+        ),
+        DeclareLaunchArgument(
+            'key_file',
+            default_value='',
+            description="the deployment's shared key (a file), given to every node started here but the env: "
+            'each signs what it sends and refuses what comes unsigned (README, Security)',
         ),
     ]
 

@@ -45,7 +45,16 @@ from ..core.experts.teleop import (
 )
 from ..parameters import TELEOP_EXPERT_PARAMS
 from . import messages
-from .advise_msgs import answer, fill_response, frames_refused, request_from_msg, request_refusal
+from .advise_msgs import (
+    answer,
+    fill_response,
+    frames_refused,
+    request_check,
+    request_from_msg,
+    request_refusal,
+    sign_answer,
+    unsigned_request,
+)
 from .env_info import EnvInfoWatcher, configured_spec
 from .graph_trust import OnePublisher
 from .params import choices_validator, declare, plain, reject_unknown_overrides
@@ -72,6 +81,9 @@ class TeleopExpertNode(Node):
                 f"'{self.params['source']}' comes from nodes that sign nothing: use SROS2 for it, or no key_file"
             )
         self.command_check = CommandCheck(signer) if signer else None
+        # The key also guards 'advise': a request not signed with it opens nothing for the person (a
+        # stranger's call would supersede the learner's open one), and the answers are signed.
+        self.request_check = request_check(signer)
         self.add_on_set_parameters_callback(choices_validator(TELEOP_EXPERT_PARAMS))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.expert = TeleopExpert(
@@ -276,12 +288,24 @@ class TeleopExpertNode(Node):
         waiting.set_result(advice)
 
     def _on_request_now(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        unsigned = unsigned_request(request, response, self.request_check, self.expert.name, self.get_logger())
+        if unsigned is not None:
+            return unsigned
         refusal = request_refusal(request)
         if refusal:
-            return fill_response(response, Advice.decline(refusal, self.expert.name), self.expert.name)
-        return answer(self.expert, request, response, self.expert.name, self.get_logger())
+            response = fill_response(response, Advice.decline(refusal, self.expert.name), self.expert.name)
+        else:
+            response = answer(self.expert, request, response, self.expert.name, self.get_logger())
+        return sign_answer(response, request, self.request_check)
 
     async def _on_request_in_window(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        unsigned = unsigned_request(request, response, self.request_check, self.expert.name, self.get_logger())
+        if unsigned is not None:
+            return unsigned
+        return sign_answer(await self._in_window(request, response), request, self.request_check)
+
+    async def _in_window(self, request: Advise.Request, response: Advise.Response) -> Advise.Response:
+        """Open the request for the person, and answer with what they do within its window."""
         refusal = request_refusal(request)
         if refusal:  # declined at once: no person is alerted to a request no answer can fit
             return fill_response(response, Advice.decline(refusal, self.expert.name), self.expert.name)

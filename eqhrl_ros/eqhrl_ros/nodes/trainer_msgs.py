@@ -20,7 +20,7 @@ from sensor_msgs.msg import CompressedImage
 
 from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionAck, TransitionBatch
 
-from ..core.data.signing import Signer
+from ..core.data.signing import UNSIGNED, Signer
 from ..core.data.summary import EpisodeSummary
 from ..core.data.transitions import TransitionBatch as Batch
 from ..core.data.transitions import batch_fields, batch_from_fields
@@ -135,7 +135,7 @@ def signature_refusal(msg, signer: Optional[Signer]) -> str:
         return ''
     signature = bytes(msg.signature)
     if not signature:
-        return 'it is unsigned and this node has a key_file'
+        return UNSIGNED
     if isinstance(msg, PolicyWeights):
         ok = signer.verify(signature, 'weights', msg.trainer_id, msg.version, weights_parts(msg))
     elif isinstance(msg, TransitionAck):

@@ -75,6 +75,7 @@ EXPERT_PARAMS = (
         dynamic=True,
     ),
     Param('enabled', True, 'Answer with advice; when false, decline every request', dynamic=True),
+    KEY_FILE,  # only requests signed with it are answered, and the answers are signed
     *HUMAN_LIMIT_PARAMS,
     Param('seed', 0, 'Seed of the simulated person (backend simulated_human)', (0, INT_MAX)),
 )

@@ -106,7 +106,6 @@ ACTOR_NODE_PARAMS = (
     *ACTING_PARAMS,
     *CAMERA_PARAMS,
     Param('actor_name', '', "This actor's name in the trainer's record and log (empty: the node's full name)"),
-    KEY_FILE,
     Param(
         'trainer_id',
         '',

@@ -108,12 +108,20 @@ ENV_PARAMS = (
 # What a params file's shared `/**:` section may set: every node accepts these.
 SHARED_PARAM_NAMES = ('env_id', *(p.name for p in SPACE_PARAMS), 'use_sim_time')
 
+KEY_FILE = Param(
+    'key_file',
+    '',
+    "A file holding this deployment's shared secret: what this node sends is signed with it, and what it "
+    'receives unsigned or signed otherwise is refused (HMAC-SHA256; integrity, no secrecy). Empty: no key',
+    path=True,
+)
 # What the learner and the actor nodes share: acting and asking for advice (nodes/acting.py).
 ACTING_PARAMS = (
     *ENV_PARAMS,
     Param('advice_enabled', True, 'Ask the expert when the gates fire (off: the gates are only logged)', dynamic=True),
     Param('advice_timeout_s', 0.5, 'Seconds to wait for the expert before acting alone', (0.001, 600.0), dynamic=True),
     Param('accept_expert', '', 'Accept advice only from this expert name (empty: any)', dynamic=True),
+    KEY_FILE,  # advise requests signed, and only answers signed for them taken
     Param(
         'expert_wait_s',
         10.0,
@@ -144,13 +152,6 @@ TORCH_THREADS = Param(
     "torch intra-op threads; 0: torch's default count while the machine's cores are free, 1 while another "
     'process keeps them busy (core/algorithm/cpu_threads.py)',
     (0, 256),
-)
-KEY_FILE = Param(
-    'key_file',
-    '',
-    "A file holding this deployment's shared secret: what this node sends is signed with it, and what it "
-    'receives unsigned or signed otherwise is refused (HMAC-SHA256; integrity, no secrecy). Empty: no key',
-    path=True,
 )
 
 

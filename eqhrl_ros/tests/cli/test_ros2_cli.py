@@ -223,6 +223,11 @@ def test_the_launch_files_included_under_a_namespace_give_their_nodes_their_sect
     assert lines['expert'] == f"[('backend', 'heuristic'), {shared}] []", lines
     assert 'ignored' not in result.stderr + result.stdout  # fleet:= is the including file's
     assert 'ignored: fleet:=' in (lambda r: r.stdout + r.stderr)(evaluated('eqhrl_ros train.launch.py fleet:=b'))
+    # key_file:= reaches every node that signs or checks (the learner's requests, the expert's answers).
+    keyed = evaluated('/tmp/robots.launch.py', 'train.launch.py', 'key_file:=/keys/deployment.key')
+    lines = dict(line.split(' ', 1) for line in keyed.stdout.splitlines())
+    assert all("('key_file', '/keys/deployment.key')" in lines[n] for n in ('learner', 'expert')), lines
+    assert 'key_file' not in lines['double_integrator_env'], lines
     # actors.launch.py: before, its trainer took batches only from /actor0/actor and refused every
     # one of /robot1/actor0/actor; and every fleet so included shared /transitions and /weights.
     result = evaluated('/tmp/robots.launch.py', 'actors.launch.py', 'actors:=1')

@@ -422,15 +422,14 @@ def test_actors_launch_file_gives_every_node_its_part_of_one_params_file(monkeyp
     assert host.replace('-', '_').replace('.', '_')[:3] in robot[0]['namespace']
     # A second robot with an offset: other indices and seeds; remaps and resume reach the nodes.
     arguments.update(actor_prefix='team_b_', actor_offset='2', transitions_topic='/b/transitions', trainer='true')
-    arguments.update(resume='true', key_file='/keys/deployment.key')
+    arguments.update(resume='true', key_file='/keys/deployment.key', expert='true')
     second = launched()
-    assert {n['parameters'][0]['key_file'] for n in second if n['executable'] in ('actor', 'trainer')} == {
-        '/keys/deployment.key'
-    }
+    keyed = [n['executable'] for n in second if n['parameters'][0].get('key_file') == '/keys/deployment.key']
+    assert sorted(keyed) == ['actor', 'actor', 'expert', 'expert', 'trainer']  # the env nodes sign nothing
     assert second[0]['parameters'][0]['resume'] is True
     assert [n['namespace'] for n in second if n['executable'] == 'actor'] == ['team_b_2', 'team_b_3']
     assert [n['parameters'][0]['seed'] for n in second if n['executable'] == 'actor'] == [44, 45]
-    assert all(('/transitions', '/b/transitions') in n['remappings'] for n in second if n['executable'] != 'gym_env')
+    assert all(('/transitions', '/b/transitions') in n['remappings'] for n in second if n['executable'] in accepted)
     assert all(n['additional_env'] == {} for n in second)  # no dds_profile: the environment as it is
     # dds_profile:=lossy_link: every node gets the shipped Fast DDS profile; a name that is no
     # profile and no file is refused.

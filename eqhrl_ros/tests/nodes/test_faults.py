@@ -19,8 +19,10 @@ from rclpy.serialization import serialize_message
 from std_msgs.msg import Float32MultiArray, MultiArrayLayout
 
 from eqhrl_interfaces.msg import AdviceRequest, EnvInfo
+from eqhrl_interfaces.srv import Advise
+from eqhrl_ros.core.data.signing import Signer, new_key_file, read_key
 from eqhrl_ros.core.envs.spec import EnvSpec
-from eqhrl_ros.nodes import env_info, messages
+from eqhrl_ros.nodes import advise_msgs, env_info, messages
 from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegratorEnv
 from eqhrl_ros.nodes.expert_node import ExpertNode
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
@@ -200,6 +202,93 @@ def test_no_answer_is_taken_while_two_nodes_serve_advise(harness, ros_context, t
     assert totals.failed['untrusted'] + totals.failed['timeout'] == totals.asked and totals.failed['untrusted'] > 0
     said = "ignored advice: 2 nodes serve '/advise' (/expert, /stranger), so an answer cannot be told from a stranger's"
     assert any(name == 'learner' and line.startswith(said) for name, line in warned), warned
+
+
+def _signed_call(harness, client, seal, entropy=float('nan'), frames=()):
+    """A Pendulum request, signed with ``seal`` (None: unsigned), and the expert's response."""
+    request = advise_msgs.sign_request(
+        Advise.Request(
+            observation=[1.0, 0.0, 0.0],
+            proposed_action=[0.0],
+            action_low=[-2.0],
+            action_high=[2.0],
+            entropy=entropy,
+            episode=1,
+            step=2,
+            frames=list(frames),
+        ),  # fmt: skip
+        seal,
+    )
+    future = client.call_async(request)
+    assert harness.spin_until(future.done, timeout=10)
+    return request, future.result()
+
+
+def test_with_a_shared_key_the_expert_answers_only_requests_signed_with_it(harness, ros_context, tmp_path):
+    """Anyone on the graph may call 'advise'. With key_file, the expert declines at once (unsigned
+    itself) a request not signed with the key, or one it has already taken (anyone reads the
+    requests, so a copy could be sent again), and signs each answer for its request. QASAC's entropy
+    is NaN, whose bits must not break the signature on the way; a camera's frames are covered."""
+    from sensor_msgs.msg import Image
+
+    key = str(new_key_file(tmp_path / 'deployment.key'))
+    harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1', key_file=key)))
+    caller = harness.add(rclpy.create_node('caller', context=ros_context))
+    client = caller.create_client(Advise, 'advise')
+    assert harness.spin_until(client.service_is_ready)
+    seal = advise_msgs.request_seal(Signer(read_key(key)))
+    _, unsigned = _signed_call(harness, client, None)
+    assert not unsigned.advised and unsigned.reason == 'request refused: it is unsigned and this node has a key_file'
+    assert len(unsigned.signature) == 0
+    _, forged = _signed_call(harness, client, advise_msgs.request_seal(Signer(b'not the deployment key!!')))
+    assert not forged.advised and 'not made with this key_file' in forged.reason
+    frame = Image(height=2, width=2, encoding='mono8', step=2, data=[0, 1, 2, 3])
+    request, answer = _signed_call(harness, client, seal, frames=[frame])
+    assert answer.advised and len(answer.action) == 1 and advise_msgs.answer_refusal(answer, request, seal) == ''
+    answer.action = [2.0]  # altered on the way
+    assert 'not made with this key_file' in advise_msgs.answer_refusal(answer, request, seal)
+    replayed = client.call_async(request)
+    assert harness.spin_until(replayed.done, timeout=10)
+    assert not replayed.result().advised and 'replay' in replayed.result().reason
+
+
+def test_with_a_shared_key_the_learner_takes_no_unsigned_answer(harness, ros_context, tmp_path, monkeypatch):
+    """A stranger serving 'advise' alone, while the real expert is away, was believed. With
+    key_file, the learner signs its requests and takes only answers signed for them."""
+    warned = []
+    monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append((logger.name, line)))
+    key = str(new_key_file(tmp_path / 'deployment.key'))
+    stranger = StubExpert(ros_context, name='stranger', expert_name='/stranger')
+    try:
+        learner, _ = run_learner(harness, ros_context, tmp_path, episodes=2, mode='random', random_ask_rate=0.3,
+                                 key_file=key)  # fmt: skip
+    finally:
+        stranger.close()
+    totals = learner.learner.advice_total
+    assert totals.asked > 0 and totals.given == 0 and len(learner.learner.advice_replay) == 0, totals
+    assert totals.failed['untrusted'] + totals.failed['timeout'] == totals.asked and totals.failed['untrusted'] > 0
+    assert all(stranger.signatures) and len(stranger.signatures) >= totals.failed['untrusted']
+    said = "ignored advice from '/stranger': it is unsigned and this node has a key_file"
+    assert any(name == 'learner' and line == said for name, line in warned), warned
+
+
+def test_with_a_shared_key_the_experts_answers_are_taken_beside_a_strangers(harness, ros_context, tmp_path,
+                                                                            monkeypatch):  # fmt: skip
+    """Two nodes serve 'advise': without a key no answer is taken (see above); with key_file the
+    signature tells the expert's answers from the stranger's, and they are taken."""
+    warned = []
+    monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append((logger.name, line)))
+    key = str(new_key_file(tmp_path / 'deployment.key'))
+    harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1', key_file=key)))
+    stranger = StubExpert(ros_context, delay=0.2, name='stranger')  # answers after the expert
+    try:
+        learner, _ = run_learner(harness, ros_context, tmp_path, episodes=2, mode='random', random_ask_rate=0.3,
+                                 key_file=key)  # fmt: skip
+    finally:
+        stranger.close()
+    totals = learner.learner.advice_total
+    assert stranger.signatures and totals.given > 0 and len(learner.learner.advice_replay) == totals.given, totals
+    assert not any('nodes serve' in line for _, line in warned), warned
 
 
 def test_env_that_dies_mid_episode_and_restarts(harness, ros_context, tmp_path):

@@ -23,7 +23,7 @@ from eqhrl_interfaces.msg import AdviceRequest as AdviceRequestMsg
 from eqhrl_interfaces.srv import Advise
 from eqhrl_ros.core.data.advice import AdviceRequest
 from eqhrl_ros.core.experts.teleop import TeleopExpert, array_command, joy_command, twist_command
-from eqhrl_ros.nodes import messages
+from eqhrl_ros.nodes import advise_msgs, messages
 from eqhrl_ros.nodes.gym_env_node import GymEnvNode
 from eqhrl_ros.nodes.learner_node import LearnerNode
 from eqhrl_ros.nodes.teleop_expert_node import TeleopExpertNode
@@ -104,18 +104,13 @@ def test_teleop_expert_declines_with_reasons_and_clips():
 # ------------------------------------------------------------------ the node
 
 
-def call_advise(harness, client, low=(-2.0,), high=(2.0,)):
+def call_advise(harness, client, low=(-2.0,), high=(2.0,), seal=None):
+    """teleop_expert's answer to a request (signed with ``seal``, an advise_msgs.request_seal)."""
     assert harness.spin_until(client.service_is_ready)
-    future = client.call_async(
-        Advise.Request(
-            observation=[0.0, 0.0, 0.0],
-            proposed_action=[0.0] * len(low),
-            action_low=list(low),
-            action_high=list(high),
-            episode=0,
-            step=0,
-        )
+    request = Advise.Request(
+        observation=[0.0, 0.0, 0.0], proposed_action=[0.0] * len(low), action_low=list(low), action_high=list(high)
     )
+    future = client.call_async(advise_msgs.sign_request(request, seal))
     assert harness.spin_until(future.done)
     return future.result()
 
@@ -586,11 +581,56 @@ def test_with_a_shared_key_only_a_signed_command_answers(harness, ros_context, t
     pub.publish(messages.command_msg([-1.0], True, False, False))  # unsigned, though alone on the topic
     pub.publish(messages.command_msg([-1.0], True, False, False, CommandSeal(Signer(b'another key, not ours!!'))))
     assert harness.spin_until(lambda: teleop.rejected_commands >= rejected + 2, timeout=5)
-    assert 'no teleop command' in call_advise(harness, client).reason
+    seal = advise_msgs.request_seal(Signer(read_key(key)))
+    assert 'no teleop command' in call_advise(harness, client, seal=seal).reason
     pub.publish(messages.command_msg([0.5], True, False, False, CommandSeal(Signer(read_key(key)))))
     harness.spin_until(lambda: False, timeout=0.3)
-    response = call_advise(harness, client)
+    response = call_advise(harness, client, seal=seal)
     assert response.advised and list(response.action) == pytest.approx([1.0])
+
+
+def test_with_a_shared_key_a_strangers_call_of_advise_opens_nothing_for_the_person(harness, ros_context, tmp_path):
+    """rclpy does not tell a service who calls: a stranger's well-formed call of teleop_expert's
+    'advise' superseded the learner's request open on the person's screen. With key_file, a request
+    not signed with it is declined at once and the open one stays; the person's answer is signed."""
+    from eqhrl_ros.core.data.signing import CommandSeal, Signer, new_key_file, read_key
+
+    key = str(new_key_file(tmp_path / 'deployment.key'))
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(
+                source='array', axes=[0], scales=[2.0], offsets=[0.0], answer_window_s=30.0, key_file=key
+            ),  # fmt: skip
+        )
+    )
+    learner = harness.add(rclpy.create_node('learner', context=ros_context))
+    driver = harness.add(rclpy.create_node('advice_console', context=ros_context))
+    client = learner.create_client(Advise, 'advise')
+    pub = driver.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    assert harness.spin_until(lambda: client.service_is_ready() and pub.get_subscription_count() > 0)
+    seal = advise_msgs.request_seal(Signer(read_key(key)))
+
+    def asked(episode, step, signed_with):
+        request = Advise.Request(observation=[0.0, 0.0, 0.0], proposed_action=[0.0], action_low=[-2.0],
+                                 action_high=[2.0], episode=episode, step=step)  # fmt: skip
+        return request, client.call_async(advise_msgs.sign_request(request, signed_with))
+
+    request, future = asked(3, 7, seal)
+    assert harness.spin_until(lambda: teleop.expert.pending is not None)
+    _, stranger = asked(4, 0, None)
+    assert harness.spin_until(stranger.done, timeout=5)
+    assert stranger.result().reason == 'request refused: it is unsigned and this node has a key_file'
+    assert (teleop.expert.pending.request.episode, teleop.expert.pending.request.step) == (3, 7)
+    assert not future.done()
+    person = CommandSeal(Signer(read_key(key)))
+    harness.spin_until(lambda: False, timeout=0.3)  # a reaction, not a command made before the request
+    pub.publish(messages.command_msg([0.5], True, False, False, person, request=(3, 7)))  # steer
+    pub.publish(messages.command_msg([0.5], True, True, False, person, request=(3, 7)))  # Enter
+    assert harness.spin_until(future.done, timeout=10)
+    answer = future.result()
+    assert answer.advised and list(answer.action) == pytest.approx([1.0])
+    assert advise_msgs.answer_refusal(answer, request, seal) == ''
 
 
 def test_a_key_file_with_a_source_that_signs_nothing_is_refused(ros_context, tmp_path):

@@ -97,6 +97,7 @@ def signer_from(path: str) -> Optional[Signer]:
 # the signature go in labelled fields of their own, as values float32 holds exactly.
 COUNTER_SPLIT = 2**24  # counter = high * 2^24 + low, both exact in float32
 REPLAY_WINDOW_S = 30.0
+UNSIGNED = 'it is unsigned and this node has a key_file'
 
 
 def to_exact_floats(signature: bytes) -> list:
@@ -141,7 +142,7 @@ class CommandCheck:
 
     def refusal(self, values, counter, signature) -> str:
         if not counter or not signature:
-            return 'it is unsigned and this node has a key_file'
+            return UNSIGNED
         if len(counter) != 2 or any(not (0 <= c < COUNTER_SPLIT and float(c).is_integer()) for c in counter):
             return 'its counter is not one a sender makes'
         n = int(counter[0]) * COUNTER_SPLIT + int(counter[1])
@@ -153,3 +154,66 @@ class CommandCheck:
             return f"its time is more than {REPLAY_WINDOW_S:g} s from this machine's (a replay, or clocks apart)"
         self._last = n
         return ''
+
+
+# A signed request and its answer (the Advise service): the answer's signature covers the request's
+# counter and signature, so that it is taken for that very request only.
+
+
+class RequestSeal:
+    """The asking side: each request carries a counter (this machine's time in ms, or one more than
+    the last) and a signature over it and the request's parts; an answer is taken only when signed
+    with the key for that request, so that a stranger can neither answer nor pass off an answer to
+    another request as this one's."""
+
+    def __init__(self, signer: Signer, kind: str, clock=None):
+        import time
+
+        self._signer, self._kind, self._clock, self._last = signer, kind, clock or time.time, 0
+
+    def seal(self, parts: list) -> tuple[int, bytes]:
+        """(counter, signature) for a request whose content is ``parts``."""
+        self._last = max(self._last + 1, int(self._clock() * 1000))
+        return self._last, self._signer.sign(f'{self._kind} request', '', self._last, parts)
+
+    def answer_refusal(self, counter: int, request_signature: bytes, parts: list, signature: bytes) -> str:
+        """'' when the answer whose content is ``parts`` is signed with the key for this request."""
+        if not signature:
+            return UNSIGNED
+        if not self._signer.verify(
+            bytes(signature), f'{self._kind} answer', '', counter, [bytes(request_signature), *parts]
+        ):
+            return 'its signature is not made with this key_file for this request (another key or request, or altered)'
+        return ''
+
+
+class RequestCheck:
+    """The serving side: a request is answered only when it is signed with the key, dated within
+    REPLAY_WINDOW_S of this machine's clock, and not one already answered (a replay: anyone on the
+    graph reads the requests); its answer is signed for it (``seal_answer``)."""
+
+    def __init__(self, signer: Signer, kind: str, clock=None):
+        import time
+
+        self._signer, self._kind, self._clock = signer, kind, clock or time.time
+        self._seen: dict[bytes, int] = {}  # signature -> counter, of the requests taken in the window
+
+    def refusal(self, counter: int, parts: list, signature: bytes) -> str:
+        """'' when the request may be answered (and it is then marked as taken); else why not."""
+        signature = bytes(signature)
+        if not counter or not signature:
+            return UNSIGNED
+        if not self._signer.verify(signature, f'{self._kind} request', '', counter, parts):
+            return 'its signature is not made with this key_file (another key, or altered on the way)'
+        now_ms, window_ms = self._clock() * 1000, REPLAY_WINDOW_S * 1000
+        if abs(counter - now_ms) > window_ms:
+            return f"its time is more than {REPLAY_WINDOW_S:g} s from this machine's (a replay, or clocks apart)"
+        # Older ones cannot pass the time check again: only the window's need keeping.
+        self._seen = {seen: c for seen, c in self._seen.items() if c >= now_ms - window_ms}
+        if signature in self._seen:
+            return 'it repeats a request already taken (a replay)'
+        self._seen[signature] = counter
+        return ''
+
+    def seal_answer(self, counter: int, request_signature: bytes, parts: list) -> bytes:
+        return self._signer.sign(f'{self._kind} answer', '', counter, [bytes(request_signature), *parts])

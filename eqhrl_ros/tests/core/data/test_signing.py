@@ -8,6 +8,8 @@ from eqhrl_ros.core.data.signing import (
     CommandCheck,
     CommandSeal,
     KeyFileError,
+    RequestCheck,
+    RequestSeal,
     Signer,
     from_exact_floats,
     key_readable_by_others,
@@ -69,3 +71,44 @@ def test_a_sealed_command_is_taken_once_and_a_replay_or_a_forgery_is_not():
     c4, s4 = late.seal(values)
     fresh = CommandCheck(Signer(KEY), lambda: now[0])
     assert 's from this machine' in fresh.refusal(values, c4, s4)
+
+
+def test_a_signed_request_is_answered_once_and_its_answer_is_taken_for_it_alone():
+    """The Advise service with a key: a stranger can neither ask (no signature, another key, an
+    altered or replayed request) nor answer (an unsigned answer, another key, an altered answer,
+    or the key holder's answer to another request passed off as this one's)."""
+    now = [1_800_000_000.0]
+    seal, check = (
+        RequestSeal(Signer(KEY), 'advise', lambda: now[0]),
+        RequestCheck(Signer(KEY), 'advise', lambda: now[0]),
+    )
+    parts = [b'observation', b'action']
+    counter, signature = seal.seal(parts)
+    assert check.refusal(counter, parts, signature) == ''
+    assert 'replay' in check.refusal(counter, parts, signature)  # anyone on the graph reads the requests
+    c2, s2 = seal.seal(parts)  # the same content, the same millisecond: another request
+    assert c2 == counter + 1 and check.refusal(c2, parts, s2) == ''
+    c3, s3 = seal.seal(parts)
+    assert 'signature' in check.refusal(c3, [b'observation', b'other action'], s3)
+    assert 'signature' in check.refusal(
+        c3, parts, RequestSeal(Signer(b'z' * 32), 'advise', lambda: now[0]).seal(parts)[1]
+    )
+    assert 'signature' in check.refusal(c3, parts, Signer(KEY).sign('command', '', c3, parts))  # another kind
+    assert (
+        check.refusal(0, parts, b'') == check.refusal(c3, parts, b'') == 'it is unsigned and this node has a key_file'
+    )
+    now[0] += 31.0  # a request kept back and sent later
+    assert 's from this machine' in check.refusal(c3, parts, s3)
+
+    answer = [b'advised', b'action']
+    signed = check.seal_answer(counter, signature, answer)
+    assert seal.answer_refusal(counter, signature, answer, signed) == ''
+    assert 'unsigned' in seal.answer_refusal(counter, signature, answer, b'')
+    assert 'signature' in seal.answer_refusal(counter, signature, [b'advised', b'another action'], signed)
+    assert 'signature' in seal.answer_refusal(c2, s2, answer, signed)  # an earlier answer for a later request
+    other = RequestCheck(Signer(b'z' * 32), 'advise', lambda: now[0]).seal_answer(counter, signature, answer)
+    assert 'signature' in seal.answer_refusal(counter, signature, answer, other)
+    # Seen requests are kept only for the window in which they could pass the time check.
+    now[0] += 60.0
+    c4, s4 = seal.seal(parts)
+    assert check.refusal(c4, parts, s4) == '' and len(check._seen) == 1
