@@ -31,6 +31,7 @@ from ..core.algorithm import cpu_threads
 from ..core.algorithm.config import advice_protocol
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, LearnerConfig
 from ..core.data.advice import Advice
+from ..core.data.signing import CommandCheck, signer_from
 from ..core.envs.spec import EnvSpec
 from ..parameters import LEARNER_CONFIG_PARAMS
 from . import messages
@@ -98,6 +99,9 @@ class ActingNode(Node):
         expected = p['person_publisher'] or f'{self.get_namespace().rstrip("/")}/teleop_expert'
         self.person_guard = OnePublisher(self, self._person_topic, expected)
         self.refused_person_commands = 0
+        # key_file: advise is signed (advice_client) and person_command checked; KeyFileError refuses the node.
+        self.signer = signer_from(p['key_file'])
+        self.person_check = CommandCheck(self.signer) if self.signer else None
         self.wheel: Optional[PersonWheel] = None  # who drives: made with the learner (its action bounds)
         # The person's STOP holds the env: the episode is paused (not abandoned), and its record
         # says for how long (EpisodeSummary.stops, stopped_s). A release as the envs take it.
@@ -109,7 +113,7 @@ class ActingNode(Node):
         # Timers on the steady clock: with use_sim_time and a /clock that stops (or never
         # starts), ROS time stands still, and an advice timeout or a stall must still fire.
         self._steady = steady_clock()
-        self.advice = AdviceClient(self, self.params, self._lock, self._steady, self._resolve)
+        self.advice = AdviceClient(self, self.params, self._lock, self._steady, self._resolve, self.signer)
         self.tracking = EpisodeTracking(self.get_logger())  # the step acted on, gaps, stalls, stops
         self._last_action: Optional[np.ndarray] = None
         self._last_advised = False
@@ -369,8 +373,9 @@ class ActingNode(Node):
             self.get_logger().error(f'person commands refused: {refusal}', throttle_duration_sec=5.0)
             return
         try:
-            action, deadman, take_over = messages.person_command(msg)
+            action, deadman, take_over = messages.person_command(msg, self.person_check)
         except (KeyError, ValueError) as error:
+            self.refused_person_commands += 1
             self.get_logger().error(f"'{messages.PERSON_COMMAND_TOPIC}' refused: {error}", throttle_duration_sec=5.0)
             return
         with self._lock:

@@ -30,7 +30,6 @@ from rclpy.time import Time
 from eqhrl_interfaces.msg import PolicyWeights, TransitionAck, TransitionBatch
 
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner
-from ..core.data.signing import signer_from
 from ..core.data.transitions import ACK_WAIT_S, MAX_MISSING, Outbox
 from ..core.data.weights import TrainerPin, WeightsError, apply_weights
 from ..core.envs.spec import EnvSpec
@@ -65,7 +64,7 @@ class ActorNode(ActingNode):
         self.actor_run = f'{socket.gethostname()}:{os.getpid()}:{time.time_ns() % 10**12}'
         super().__init__('actor', ACTOR_NODE_PARAMS, **kwargs)
         self.pin = TrainerPin(self.params['trainer_id'])
-        self.signer = signer_from(self.params['key_file'])  # KeyFileError (a ValueError): refused at start-up
+        # self.signer (key_file's, or None) is the acting node's: it signs the batches too.
         self.actor_name = self.params['actor_name'] or self.get_fully_qualified_name()
         self.transitions_pub = self.create_publisher(
             TransitionBatch, trainer_msgs.TRANSITIONS_TOPIC, trainer_msgs.TRANSITIONS_QOS

@@ -19,7 +19,7 @@ from eqhrl_interfaces.srv import Advise
 from ..core.algorithm.advice_outcomes import Resolution
 from ..core.algorithm.learner import Proposal
 from ..core.data.advice import ACTION_FAULTS, Advice, refused_action_words
-from ..core.data.signing import signer_from
+from ..core.data.signing import Signer
 from . import advise_msgs
 from .graph_trust import UNKNOWN_NODE, servers
 from .messages import EXPERT_NAMES_KEPT, printable_name
@@ -57,12 +57,11 @@ class PendingAdvice:
 class AdviceClient:
     """Asks the 'advise' service; ``on_end`` gets each request's end (answer, timeout or error)."""
 
-    def __init__(self, node, params: dict, lock, clock, on_end: Callable):
+    def __init__(self, node, params: dict, lock, clock, on_end: Callable, signer: Optional[Signer] = None):
         self.node = node
-        self.params = params  # the node's live parameters: advice_timeout_s, accept_expert, key_file
-        # With key_file, requests are signed and only answers signed for them are taken (KeyFileError,
-        # a ValueError, refuses the node at start-up).
-        self.seal = advise_msgs.request_seal(signer_from(params['key_file']))
+        self.params = params  # the node's live parameters: advice_timeout_s, accept_expert
+        # With key_file's signer, requests are signed and only answers signed for them are taken.
+        self.seal = advise_msgs.request_seal(signer)
         self.lock = lock
         self.clock = clock
         self.on_end = on_end

@@ -332,14 +332,20 @@ def stats_msg(summary: EpisodeSummary) -> EpisodeStats:
 
 
 # The person's command as teleop_expert passes it on to the learner for a takeover: 'action'
-# (env units, mapped and clipped), 'deadman' and 'take_over' (1.0 while held).
+# (env units, mapped and clipped), 'deadman' and 'take_over' (1.0 while held); with key_file,
+# 'counter' and 'signature' after them, as teleop_command carries them.
 PERSON_COMMAND_TOPIC = 'person_command'
+PERSON_COMMAND_FIELDS = ('action', 'deadman', 'take_over')
 
 
-def person_command_msg(action, deadman: bool, take_over: bool) -> Float32MultiArray:
-    return build(
-        [('action', [float(v) for v in action]), ('deadman', [float(deadman)]), ('take_over', [float(take_over)])]
-    )
+def person_command_msg(action, deadman: bool, take_over: bool, seal=None) -> Float32MultiArray:
+    """person_command, signed with ``seal`` (a core.data.signing.CommandSeal) when given."""
+    values = ([float(v) for v in action], [float(deadman)], [float(take_over)])
+    fields = list(zip(PERSON_COMMAND_FIELDS, values))
+    if seal is not None:
+        counter, signature = seal.seal(signed_values(dict(fields), PERSON_COMMAND_FIELDS))
+        fields += [('counter', counter), ('signature', signature)]
+    return build(fields)
 
 
 def command_msg(
@@ -362,16 +368,27 @@ def command_msg(
 
 def command_values(fields: dict) -> list:
     """The values a command's signature covers: its COMMAND_FIELDS and request, in order, as float32."""
+    return signed_values(fields, (*COMMAND_FIELDS, REQUEST_FIELD, 'take_over'))
+
+
+def signed_values(fields: dict, names: Sequence[str]) -> list:
+    """The values of ``fields`` named in ``names``, in that order, as float32: what a signature covers."""
     import numpy as np
 
-    flat = [v for name in (*COMMAND_FIELDS, REQUEST_FIELD, 'take_over') for v in fields.get(name, ())]
-    return np.asarray(flat, dtype=np.float32).tolist()
+    return np.asarray([v for name in names for v in fields.get(name, ())], dtype=np.float32).tolist()
 
 
-def person_command(msg: Float32MultiArray) -> tuple[np.ndarray, bool, bool]:
+def person_command(msg: Float32MultiArray, check=None) -> tuple[np.ndarray, bool, bool]:
     """A person_command message (PERSON_COMMAND_FIELDS) as (action, deadman, take_over); KeyError
-    or ValueError says what is wrong with it."""
+    or ValueError says what is wrong with it. With ``check`` (a core.data.signing.CommandCheck:
+    key_file), one not signed with the key, or a replay, is refused too."""
     fields = read_fields(msg)
+    if check is not None:
+        refusal = check.refusal(
+            signed_values(fields, PERSON_COMMAND_FIELDS), fields.get('counter'), fields.get('signature')
+        )
+        if refusal:
+            raise ValueError(refusal)
     action = np.asarray(fields['action'], dtype=np.float32)
     if not np.isfinite(action).all():
         raise ValueError('a non-finite action')

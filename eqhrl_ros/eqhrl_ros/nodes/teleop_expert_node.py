@@ -32,7 +32,7 @@ from eqhrl_interfaces.srv import Advise
 
 from ..core.data.advice import SKIPPED, Advice
 from ..core.data.camera_frames import FrameError
-from ..core.data.signing import CommandCheck, signer_from
+from ..core.data.signing import CommandCheck, CommandSeal, signer_from
 from ..core.envs.spec import EnvSpec
 from ..core.experts.teleop import (
     TWIST_FIELDS,
@@ -81,6 +81,7 @@ class TeleopExpertNode(Node):
                 f"'{self.params['source']}' comes from nodes that sign nothing: use SROS2 for it, or no key_file"
             )
         self.command_check = CommandCheck(signer) if signer else None
+        self.person_seal = CommandSeal(signer) if signer else None  # person_command, signed on
         # The key also guards 'advise': a request not signed with it opens nothing for the person (a
         # stranger's call would supersede the learner's open one), and the answers are signed.
         self.request_check = request_check(signer)
@@ -276,7 +277,9 @@ class TeleopExpertNode(Node):
         spec = self.env_info.spec
         if spec is not None and len(command.values) == spec.action_size:
             action = np.clip(command.values, spec.action_low, spec.action_high)
-            self.person_pub.publish(messages.person_command_msg(action, command.enabled, command.take_over))
+            self.person_pub.publish(
+                messages.person_command_msg(action, command.enabled, command.take_over, self.person_seal)
+            )
 
     # ------------------------------------------------------------------ requests
 

@@ -406,3 +406,45 @@ def test_a_stranger_beside_teleop_expert_on_person_command_drives_nothing(harnes
     mallory.create_timer(0.02, lambda: pub.publish(messages.person_command_msg([-2.0], True, True)))
     assert harness.spin_until(lambda: learner.refused_person_commands > 20, timeout=20)
     assert learner.learner.episode_advice.takeover_steps == 0 and learner.wheel.person is None
+
+
+def test_with_a_shared_key_a_stranger_posing_as_teleop_expert_drives_nothing(harness, ros_context, tmp_path):
+    """person_command drives the robot. Without a key, a stranger named teleop_expert while the real
+    one is not running is taken for it. With key_file, the learner takes only commands signed with
+    the key, which teleop_expert signs as it passes the person's signed commands on."""
+    from eqhrl_ros.core.data.signing import CommandSeal, Signer, new_key_file, read_key
+
+    key = str(new_key_file(tmp_path / 'deployment.key'))
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=10**6)))
+    learner = harness.add(
+        LearnerNode(
+            context=ros_context,
+            parameter_overrides=small_learner_params(
+                tmp_path, advising_budget=0, learning_starts=10**6, takeover_threshold=0.25, key_file=key
+            ),  # fmt: skip
+        )
+    )
+    impostor = harness.add(rclpy.create_node('teleop_expert', context=ros_context))
+    pub = impostor.create_publisher(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, 10)
+    other_key = CommandSeal(Signer(b'not the deployment key, no'))
+    impostor.create_timer(0.02, lambda: pub.publish(messages.person_command_msg([-2.0], True, True)))
+    impostor.create_timer(0.02, lambda: pub.publish(messages.person_command_msg([-2.0], True, True, other_key)))
+    assert harness.spin_until(lambda: learner.refused_person_commands > 20, timeout=20)
+    assert learner.learner.episode_advice.takeover_steps == 0 and learner.wheel.person is None
+    harness.nodes.remove(impostor)
+    impostor.destroy_node()
+
+    teleop = harness.add(
+        TeleopExpertNode(
+            context=ros_context,
+            parameter_overrides=params(source='array', axes=[0], scales=[2.0], offsets=[0.0], key_file=key),
+        )
+    )
+    driver = harness.add(rclpy.create_node('advice_console', context=ros_context))
+    commands = driver.create_publisher(Float32MultiArray, 'teleop_command', 10)
+    person = CommandSeal(Signer(read_key(key)))
+    assert harness.spin_until(lambda: teleop.env_info.spec is not None, timeout=20)
+    driver.create_timer(
+        0.02, lambda: commands.publish(messages.command_msg([-1.0], True, False, False, person, take_over=True))
+    )
+    assert harness.spin_until(lambda: learner.learner.episode_advice.takeover_steps >= 10, timeout=20)
