@@ -92,16 +92,9 @@ class ActingNode(Node):
         self._observation_topic = observations.topic_name
         # One env feeds a learner (env_node, if named): while a second node publishes observation, none is taken.
         self.observation_source = OnePublisher(self, self._observation_topic, p.get('env_node', ''))
-        # The person's command (teleop_expert passes it on): a takeover when it departs from ours.
-        person = self.create_subscription(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, self._on_person_command, 10)
-        self._person_topic = person.topic_name
-        # The person's commands drive the robot: taken only while teleop_expert alone publishes them.
-        expected = p['person_publisher'] or f'{self.get_namespace().rstrip("/")}/teleop_expert'
-        self.person_guard = OnePublisher(self, self._person_topic, expected)
-        self.refused_person_commands = 0
         # key_file: advise is signed (advice_client) and person_command checked; KeyFileError refuses the node.
         self.signer = signer_from(p['key_file'])
-        self.person_check = CommandCheck(self.signer) if self.signer else None
+        self._listen_to_the_person(p)
         self.wheel: Optional[PersonWheel] = None  # who drives: made with the learner (its action bounds)
         # The person's STOP holds the env: the episode is paused (not abandoned), and its record
         # says for how long (EpisodeSummary.stops, stopped_s). A release as the envs take it.
@@ -214,6 +207,16 @@ class ActingNode(Node):
         """The env's pace (real-time or lock-step, rate, episode length): its own env_info once
         heard (a learner configured by env_id cannot know it otherwise), else the spec in use."""
         return self.env_info.announced or self.spec
+
+    def _listen_to_the_person(self, p: dict) -> None:
+        """person_command (teleop_expert passes it on): a takeover when it departs from ours. It drives
+        the robot: taken only while teleop_expert alone publishes it (with key_file, signed with it)."""
+        person = self.create_subscription(Float32MultiArray, messages.PERSON_COMMAND_TOPIC, self._on_person_command, 10)
+        self._person_topic = person.topic_name
+        expected = p['person_publisher'] or f'{self.get_namespace().rstrip("/")}/teleop_expert'
+        self.person_guard = OnePublisher(self, self._person_topic, expected)
+        self.person_check = CommandCheck(self.signer) if self.signer else None
+        self.refused_person_commands = 0
 
     @property
     def protocol(self) -> str:
@@ -367,16 +370,15 @@ class ActingNode(Node):
     # ------------------------------------------------------------------ acting and advice
 
     def _on_person_command(self, msg: Float32MultiArray) -> None:
-        refusal = self.person_guard.refusal()
+        try:
+            refusal = self.person_guard.refusal()  # who publishes, then (with key_file) who signed, then what
+            if not refusal:
+                action, deadman, take_over = messages.person_command(msg, self.person_check)
+        except (KeyError, ValueError) as error:
+            refusal = str(error)
         if refusal:
             self.refused_person_commands += 1
             self.get_logger().error(f'person commands refused: {refusal}', throttle_duration_sec=5.0)
-            return
-        try:
-            action, deadman, take_over = messages.person_command(msg, self.person_check)
-        except (KeyError, ValueError) as error:
-            self.refused_person_commands += 1
-            self.get_logger().error(f"'{messages.PERSON_COMMAND_TOPIC}' refused: {error}", throttle_duration_sec=5.0)
             return
         with self._lock:
             if self.wheel is not None:
