@@ -20,7 +20,7 @@ from std_msgs.msg import Float32MultiArray, MultiArrayLayout
 
 from eqhrl_interfaces.msg import AdviceRequest, EnvInfo
 from eqhrl_interfaces.srv import Advise
-from eqhrl_ros.core.data.signing import Signer, new_key_file, read_key
+from eqhrl_ros.core.data.signing import KeyFileError, Signer, new_key_file, read_key
 from eqhrl_ros.core.envs.spec import EnvSpec
 from eqhrl_ros.nodes import advise_msgs, env_info, messages
 from eqhrl_ros.nodes.double_integrator_env_node import DoubleIntegratorEnv
@@ -289,6 +289,32 @@ def test_with_a_shared_key_the_experts_answers_are_taken_beside_a_strangers(harn
     totals = learner.learner.advice_total
     assert stranger.signatures and totals.given > 0 and len(learner.learner.advice_replay) == totals.given, totals
     assert not any('nodes serve' in line for _, line in warned), warned
+
+
+def test_an_expert_of_ones_own_written_as_the_readme_shows_answers_a_learner_with_the_key(
+    harness, ros_context, tmp_path
+):
+    """The README's own expert (Security), run as written, with the deployment's key: the learner
+    takes its answers; given another key, none."""
+    import re
+    from pathlib import Path
+
+    readme = (Path(__file__).parents[2] / 'README.md').read_text()
+    section = readme.split('An expert of your own signs as', 1)[1]
+    code = re.search(r'```python\n(.*?)```', section, re.S).group(1)
+    scope: dict = {}
+    exec(compile(code, 'README.md', 'exec'), scope)
+    key = str(new_key_file(tmp_path / 'deployment.key'))
+    harness.add(scope['MyExpert'](key, context=ros_context))
+    learner, _ = run_learner(harness, ros_context, tmp_path / 'run', episodes=2, mode='random', random_ask_rate=0.3,
+                             key_file=key)  # fmt: skip
+    totals = learner.learner.advice_total
+    assert totals.asked > 0 and totals.given + totals.failed['timeout'] == totals.asked and totals.given > 0, totals
+    advised = learner.learner.advice_replay
+    assert set(advised.action[: len(advised)].flatten().tolist()) == {0.0}  # the README's action
+    (tmp_path / 'short.key').write_text('secret\n')
+    with pytest.raises(KeyFileError, match='at least 16'):
+        scope['MyExpert'](str(tmp_path / 'short.key'), context=ros_context)
 
 
 def test_env_that_dies_mid_episode_and_restarts(harness, ros_context, tmp_path):
