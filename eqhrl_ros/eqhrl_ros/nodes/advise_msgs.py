@@ -14,7 +14,7 @@ from eqhrl_interfaces.srv import Advise
 
 from ..core.data.advice import Advice, AdviceRequest
 from ..core.data.camera_frames import FrameError
-from ..core.data.signing import RequestCheck, RequestSeal
+from ..core.data.signing import SIGNATURE_BYTES, RequestCheck, RequestSeal
 from .frame_msgs import stack_msgs, stack_of
 from .messages import REASON_MAX, printable_text
 
@@ -191,7 +191,10 @@ def unsigned_request(
     refused as a replay)."""
     if check is None:
         return None
-    refusal = check.refusal(msg.counter, request_parts(msg), bytes(msg.signature))
+    signature = bytes(msg.signature)
+    # A stranger's request is not hashed (its frames may be large): only one that may be signed.
+    parts = request_parts(msg) if msg.counter and len(signature) == SIGNATURE_BYTES else []
+    refusal = check.refusal(msg.counter, parts, signature)
     if not refusal:
         return None
     reason = f'request refused: {refusal}'
