@@ -18,6 +18,7 @@ def acting_checks(node) -> list:
         done, current = learner.advice_total, learner.episode_advice
         asked, given = done.asked + current.asked, done.given + current.given
         timeouts = done.failed['timeout'] + current.failed['timeout']
+        untrusted = done.failed['untrusted'] + current.failed['untrusted']
         declined = done.declined + current.declined
         recent = list(itertools.islice(reversed(node.advice.latencies), 1000))  # the last 1,000 answers
         stalled = node.tracking.stalled_since
@@ -30,6 +31,7 @@ def acting_checks(node) -> list:
         'given': given,
         'declined': declined,
         'timeouts': timeouts,
+        'untrusted': untrusted,
         'answer latency p50 ms (last 1,000)': p50,
         'answer latency p99 ms (last 1,000)': p99,
     }
@@ -43,6 +45,14 @@ def acting_checks(node) -> list:
         expert = Check('expert', WARN, f"{servers} nodes serve 'advise': no answer is taken until one does", values)
     elif asked >= 10 and timeouts > asked / 2:
         expert = Check('expert', WARN, f'{timeouts} of {asked} requests timed out', values)
+    elif asked >= 10 and untrusted > asked / 2:  # e.g. a key_file here and none on the expert
+        expert = Check(
+            'expert',
+            WARN,
+            f'{untrusted} of {asked} answers were not taken (untrusted: not signed with key_file, or not from '
+            'accept_expert)',
+            values,
+        )
     else:
         expert = Check('expert', OK, f'{servers} expert(s) reachable', values)
     if node.tracking.stopped_since is not None:

@@ -47,6 +47,26 @@ def test_the_learner_says_when_no_expert_serves_and_when_one_does(harness, ros_c
     assert any(s.level == DiagnosticStatus.WARN and s.message == said for s in statuses), [s.message for s in statuses]
 
 
+def test_the_learner_warns_when_most_answers_are_not_its_to_take(harness, ros_context, tmp_path):
+    """A key_file on the learner and none on its expert: every answer is unsigned, so none is taken.
+    The expert serves, so the check said OK; now it warns."""
+    from eqhrl_ros.core.data.signing import new_key_file
+
+    key = str(new_key_file(tmp_path / 'deployment.key'))
+    harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=10**6)))
+    harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1')))
+    overrides = small_learner_params(
+        tmp_path, mode='random', random_ask_rate=0.5, advising_budget=100, learning_starts=10**6, key_file=key
+    )
+    learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=overrides))
+    assert harness.spin_until(lambda: learner.health.level('expert') == WARN, timeout=20)
+    check = next(c for c in learner.health.last if c.name == 'expert')
+    assert check.message.endswith(
+        'answers were not taken (untrusted: not signed with key_file, or not from accept_expert)'
+    )
+    assert check.values['untrusted'] >= 10 and check.values['given'] == 0
+
+
 def test_the_learner_warns_of_a_stalled_env_and_clears_when_it_steps_again(harness, ros_context, tmp_path):
     env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=10**6)))
     learner = harness.add(
