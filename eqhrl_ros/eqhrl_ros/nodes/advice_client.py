@@ -160,33 +160,36 @@ class AdviceClient:
                 self.node.get_logger().warn(f'advice call failed: {error!r}', throttle_duration_sec=5.0)
                 self.on_end(pending, failure='error')
                 return
-            name = printable_name(response.expert_name)
-            if name in self.experts_heard or len(self.experts_heard) < EXPERT_NAMES_KEPT:
-                self.experts_heard[name] += 1
-            else:
-                self.experts_heard['(others)'] += 1
-            accept, serving = self.params['accept_expert'], self.serving()
-            unsigned = advise_msgs.answer_refusal(response, pending.request, self.seal)
-            if unsigned:
-                self.node.get_logger().warn(f"ignored advice from '{name}': {unsigned}", throttle_duration_sec=5.0)
-                self.on_end(pending, failure='untrusted')
-            elif serving:
-                service = self.node.resolve_service_name(self.client.srv_name)
-                self.node.get_logger().warn(
-                    f"ignored advice: {len(serving)} nodes serve '{service}' ({', '.join(serving)}), so an answer "
-                    "cannot be told from a stranger's; none is taken until one node serves it",
-                    throttle_duration_sec=5.0,
-                )
-                self.on_end(pending, failure='untrusted')
-            elif accept and response.expert_name != accept:
-                self.node.get_logger().warn(
-                    f"ignored advice from '{name}' (accept_expert is '{accept}')", throttle_duration_sec=5.0
-                )
-                self.on_end(pending, failure='untrusted')
-            else:
-                self.on_end(
-                    pending, self._person_time_checked(advise_msgs.advice_from_response(response, name), pending)
-                )
+            try:
+                advice, failure = self._judged(response, pending)
+            except Exception as error:  # another node's answer must not leave the request open for ever
+                self.node.get_logger().error(f'an answer could not be read: {error!r}', throttle_duration_sec=5.0)
+                advice, failure = None, 'error'
+            self.on_end(pending, advice, failure)
+
+    def _judged(self, response: Advise.Response, pending: PendingAdvice) -> tuple[Optional[Advice], str]:
+        """(the advice, '') when the answer is taken, else (None, why not: 'untrusted'), each said."""
+        name = printable_name(response.expert_name)
+        if name in self.experts_heard or len(self.experts_heard) < EXPERT_NAMES_KEPT:
+            self.experts_heard[name] += 1
+        else:
+            self.experts_heard['(others)'] += 1
+        accept, serving, logger = self.params['accept_expert'], self.serving(), self.node.get_logger()
+        unsigned = advise_msgs.answer_refusal(response, pending.request, self.seal)
+        if unsigned:
+            logger.warn(f"ignored advice from '{name}': {unsigned}", throttle_duration_sec=5.0)
+        elif serving:
+            service = self.node.resolve_service_name(self.client.srv_name)
+            logger.warn(
+                f"ignored advice: {len(serving)} nodes serve '{service}' ({', '.join(serving)}), so an answer "
+                "cannot be told from a stranger's; none is taken until one node serves it",
+                throttle_duration_sec=5.0,
+            )
+        elif accept and response.expert_name != accept:
+            logger.warn(f"ignored advice from '{name}' (accept_expert is '{accept}')", throttle_duration_sec=5.0)
+        else:
+            return self._person_time_checked(advise_msgs.advice_from_response(response, name), pending), ''
+        return None, 'untrusted'
 
     def _person_time_checked(self, advice: Advice, pending: PendingAdvice) -> Advice:
         waited = time.monotonic() - pending.sent

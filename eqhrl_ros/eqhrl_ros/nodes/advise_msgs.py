@@ -136,6 +136,11 @@ def _f32(values) -> bytes:
     return np.where(np.isnan(values), np.float32('nan'), values).astype('<f4').tobytes()
 
 
+def _text(text: str) -> bytes:
+    """Another node's text as bytes, whatever it holds (a lone surrogate must not raise in a callback)."""
+    return text.encode('utf-8', 'surrogatepass')
+
+
 def request_parts(msg: Advise.Request) -> list:
     """The request's content, as its signature covers it (everything but counter and signature)."""
     parts = [
@@ -149,14 +154,14 @@ def request_parts(msg: Advise.Request) -> list:
     for frame in msg.frames:
         header = struct.pack('<iIIII?', frame.header.stamp.sec, frame.header.stamp.nanosec, frame.height,
                              frame.width, frame.step, bool(frame.is_bigendian))  # fmt: skip
-        parts += [header, frame.header.frame_id.encode(), frame.encoding.encode(), bytes(frame.data)]
+        parts += [header, _text(frame.header.frame_id), _text(frame.encoding), bytes(frame.data)]
     return parts
 
 
 def answer_parts(msg: Advise.Response) -> list:
     """The answer's content, as its signature covers it (everything but the signature)."""
     flags = struct.pack('<???', bool(msg.advised), bool(msg.human), bool(msg.timed_out))
-    return [flags, _f32(msg.action), _f32([msg.response_time_s]), msg.reason.encode(), msg.expert_name.encode()]
+    return [flags, _f32(msg.action), _f32([msg.response_time_s]), _text(msg.reason), _text(msg.expert_name)]
 
 
 def request_seal(signer) -> Optional[RequestSeal]:

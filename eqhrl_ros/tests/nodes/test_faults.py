@@ -317,6 +317,27 @@ def test_an_expert_of_ones_own_written_as_the_readme_shows_answers_a_learner_wit
         scope['MyExpert'](str(tmp_path / 'short.key'), context=ros_context)
 
 
+def test_an_answer_that_cannot_be_read_ends_its_request_as_an_error(harness, ros_context, tmp_path, monkeypatch):
+    """The request is taken off the client before its answer is read: an answer whose reading
+    raised left the request open for ever, and a lock-step run waited on it. Now it ends as 'error'."""
+    from eqhrl_ros.nodes import advice_client
+
+    calls = []
+
+    def unreadable(response, name):
+        calls.append(name)
+        raise UnicodeError('an answer no one could read')
+
+    monkeypatch.setattr(advice_client.advise_msgs, 'advice_from_response', unreadable)
+    expert = StubExpert(ros_context)
+    try:
+        learner, _ = run_learner(harness, ros_context, tmp_path, episodes=2, mode='random', random_ask_rate=0.3)
+    finally:
+        expert.close()
+    totals = learner.learner.advice_total
+    assert calls and totals.failed['error'] == len(calls) and totals.given == 0, totals
+
+
 def test_env_that_dies_mid_episode_and_restarts(harness, ros_context, tmp_path):
     env = harness.add(GymEnvNode(context=ros_context, parameter_overrides=params(max_episode_steps=25)))
     learner = harness.add(
