@@ -121,7 +121,7 @@ class ActingNode(Node):
             self,
             lambda: self.protocol if p['advice_enabled'] and self.learner.advice_window().open else None,
             lambda: self.env_info.judging,
-            self.advice.ready,
+            self.advice,
             lambda: p['expert_wait_s'],
             lambda data: self._on_observation(data, held=True),
             self._steady,

@@ -47,15 +47,16 @@ POLL_S = 0.05  # how often a wait looks whether its reason has gone (the service
 class StartWait:
     """``protocol()``: how a request would ask now ('answer', 'wheel'), '' while the env's pace is
     unknown, None when nothing would be asked (advice off or closed); ``pace_judged()``: an env_info
-    came and waits for the graph to vouch for its sender (EnvInfoWatcher.judging); ``expert_ready()``: a server
-    of 'advise' is there; ``expert_wait_s()``: the node's parameter; ``act(data)``: act on a held
-    observation (the node's own observation callback, told the message was seen already).
+    came and waits for the graph to vouch for its sender (EnvInfoWatcher.judging); ``advice``: the
+    node's AdviceClient (``ready()``: a server of 'advise' is there; ``serving()``: the nodes, while
+    two serve); ``expert_wait_s()``: the node's parameter; ``act(data)``: act on a held observation
+    (the node's own observation callback, told the message was seen already).
     The caller holds its lock around ``hold``; ``release`` and the timer take ``lock``."""
 
     def __init__(
-        self, node: Node, protocol, pace_judged, expert_ready, expert_wait_s, act: Callable[[bytes], None], clock, lock
+        self, node: Node, protocol, pace_judged, advice, expert_wait_s, act: Callable[[bytes], None], clock, lock
     ):
-        self._node, self._protocol, self._pace_judged, self._expert_ready = node, protocol, pace_judged, expert_ready
+        self._node, self._protocol, self._pace_judged, self._advice = node, protocol, pace_judged, advice
         self._expert_wait_s, self._act, self._clock, self._lock = expert_wait_s, act, clock, lock
         self.held: deque[bytes] = deque(maxlen=HELD_MAX)  # in the order they came
         self.state = 'not yet'  # 'not yet', 'waiting' (a timer polls), 'over'
@@ -72,7 +73,7 @@ class StartWait:
         waited = time.monotonic() - self._since if self.state == 'waiting' else 0.0
         if protocol == '' and (waited < AUTO_PACE_WAIT_S or (waited < AUTO_PACE_JUDGED_S and self._pace_judged())):
             return 'pace'
-        if protocol == 'answer' and waited < self._expert_wait_s() and not self._expert_ready():
+        if protocol == 'answer' and waited < self._expert_wait_s() and not self._advice.ready():
             return 'expert'
         return ''
 
@@ -107,7 +108,14 @@ class StartWait:
     def _say_end(self) -> None:
         waited = self.waited_s = time.monotonic() - self._since
         if self._protocol() == 'answer' and self._expert_wait_s() > 0:
-            if self._expert_ready():
+            serving = self._advice.serving() if self._advice.ready() else []
+            if serving:  # no answer is taken until one serves (advice_client.py): said at once
+                self._node.get_logger().warning(
+                    f"{len(serving)} nodes serve 'advise' ({', '.join(serving)}) ({waited:.1f} s): acting, and "
+                    'taking no answer until one node serves it'
+                )
+                return
+            if self._advice.ready():
                 line = f"an expert serves 'advise' ({waited:.1f} s): acting"
             else:
                 line = (

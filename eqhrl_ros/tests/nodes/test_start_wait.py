@@ -56,6 +56,30 @@ def test_the_first_observation_waits_for_an_expert_and_the_first_request_goes_to
         expert.close()
 
 
+def test_the_wait_ends_saying_when_two_nodes_serve_advise():
+    """The wait ended with "an expert serves 'advise'" also when two did, and no answer is taken
+    then (test_faults.py). (Nodes come one by one, so this is said where both appeared together.)"""
+    from types import SimpleNamespace
+
+    from eqhrl_ros.nodes.start_wait import StartWait
+
+    said = []
+    logger = SimpleNamespace(
+        warning=lambda line: said.append(('warn', line)), info=lambda line: said.append(('info', line))
+    )
+    advice = SimpleNamespace(ready=lambda: True, serving=lambda: ['/expert', '/stranger'])
+    wait = StartWait(
+        SimpleNamespace(get_logger=lambda: logger), lambda: 'answer', None, advice, lambda: 10.0, None, None, None
+    )
+    wait._since = time.monotonic() - 1.5
+    wait._say_end()
+    assert len(said) == 1 and said[0][0] == 'warn', said
+    assert said[0][1].startswith("2 nodes serve 'advise' (/expert, /stranger) (1.5 s): acting, and taking no answer")
+    advice.serving = list  # one serves
+    wait._say_end()
+    assert said[1][0] == 'info' and said[1][1].startswith("an expert serves 'advise' (1.5 s)")
+
+
 @pytest.mark.parametrize(
     'extra,waits',
     [
