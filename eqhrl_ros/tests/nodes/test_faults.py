@@ -252,50 +252,60 @@ def test_with_a_shared_key_the_expert_answers_only_requests_signed_with_it(harne
     assert not replayed.result().advised and 'replay' in replayed.result().reason
 
 
-def test_with_a_shared_key_the_learner_takes_no_unsigned_answer(harness, ros_context, tmp_path, monkeypatch):
-    """A stranger serving 'advise' alone, while the real expert is away, was believed. With
-    key_file, the learner signs its requests and takes only answers signed for them."""
+def _keyed_learner_beside_a_stranger(harness, ros_context, tmp_path, monkeypatch, with_expert, **stranger):
+    """A learner with a key_file asking at 30 % of 2 episodes' steps while a StubExpert (``stranger``)
+    serves 'advise' unsigned, beside an expert with the key when ``with_expert``. Returns the
+    learner, the stranger and the learner's warnings."""
     warned = []
     monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append((logger.name, line)))
     key = str(new_key_file(tmp_path / 'deployment.key'))
-    stranger = StubExpert(ros_context, name='stranger', expert_name='/stranger')
+    if with_expert:
+        harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1', key_file=key)))
+    stranger = StubExpert(ros_context, name='stranger', **stranger)
     try:
         learner, _ = run_learner(harness, ros_context, tmp_path, episodes=2, mode='random', random_ask_rate=0.3,
                                  key_file=key)  # fmt: skip
     finally:
         stranger.close()
+    return learner, stranger, [line for name, line in warned if name == 'learner']
+
+
+def test_with_a_shared_key_the_learner_takes_no_unsigned_answer(harness, ros_context, tmp_path, monkeypatch):
+    """A stranger serving 'advise' alone, while the real expert is away, was believed. With
+    key_file, the learner signs its requests and takes only answers signed for them."""
+    learner, stranger, warned = _keyed_learner_beside_a_stranger(
+        harness, ros_context, tmp_path, monkeypatch, with_expert=False, expert_name='/stranger'
+    )
     totals = learner.learner.advice_total
     assert totals.asked > 0 and totals.given == 0 and len(learner.learner.advice_replay) == 0, totals
     assert totals.failed['untrusted'] + totals.failed['timeout'] == totals.asked and totals.failed['untrusted'] > 0
     assert all(stranger.signatures) and len(stranger.signatures) >= totals.failed['untrusted']
-    said = "ignored advice from '/stranger': it is unsigned and this node has a key_file"
-    assert any(name == 'learner' and line == said for name, line in warned), warned
+    assert "ignored advice from '/stranger': it is unsigned and this node has a key_file" in warned, warned
 
 
-def test_with_a_shared_key_the_experts_answers_are_taken_beside_a_strangers(harness, ros_context, tmp_path,
-                                                                            monkeypatch):  # fmt: skip
+def test_with_a_shared_key_the_experts_answers_are_taken_beside_a_strangers(
+    harness, ros_context, tmp_path, monkeypatch
+):
     """Two nodes serve 'advise': without a key no answer is taken (see above); with key_file the
     signature tells the expert's answers from the stranger's, and they are taken."""
-    warned = []
-    monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append((logger.name, line)))
-    key = str(new_key_file(tmp_path / 'deployment.key'))
-    harness.add(ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1', key_file=key)))
-    stranger = StubExpert(ros_context, delay=0.2, name='stranger')  # answers after the expert
-    try:
-        learner, _ = run_learner(harness, ros_context, tmp_path, episodes=2, mode='random', random_ask_rate=0.3,
-                                 key_file=key)  # fmt: skip
-    finally:
-        stranger.close()
+    learner, stranger, warned = _keyed_learner_beside_a_stranger(
+        harness,
+        ros_context,
+        tmp_path,
+        monkeypatch,
+        with_expert=True,
+        delay=0.2,  # answers after the expert
+    )
     totals = learner.learner.advice_total
     assert stranger.signatures and totals.given > 0 and len(learner.learner.advice_replay) == totals.given, totals
-    assert not any('nodes serve' in line for _, line in warned), warned
+    assert not any('nodes serve' in line for line in warned), warned
 
 
 def test_an_expert_of_ones_own_written_as_the_readme_shows_answers_a_learner_with_the_key(
     harness, ros_context, tmp_path
 ):
     """The README's own expert (Security), run as written, with the deployment's key: the learner
-    takes its answers; given another key, none."""
+    takes its answers, and a key file that cannot be one refuses it."""
     import re
     from pathlib import Path
 
