@@ -93,7 +93,7 @@ class ActingNode(Node):
         # One env feeds a learner (env_node, if named): while a second node publishes observation, none is taken.
         self.observation_source = OnePublisher(self, self._observation_topic, p.get('env_node', ''))
         # key_file: advise is signed (advice_client) and person_command checked; KeyFileError refuses the node.
-        self.signer = signer_from(p['key_file'])
+        self.signer = signer_from(p['key_file'], self.get_logger().warning)
         self._listen_to_the_person(p)
         self.wheel: Optional[PersonWheel] = None  # who drives: made with the learner (its action bounds)
         # The person's STOP holds the env: the episode is paused (not abandoned), and its record

@@ -91,7 +91,9 @@ class AdviceConsole(Node):
             p['host'].lower(),
             *(n.strip().lower() for n in (p['allowed_hosts'] or []) if n.strip()),
         }
-        signer = signer_from(p['key_file'])  # KeyFileError (a ValueError): refused at start-up
+        signer = signer_from(
+            p['key_file'], self.get_logger().warning
+        )  # KeyFileError (a ValueError): refused at start-up
         self.seal = CommandSeal(signer) if signer else None
         self.lock = threading.Lock()
         self._changed = threading.Condition(self.lock)

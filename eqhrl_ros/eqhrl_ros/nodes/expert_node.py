@@ -53,7 +53,7 @@ class ExpertNode(Node):
         p = self.params
         # With key_file: only requests signed with it are answered, and each answer is signed for its
         # request (KeyFileError, a ValueError, refuses the node at start-up).
-        self.request_check = request_check(signer_from(p['key_file']))
+        self.request_check = request_check(signer_from(p['key_file'], self.get_logger().warning))
         self.backend = backend
         if self.backend is None and (p['backend'] == 'policy' or p['env_id']):
             # env_id here names the controller (any env name, not only a gymnasium id).

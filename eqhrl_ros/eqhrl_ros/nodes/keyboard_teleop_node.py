@@ -45,7 +45,7 @@ class KeyboardTeleop(Node):
         super().__init__('keyboard_teleop', **kwargs)
         reject_unknown_overrides(self, KEYBOARD_PARAMS)
         self.params = declare(self, KEYBOARD_PARAMS)
-        signer = signer_from(self.params['key_file'])
+        signer = signer_from(self.params['key_file'], self.get_logger().warning)
         self.seal = CommandSeal(signer) if signer else None
         self.fd, self.out = fd, out
         # The action size: the dimensions parameter, else from env_id or the env's env_info.

@@ -74,17 +74,7 @@ class TeleopExpertNode(Node):
         reject_unknown_overrides(self, TELEOP_EXPERT_PARAMS)
         self.params = declare(self, TELEOP_EXPERT_PARAMS)
         self._check_mapping(self.params)
-        signer = signer_from(self.params['key_file'])  # KeyFileError (a ValueError): refused at start-up
-        if signer and self.params['source'] != 'array':
-            raise ValueError(
-                'key_file checks teleop_command (source array), which advice_console and keyboard_teleop sign; '
-                f"'{self.params['source']}' comes from nodes that sign nothing: use SROS2 for it, or no key_file"
-            )
-        self.command_check = CommandCheck(signer) if signer else None
-        self.person_seal = CommandSeal(signer) if signer else None  # person_command, signed on
-        # The key also guards 'advise': a request not signed with it opens nothing for the person (a
-        # stranger's call would supersede the learner's open one), and the answers are signed.
-        self.request_check = request_check(signer)
+        self._take_the_key()
         self.add_on_set_parameters_callback(choices_validator(TELEOP_EXPERT_PARAMS))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.expert = TeleopExpert(
@@ -282,6 +272,20 @@ class TeleopExpertNode(Node):
             )
 
     # ------------------------------------------------------------------ requests
+
+    def _take_the_key(self) -> None:
+        """With key_file: teleop_command is taken only signed with it, person_command is signed on,
+        and 'advise' answers only requests signed with it (a stranger's call would supersede the
+        learner's open request), signing each answer. KeyFileError (a ValueError) refuses the node."""
+        signer = signer_from(self.params['key_file'], self.get_logger().warning)
+        if signer and self.params['source'] != 'array':
+            raise ValueError(
+                'key_file checks teleop_command (source array), which advice_console and keyboard_teleop sign; '
+                f"'{self.params['source']}' comes from nodes that sign nothing: use SROS2 for it, or no key_file"
+            )
+        self.command_check = CommandCheck(signer) if signer else None
+        self.person_seal = CommandSeal(signer) if signer else None
+        self.request_check = request_check(signer)
 
     def _settle(self, advice: Advice | None) -> None:
         """Give the open request its answer (called with the lock held)."""

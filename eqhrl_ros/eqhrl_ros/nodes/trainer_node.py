@@ -77,7 +77,9 @@ class TrainerNode(RunFiles, Node):
         self.add_on_set_parameters_callback(choices_validator(LEARNER_CONFIG_PARAMS))
         cpu_threads.for_node(p['torch_threads'], self.get_logger().info)  # 0: fitted to the machine
         self.config = LearnerConfig.from_params(values)
-        self.signer = signer_from(p['key_file'])  # KeyFileError (a ValueError): refused at start-up
+        self.signer = signer_from(
+            p['key_file'], self.get_logger().warning
+        )  # KeyFileError (a ValueError): refused at start-up
         if not (p['actors'] or self.signer or p['accept_any_actor']):
             # Closed by default: otherwise a stranger on the graph, under a name of its own, writes into D.
             raise ValueError(

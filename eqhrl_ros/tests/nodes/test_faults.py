@@ -327,6 +327,18 @@ def test_an_expert_of_ones_own_written_as_the_readme_shows_answers_a_learner_wit
         scope['MyExpert'](str(tmp_path / 'short.key'), context=ros_context)
 
 
+def test_a_node_says_when_other_users_may_read_its_key_file(ros_context, tmp_path, monkeypatch):
+    """The README says to keep the key chmod 600; a node now says so when it is not."""
+    warned = []
+    monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append((logger.name, line)))
+    key = new_key_file(tmp_path / 'deployment.key')
+    os.chmod(key, 0o644)
+    expert = ExpertNode(context=ros_context, parameter_overrides=params(env_id='Pendulum-v1', key_file=str(key)))
+    expert.destroy_node()
+    assert ('expert', f'the key file {key} is readable by other users of this machine, who could sign as this '
+            f'deployment: chmod 600 {key}') in warned, warned  # fmt: skip
+
+
 def test_an_answer_that_cannot_be_read_ends_its_request_as_an_error(harness, ros_context, tmp_path, monkeypatch):
     """The request is taken off the client before its answer is read: an answer whose reading
     raised left the request open for ever, and a lock-step run waited on it. Now it ends as 'error'."""

@@ -88,9 +88,16 @@ class Signer:
         )
 
 
-def signer_from(path: str) -> Optional[Signer]:
-    """A Signer for a key_file parameter ('' : none, messages go unsigned and unchecked)."""
-    return Signer.from_file(path) if path else None
+def signer_from(path: str, warn=None) -> Optional[Signer]:
+    """A Signer for a key_file parameter ('' : none, messages go unsigned and unchecked); ``warn``
+    (a node's logger.warning) is told when other users may read the key file."""
+    if not path:
+        return None
+    signer = Signer.from_file(path)
+    if warn is not None and key_readable_by_others(path):
+        warn(f'the key file {path} is readable by other users of this machine, who could sign as this '
+             f'deployment: chmod 600 {path}')  # fmt: skip
+    return signer
 
 
 # The person's commands travel as std_msgs/Float32MultiArray (teleop_command): the counter and

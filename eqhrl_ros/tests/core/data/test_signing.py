@@ -15,6 +15,7 @@ from eqhrl_ros.core.data.signing import (
     key_readable_by_others,
     new_key_file,
     read_key,
+    signer_from,
     to_exact_floats,
 )
 
@@ -112,3 +113,13 @@ def test_a_signed_request_is_answered_once_and_its_answer_is_taken_for_it_alone(
     now[0] += 60.0
     c4, s4 = seal.seal(parts)
     assert check.refusal(c4, parts, s4) == '' and len(check._seen) == 1
+
+
+def test_a_key_file_that_other_users_may_read_is_said_when_a_node_reads_it(tmp_path):
+    path = new_key_file(tmp_path / 'deployment.key')
+    said = []
+    assert signer_from(str(path), said.append) is not None and said == []
+    os.chmod(path, 0o640)  # the group may read it
+    assert signer_from(str(path), said.append) is not None
+    assert len(said) == 1 and 'readable by other users' in said[0] and said[0].endswith(f'chmod 600 {path}')
+    assert signer_from('', said.append) is None and len(said) == 1
