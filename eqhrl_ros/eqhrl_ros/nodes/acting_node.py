@@ -22,7 +22,6 @@ from typing import Optional
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float32MultiArray, String
 
 from eqhrl_interfaces.msg import AdviceRequest, EpisodeStats, GateDecision
@@ -47,13 +46,6 @@ from .person_wheel import PersonWheel
 from .recording import NodeRecord
 from .spinning import leaves_nothing_when_refused, steady_clock
 from .start_wait import StartWait
-
-QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-# Observations wait here while the learner computes: a real-time env at 15 Hz sends 20 during
-# the first update (about 1.3 s), and at depth 10 the middleware delivered none of them.
-# 100 small messages bound the backlog a flood can leave (tests/nodes/test_faults.py).
-OBSERVATION_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class ActingNode(Node):
@@ -80,14 +72,14 @@ class ActingNode(Node):
         self.learner: Optional[EQSACLearner] = None
         self.spec = None
 
-        self.action_pub = self.create_publisher(Float32MultiArray, 'action', QOS)
-        self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', STATS_QOS)
-        self.gate_pub = self.create_publisher(GateDecision, '~/gate_debug', QOS)
+        self.action_pub = self.create_publisher(Float32MultiArray, 'action', messages.RELIABLE_QOS)
+        self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', messages.RELIABLE_QOS)
+        self.gate_pub = self.create_publisher(GateDecision, '~/gate_debug', messages.RELIABLE_QOS)
         self.request_pub = self.create_publisher(AdviceRequest, '~/advice_request', messages.LATCHED_QOS)
         self.driver_pub = self.create_publisher(String, '~/driver', messages.LATCHED_QOS)  # who drives now
         # Observations arrive serialized (raw): see messages.SerializedReader.
         observations = self.create_subscription(
-            Float32MultiArray, 'observation', self._on_observation, OBSERVATION_QOS, raw=True
+            Float32MultiArray, 'observation', self._on_observation, messages.OBSERVATION_QOS, raw=True
         )
         self._observation_topic = observations.topic_name
         # One env feeds a learner (env_node, if named): while a second node publishes observation, none is taken.

@@ -23,7 +23,6 @@ from typing import Optional
 import numpy as np
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_msgs.msg import Bool, Float32MultiArray
 
@@ -40,7 +39,7 @@ from .health import OK, WARN, Check, Health
 from .params import choices_validator, declare, reject_unknown_overrides
 from .spinning import run_node, seconds_since_process_start, steady_clock
 
-QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+QOS = messages.RELIABLE_QOS  # actions in, frames out
 
 
 class GymEnvNode(Node):

@@ -17,7 +17,8 @@ from ..core.envs.spec import EnvSpec
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
 from ..parameters import LEARNER_NODE_PARAMS
-from .acting_node import OBSERVATION_QOS, ActingNode
+from .acting_node import ActingNode
+from .messages import OBSERVATION_QOS
 from .run_files import RunFiles, save_and_close
 from .spinning import run_node
 

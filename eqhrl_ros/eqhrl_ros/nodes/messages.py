@@ -57,6 +57,12 @@ OUTCOME_NAMES = {number: name for name, number in ADVICE_OUTCOMES.items()}
 
 # learner/advice_request: the latest request stays available to a person's UI that starts later.
 LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Actions, episode statistics, gate decisions, a camera's frames: reliable, the last 10 kept.
+RELIABLE_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# Observations wait here while the learner computes: a real-time env at 15 Hz sends 20 during
+# the first update (about 1.3 s), and at depth 10 the middleware delivered none of them.
+# 100 small messages bound the backlog a flood can leave (tests/nodes/test_faults.py).
+OBSERVATION_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class MessageError(ValueError):

@@ -28,7 +28,6 @@ from ..core.envs.spec import EnvSpec
 from ..core.experts.policy import PolicyExpert
 from ..parameters import POLICY_DRIVER_PARAMS
 from . import messages
-from .acting_node import OBSERVATION_QOS, QOS
 from .env_info import EnvInfoWatcher, configured_spec, shown
 from .graph_trust import OnePublisher
 from .params import declare, reject_unknown_overrides
@@ -50,8 +49,10 @@ class PolicyDriverNode(Node):
                 'expert --ros-args -p backend:=policy'
             )
         self.spec: Optional[EnvSpec] = None
-        self.action_pub = self.create_publisher(Float32MultiArray, 'action', QOS)
-        subscription = self.create_subscription(Float32MultiArray, 'observation', self._on_observation, OBSERVATION_QOS)
+        self.action_pub = self.create_publisher(Float32MultiArray, 'action', messages.RELIABLE_QOS)
+        subscription = self.create_subscription(
+            Float32MultiArray, 'observation', self._on_observation, messages.OBSERVATION_QOS
+        )
         self.observation_source = OnePublisher(self, subscription.topic_name, p['env_node'])
         self._last: Optional[tuple] = None  # ((episode, step), action) of the last observation answered
         self.episode_return, self.episode_length = 0.0, 0

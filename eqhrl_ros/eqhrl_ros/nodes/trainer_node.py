@@ -23,7 +23,6 @@ from typing import Optional
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from eqhrl_interfaces.msg import EpisodeStats, PolicyWeights, TransitionAck, TransitionBatch
 
@@ -48,7 +47,6 @@ from .run_files import RunFiles
 from .spinning import leaves_nothing_when_refused, run_node, steady_clock, stop_with_error
 from .trainer_exit import stop_save_and_close
 
-STATS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 # Refused batches of this many bytes since the last report make a new transitions subscription.
 FLOOD_BYTES = 16e6
 # Batches stored between updates at most: under a stream faster than storing, saves and updates
@@ -105,7 +103,7 @@ class TrainerNode(RunFiles, Node):
         self.report_mark = (time.monotonic(), 0, 0)  # (time, transitions, updates) at the last report
 
         self.weights_pub = self.create_publisher(PolicyWeights, trainer_msgs.WEIGHTS_TOPIC, trainer_msgs.WEIGHTS_QOS)
-        self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', STATS_QOS)
+        self.stats_pub = self.create_publisher(EpisodeStats, '~/episode_stats', messages.RELIABLE_QOS)
         transitions = self._subscribe_transitions()
         # What it has stored and saved, after every batch: actors keep and resend until it is saved.
         self.ack_pub = self.create_publisher(

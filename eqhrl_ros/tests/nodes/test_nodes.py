@@ -399,7 +399,7 @@ def test_run_time_parameters_are_range_checked_applied_and_said(harness, ros_con
     change was applied without a word; now the node logs it with the value it replaced."""
     said = []
     logger = rclpy.logging.get_logger('learner')
-    quiet = SimpleNamespace(info=said.append, warn=logger.warn, error=logger.error)
+    quiet = SimpleNamespace(info=said.append, warn=logger.warn, warning=logger.warning, error=logger.error)
     original = LearnerNode.get_logger
     LearnerNode.get_logger = lambda self: quiet  # from its first line: declaring says nothing
     try:
