@@ -31,6 +31,7 @@ from ..core.algorithm.config import advice_protocol
 from ..core.algorithm.learner import EpisodeSummary, EQSACLearner, LearnerConfig
 from ..core.data.advice import Advice
 from ..core.data.signing import CommandCheck, signer_from
+from ..core.data.transitions import StepLimits
 from ..core.envs.spec import EnvSpec
 from ..parameters import LEARNER_CONFIG_PARAMS
 from . import messages
@@ -104,6 +105,7 @@ class ActingNode(Node):
         self._last_advised = False
         self._last_source = 'learner'  # who chose the last action (core/data/advice.ACTION_SOURCES)
         self.dropped_messages = 0
+        self.step_limits = StepLimits(p['max_abs_observation'], p['max_abs_reward'])
         self.repeated_observations = 0  # the env re-sent an observation (our action did not arrive in time)
         self.create_timer(0.25, self._check_stall, clock=self._steady)
         self.done = False
@@ -270,6 +272,9 @@ class ActingNode(Node):
             try:
                 state_dim = self.learner.observation.state_dim
                 env_step = messages.parse_observation(self._observation_reader.values(data), state_dim)
+                beyond = self.step_limits.refusal(env_step.obs, env_step.reward)  # finite, but no env's
+                if beyond:
+                    raise messages.MessageError(f"'{self._observation_topic}': {beyond}")
             except messages.MessageError as error:
                 self.dropped_messages += 1
                 self.get_logger().error(f'dropped observation: {error}', throttle_duration_sec=5.0)

@@ -71,6 +71,10 @@ class LearnerNode(RunFiles, ActingNode):
             )
         except RecordError as error:
             raise ValueError(f'prior: {error}') from error
+        # A file, trusted no more than the env's topic: the same limits (before, a reward of 3e38 went into D).
+        beyond = self.step_limits.refusal([prior.observations, prior.next_observations], prior.rewards)
+        if beyond:
+            raise ValueError(f'prior: {", ".join(map(str, prior.files))}: {beyond}')
         learner.add_prior(
             prior.observations,
             prior.actions,

@@ -31,11 +31,12 @@ from ..core.algorithm.learner import EQSACLearner, LearnerConfig
 from ..core.data.errors import CheckpointError
 from ..core.data.signing import signer_from
 from ..core.data.summary import EpisodeSummary
+from ..core.data.transitions import StepLimits
 from ..core.data.weights import encode_weights
 from ..core.envs.spec import CameraSpec
 from ..core.runs.checkpoint import load_checkpoint
 from ..core.runs.records import EpisodeRecord
-from ..core.runs.trainer import TRAINER_CSV_FIELDS, BatchLimits, Trainer
+from ..core.runs.trainer import TRAINER_CSV_FIELDS, Trainer
 from ..parameters import LEARNER_CONFIG_PARAMS, TRAINER_PARAMS
 from . import messages, trainer_health, trainer_msgs
 from .env_info import configured_spec
@@ -156,7 +157,7 @@ class TrainerNode(RunFiles, Node):
             self.get_logger().info(f'recording the batches it stores and its episodes into {path}')
         self.learner = learner
         self.spaces = (learner.observation.state_dim, learner.scaler.low.copy(), learner.scaler.high.copy())
-        limits = BatchLimits(p['max_abs_observation'], p['max_abs_reward'])
+        limits = StepLimits(p['max_abs_observation'], p['max_abs_reward'])
         self.trainer = Trainer(learner, p['updates_per_transition'], p['weights_every_updates'], limits)
         if extra and isinstance(extra.get('sequences'), dict):
             # Where each actor's stream stood at the save: they send again what came after it.

@@ -3,7 +3,15 @@
 from __future__ import annotations
 
 from ..core.algorithm.config import INT_MAX
-from .tables import ACTING_PARAMS, ENV_PARAMS, KEY_FILE, LEARNER_CONFIG_PARAMS, TORCH_THREADS, Param
+from .tables import (
+    ACTING_PARAMS,
+    ENV_PARAMS,
+    KEY_FILE,
+    LEARNER_CONFIG_PARAMS,
+    STEP_LIMIT_PARAMS,
+    TORCH_THREADS,
+    Param,
+)
 
 
 def run_params(output_dir: str) -> tuple:
@@ -174,18 +182,7 @@ TRAINER_PARAMS = (
         'actor_silence_s', 10.0, 'Log an actor that sent nothing for this long (it may have stopped)', (0.1, 86400.0)
     ),
     Param('report_period_s', 10.0, 'Log transitions, updates and weights per second this often', (0.1, 86400.0)),
-    Param(
-        'max_abs_observation',
-        1e6,
-        'A batch holding an observation of larger magnitude is refused whole (it cannot come from the env)',
-        (1e-6, 1e30),
-    ),
-    Param(
-        'max_abs_reward',
-        1e4,
-        'A batch holding a reward of larger magnitude is refused whole (raise it for an env of larger rewards)',
-        (1e-6, 1e30),
-    ),
+    *STEP_LIMIT_PARAMS,
     KEY_FILE,
     Param(
         'actors',

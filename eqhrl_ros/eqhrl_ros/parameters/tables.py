@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from ..core.algorithm.config import INT_MAX, LearnerConfig, ros_name
+from ..core.data.transitions import StepLimits
 from ..core.experts.simulated_human import HumanLimits
 
 
@@ -115,6 +116,23 @@ KEY_FILE = Param(
     'receives unsigned or signed otherwise is refused (HMAC-SHA256; integrity, no secrecy). Empty: no key',
     path=True,
 )
+# What an env step may hold (core/data/transitions.py StepLimits): the learner and actors drop a
+# step beyond them, the trainer refuses a batch holding one.
+STEP_LIMIT_PARAMS = (
+    Param(
+        'max_abs_observation',
+        StepLimits.max_abs_observation,
+        'An observation value of larger magnitude cannot come from the env: the learner and actors drop its step, '
+        'the trainer refuses a batch holding one',
+        (1e-6, 1e30),
+    ),
+    Param(
+        'max_abs_reward',
+        StepLimits.max_abs_reward,
+        'A reward of larger magnitude is refused likewise (raise it for an env of larger rewards)',
+        (1e-6, 1e30),
+    ),
+)
 # What the learner and the actor nodes share: acting and asking for advice (nodes/acting.py).
 ACTING_PARAMS = (
     *ENV_PARAMS,
@@ -122,6 +140,7 @@ ACTING_PARAMS = (
     Param('advice_timeout_s', 0.5, 'Seconds to wait for the expert before acting alone', (0.001, 600.0), dynamic=True),
     Param('accept_expert', '', 'Accept advice only from this expert name (empty: any)', dynamic=True),
     KEY_FILE,  # advise requests signed, and only answers signed for them taken
+    *STEP_LIMIT_PARAMS,
     Param(
         'expert_wait_s',
         10.0,

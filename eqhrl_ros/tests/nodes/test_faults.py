@@ -396,7 +396,11 @@ def test_bad_observations_are_dropped_and_never_stored(harness, ros_context, tmp
     publisher.publish(messages.build([('obs', [0.1, 0.2]), ('tail', [0, 0, 0, 0, 1])]))  # too short
     publisher.publish(messages.observation_msg([0.1, np.nan, 0.3], -1.0, False, False, 0, 1))
     publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], np.inf, False, False, 0, 1))
-    assert harness.spin_until(lambda: learner.dropped_messages == 3)
+    # Finite, but no env's (max_abs_reward 1e4, max_abs_observation 1e6): one such reward in D made
+    # every update that drew it non-finite, and spoiled the networks for good.
+    publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], 3e38, False, False, 0, 1))
+    publisher.publish(messages.observation_msg([0.1, 2e6, 0.3], -1.0, False, False, 0, 1))
+    assert harness.spin_until(lambda: learner.dropped_messages == 5)
     publisher.publish(messages.observation_msg([0.2, 0.2, 0.3], -1.0, False, False, 0, 1))  # good again
     assert harness.spin_until(lambda: learner.learner.total_steps == 1)
     stored = learner.learner.replay

@@ -176,6 +176,26 @@ def test_a_start_refused_for_its_prior_keeps_the_run_it_would_overwrite_and_note
     assert not (run / 'provenance.yaml').exists()
 
 
+def test_a_prior_holding_a_value_no_env_sends_is_refused_in_one_line(ros_context, tmp_path):
+    """A record is a file, trusted no more than the env's topic: prior data went into D and
+    D_advising whatever its rewards (3e38 too), where the env's are now bounded (max_abs_reward)."""
+    record = McapRecord(tmp_path / 'prior.mcap')
+    batch = {'observation_size': 3, 'action_low': [-2.0], 'action_high': [2.0], 'observations': [0.0] * 3,
+             'actions': [0.5], 'rewards': [2e4], 'next_observations': [0.0] * 3, 'terminated': [False],
+             'advised': [True]}  # fmt: skip
+    record.write_fields('/learner/transitions', 'eqhrl_interfaces/msg/TransitionBatch', batch)
+    record.close()
+    overrides = small_learner_params(tmp_path / 'run', prior=[str(tmp_path / 'prior.mcap')])
+    with pytest.raises(
+        ValueError, match=r'prior: .*prior.mcap: a reward of magnitude 2e\+04 is beyond max_abs_reward 10000'
+    ):
+        LearnerNode(context=ros_context, parameter_overrides=overrides)
+    overrides = small_learner_params(tmp_path / 'run2', prior=[str(tmp_path / 'prior.mcap')], max_abs_reward=1e5)
+    node = LearnerNode(context=ros_context, parameter_overrides=overrides)  # raised past it: taken, as asked
+    assert len(node.learner.advice_replay) == 1
+    node.destroy_node()
+
+
 def test_a_record_cut_short_reads_up_to_its_last_chunk(tmp_path):
     """What a kill -9 leaves: no index and no summary, the last chunk maybe half written."""
     path = tmp_path / 'record.mcap'

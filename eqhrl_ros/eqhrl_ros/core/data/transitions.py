@@ -62,6 +62,34 @@ class TransitionBatch:
         return len(self.rewards)
 
 
+@dataclass(frozen=True)
+class StepLimits:
+    """Magnitudes an env step may have (the parameters max_abs_observation and max_abs_reward of
+    the learner, actors and trainer). Beyond them a value cannot come from the env (a glitch, a slip
+    of units, a forgery), and one in the replay memory spoils every batch that draws it: the
+    learner and actors drop such a step where it arrives, the trainer refuses a batch holding one."""
+
+    max_abs_observation: float = 1e6
+    max_abs_reward: float = 1e4
+
+    def refusal(self, observations, rewards) -> str:
+        """'' when the observations (a step's state vector, or many) and rewards (one, or many) are
+        within these, else why not."""
+        largest = float(np.abs(np.asarray(observations, dtype=np.float64)).max(initial=0.0))
+        if largest > self.max_abs_observation:
+            return (
+                f'an observation value of magnitude {largest:.3g} is beyond max_abs_observation '
+                f'{self.max_abs_observation:g} (it cannot come from the env)'
+            )
+        largest = float(np.abs(np.asarray(rewards, dtype=np.float64)).max(initial=0.0))
+        if largest > self.max_abs_reward:
+            return (
+                f'a reward of magnitude {largest:.3g} is beyond max_abs_reward {self.max_abs_reward:g} '
+                '(raise it for an env of larger rewards)'
+            )
+        return ''
+
+
 class BatchError(ValueError):
     """A TransitionBatch message whose sizes do not fit together."""
 

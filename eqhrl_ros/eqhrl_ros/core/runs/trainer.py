@@ -23,7 +23,7 @@ from ..algorithm.learner import EQSACLearner
 from ..algorithm.learner_state import NETWORK_STATE
 from ..algorithm.updater import non_finite
 from ..data.summary import EpisodeSummary
-from ..data.transitions import MAX_HELD_BATCHES, MAX_MISSING, STORED, SequenceTracker, TransitionBatch
+from ..data.transitions import MAX_HELD_BATCHES, MAX_MISSING, STORED, SequenceTracker, StepLimits, TransitionBatch
 
 # episodes.csv of a trainer: a learner's columns and the actor each episode came from.
 TRAINER_CSV_FIELDS = (*EpisodeSummary.CSV_FIELDS, 'actor')
@@ -48,21 +48,13 @@ class Receipt(NamedTuple):
     stored: list
 
 
-@dataclasses.dataclass(frozen=True)
-class BatchLimits:
-    """Magnitudes a transition may have (trainer parameters max_abs_observation, max_abs_reward)."""
-
-    max_abs_observation: float = 1e6
-    max_abs_reward: float = 1e4
-
-
 class Trainer:
     def __init__(
         self,
         learner: EQSACLearner,
         updates_per_transition: float = 1.0,
         weights_every: int = 50,
-        limits: BatchLimits = BatchLimits(),
+        limits: StepLimits = StepLimits(),
     ):
         if not updates_per_transition > 0:
             raise ValueError(f'updates_per_transition must be > 0, got {updates_per_transition}')

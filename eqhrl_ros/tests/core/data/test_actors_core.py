@@ -9,7 +9,7 @@ import torch
 
 from eqhrl_ros.core import EQSACLearner, LearnerConfig, heuristic_expert, make_env, run_episode
 from eqhrl_ros.core.data.summary import EpisodeSummary
-from eqhrl_ros.core.data.transitions import Outbox, SequenceTracker, TransitionBatch
+from eqhrl_ros.core.data.transitions import Outbox, SequenceTracker, StepLimits, TransitionBatch
 from eqhrl_ros.core.data.weights import WeightsError, apply_weights, encode_weights
 from eqhrl_ros.core.runs.in_process import ask_expert
 from eqhrl_ros.core.runs.trainer import TRAINER_CSV_FIELDS, Trainer
@@ -578,3 +578,15 @@ def test_a_camera_trainer_refuses_a_batch_of_another_camera_or_none_whole(batch,
     with pytest.raises(ValueError, match=problem):
         trainer.receive(dataclasses.replace(batch(), sequence=1))
     assert len(trainer.learner.replay) == 4
+
+
+def test_a_step_beyond_the_limits_is_refused_saying_which_limit():
+    """The learner and actors drop such a step where it arrives (nodes), as the trainer refuses a
+    batch holding one (above): the same limits, the same defaults."""
+    limits = StepLimits()
+    assert limits.refusal(np.array([1e6, -1e6, 0.0]), -1e4) == ''
+    assert 'beyond max_abs_observation 1e+06' in limits.refusal(np.array([0.0, -1.5e6]), 0.0)
+    assert 'a reward of magnitude 3e+38 is beyond max_abs_reward 10000' in limits.refusal(np.zeros(3), 3e38)
+    assert 'a reward of magnitude 2e+04' in limits.refusal(np.zeros((5, 3)), np.array([1.0, -2e4]))  # many
+    assert limits.refusal(np.zeros(0), 0.0) == ''  # pixels alone: no state vector
+    assert StepLimits(1e9, 1e9).refusal(np.array([1e7]), 1e5) == ''
