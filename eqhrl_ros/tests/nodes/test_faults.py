@@ -787,16 +787,19 @@ def test_a_resumed_run_that_reached_max_episodes_learns_and_writes_nothing_more(
 
 
 def test_updates_spoiled_by_a_reward_too_large_for_float32_are_said(harness, ros_context, tmp_path, monkeypatch):
-    """An env that sends a reward of 3e38 once (a glitch, a slip of units): every update whose batch
-    draws it has a loss that is not finite, and the critic's weights whose squared gradients
-    overflowed learn no more. Before, the learner applied them and said nothing."""
+    """An env that sends a reward of 5e29 once (a glitch, a slip of units) to a learner whose
+    max_abs_reward was raised that far (by default such a step is dropped: test above): every
+    update whose batch draws it has a loss that is not finite, and the critic's weights whose
+    squared gradients overflowed learn no more. Before, the learner applied them and said nothing."""
     warned = []
     monkeypatch.setattr(RcutilsLogger, 'warning', lambda logger, line, **kw: warned.append(line))
-    overrides = small_learner_params(tmp_path, mode='sac', learning_starts=4, batch_size=8, **NO_ENV_INFO)
+    overrides = small_learner_params(
+        tmp_path, mode='sac', learning_starts=4, batch_size=8, max_abs_reward=1e30, **NO_ENV_INFO
+    )
     learner = harness.add(LearnerNode(context=ros_context, parameter_overrides=overrides))
     publisher, probe = observation_publisher(harness)
     for step in range(12):
-        reward = 3e38 if step == 2 else -1.0
+        reward = 5e29 if step == 2 else -1.0
         publisher.publish(messages.observation_msg([0.1, 0.2, 0.3], reward, False, False, 0, step))
         assert harness.spin_until(lambda step=step: (0, step) in probe.acted_on())
     spoiled = learner.learner.updater.non_finite_updates
