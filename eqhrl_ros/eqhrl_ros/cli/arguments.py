@@ -4,6 +4,8 @@ exit code 2, not a traceback from a worker process, nor a run of -5 episodes tha
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 from typing import Callable
 
 from ..core.algorithm.config import check_value
@@ -41,3 +43,26 @@ def at_least(minimum: int) -> Callable[[str], int]:
 
     parse.__name__ = f'integer >= {minimum}'
     return parse
+
+
+def add_report_output(parser: argparse.ArgumentParser, output_help: str) -> None:
+    """--output, --overwrite and --threshold: the same three for eqhrl-report and eqhrl-study-report."""
+    parser.add_argument('--output', required=True, help=output_help)
+    parser.add_argument(
+        '--overwrite', action='store_true', help='replace a table.md already in --output (e.g. committed results)'
+    )
+    parser.add_argument(
+        '--threshold',
+        type=float,
+        help="return threshold (default: the env's: THRESHOLDS, else gymnasium's reward_threshold, else 0, said)",
+    )
+
+
+def report_in_the_way(prog: str, args: argparse.Namespace) -> bool:
+    """True, said on stderr, when --output holds a report already and --overwrite is not given:
+    committed results are never replaced by a mistyped folder."""
+    output = Path(args.output)
+    if (output / 'table.md').exists() and not args.overwrite:
+        print(f'{prog}: {output} holds a report already (table.md); give --overwrite to replace it', file=sys.stderr)
+        return True
+    return False

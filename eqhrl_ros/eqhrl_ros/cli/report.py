@@ -34,6 +34,7 @@ from ..reports.run_report import (
     return_threshold,
     summarize,
 )
+from .arguments import add_report_output, report_in_the_way
 
 
 def main(argv=None) -> int:
@@ -44,21 +45,10 @@ def main(argv=None) -> int:
         epilog=__doc__,
     )
     parser.add_argument('folders', nargs='+', help="eqhrl-experiment output folders or single runs' folders")
-    parser.add_argument('--output', required=True, help='folder for table.md and the PNGs')
-    parser.add_argument(
-        '--overwrite', action='store_true', help='replace a table.md already in --output (e.g. committed results)'
-    )
-    parser.add_argument(
-        '--threshold',
-        type=float,
-        help="return threshold (default: the env's: THRESHOLDS, else gymnasium's reward_threshold, else 0, said)",
-    )
+    add_report_output(parser, 'folder for table.md and the PNGs')
     args = parser.parse_args(argv)
     output = Path(args.output)
-    if (output / 'table.md').exists() and not args.overwrite:
-        print(
-            f'eqhrl-report: {output} holds a report already (table.md); give --overwrite to replace it', file=sys.stderr
-        )
+    if report_in_the_way('eqhrl-report', args):
         return 2
     try:
         runs = read_runs(args.folders)

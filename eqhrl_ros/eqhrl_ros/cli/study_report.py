@@ -31,6 +31,7 @@ import sys
 from pathlib import Path
 
 from ..reports.study_report import write_report
+from .arguments import add_report_output, report_in_the_way
 
 
 def main(argv=None) -> int:
@@ -41,22 +42,10 @@ def main(argv=None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument('folder', help='the output folder of eqhrl-study')
-    parser.add_argument('--output', required=True, help='where the tables and figures go')
-    parser.add_argument(
-        '--overwrite', action='store_true', help='replace a table.md already in --output (e.g. committed results)'
-    )
-    parser.add_argument(
-        '--threshold',
-        type=float,
-        help="return threshold (default: the env's: THRESHOLDS, else gymnasium's reward_threshold, else 0, said)",
-    )
+    add_report_output(parser, 'where the tables and figures go')
     args = parser.parse_args(argv)
     folder, output = Path(args.folder), Path(args.output)
-    if (output / 'table.md').exists() and not args.overwrite:
-        print(
-            f'eqhrl-study-report: {output} holds a report already (table.md); give --overwrite to replace it',
-            file=sys.stderr,
-        )
+    if report_in_the_way('eqhrl-study-report', args):
         return 2
     for name in ('arms.csv', 'episodes.csv', 'eval.csv', 'plan.yaml'):
         if not (folder / name).exists():
